@@ -1,0 +1,170 @@
+"""The Darboux problem: the rotation P(t) from a given angular velocity (Zhilin 3.12–3.14)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Literal
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from . import so3
+from ._util import as_float, matrix
+from .kinematics import METHODS, AbstractKinematics, check_omega
+from .lie_solver import RKMK, LieTerm
+from .projected_solver import StepEndMap
+
+Frame = Literal["space", "body"]
+OmegaLike = Callable[[Array], Array] | diffrax.AbstractPath | tuple[ArrayLike, ArrayLike]
+
+
+def omega_path(omega: OmegaLike) -> Callable[[Array], Array]:
+    """A callable `t -> (3,)` from a callable, a Diffrax path, or sampled data `(t_k, ω_k)`.
+
+    Samples (e.g. gyro readings) are interpolated by a C¹ cubic Hermite spline with backward
+    differences (`diffrax.backward_hermite_coefficients`), so the solver can step freely.
+    """
+    if isinstance(omega, diffrax.AbstractPath):
+        return omega.evaluate
+    if isinstance(omega, tuple):
+        if len(omega) != 2:
+            raise ValueError("sampled omega must be a pair (t_samples (N,), omega_samples (N, 3))")
+        t_s, w_s = as_float(omega[0], "omega t_samples"), as_float(omega[1], "omega samples")
+        if t_s.ndim != 1 or w_s.shape != (t_s.shape[0], 3) or t_s.shape[0] < 2:
+            raise ValueError(
+                f"sampled omega must be (t (N,), omega (N, 3)) with N ≥ 2, got shapes "
+                f"{tuple(t_s.shape)} and {tuple(w_s.shape)}"
+            )
+        coeffs = diffrax.backward_hermite_coefficients(t_s, w_s)
+        return diffrax.CubicInterpolation(t_s, coeffs).evaluate
+    if callable(omega):
+        return omega
+    raise TypeError(
+        f"omega must be a callable t -> (3,), a diffrax path or (t, omega), got {omega!r}"
+    )
+
+
+def _is_concrete(x) -> bool:
+    return not isinstance(x, jax.core.Tracer)
+
+
+def check_times(ts: Array) -> Array:
+    """`ts` as a 1-D strictly increasing array of at least two times (clear error otherwise)."""
+    if ts.ndim != 1 or ts.shape[0] < 2:
+        raise ValueError(f"ts must be a 1-D array of at least 2 times, got shape {tuple(ts.shape)}")
+    if _is_concrete(ts):
+        bad = np.flatnonzero(~(np.diff(np.asarray(ts)) > 0))
+        if bad.size:
+            raise ValueError(
+                f"ts must be strictly increasing and finite; ts[{bad[0] + 1}] = "
+                f"{float(ts[bad[0] + 1])} follows ts[{bad[0]}] = {float(ts[bad[0]])}"
+            )
+        return ts
+    return eqx.error_if(ts, ~jnp.all(jnp.diff(ts) > 0), "ts must be strictly increasing")
+
+
+def check_initial_rotation(P0: Array, atol: float, name: str = "P0") -> Array:
+    """P0 with a clear error (stating the deviation when P0 is concrete) if it is no rotation."""
+    if _is_concrete(P0):
+        err = float(jnp.max(so3.orthogonality_error(P0)))
+        det = float(jnp.min(jnp.linalg.det(P0)))
+        if not (err <= atol and abs(det - 1) <= atol):
+            raise ValueError(
+                f"{name} is not a rotation matrix: ‖PᵀP − E‖ = {err:.3g}, det = {det:.6g} "
+                f"(tolerance {atol:g}); pass rigidjax.so3.project({name}) for the nearest rotation"
+            )
+        return P0
+    return so3.check_rotation(P0, atol, name)
+
+
+def default_tolerances(dtype) -> tuple[float, float]:
+    """(rtol, atol): 1e-10 in float64, 1e-6 in float32."""
+    return (1e-10, 1e-10) if jnp.finfo(dtype).eps < 1e-10 else (1e-6, 1e-6)
+
+
+def darboux(
+    omega: OmegaLike,
+    ts: ArrayLike,
+    P0: ArrayLike | None = None,
+    frame: Frame = "space",
+    method: str | AbstractKinematics = "rotvec",
+    *,
+    seq: str = "ZXZ",
+    solver: diffrax.AbstractSolver | None = None,
+    stepsize_controller: diffrax.AbstractStepSizeController | None = None,
+    rtol: float | None = None,
+    atol: float | None = None,
+    dt0: float | None = None,
+    max_steps: int = 100_000,
+    adjoint: diffrax.AbstractAdjoint | None = None,
+    return_state: bool = False,
+) -> Float[Array, "T 3 3"] | tuple[Float[Array, "T 3 3"], Array]:
+    """Solve `Ṗ = ω(t) × P` (`frame="space"`) or `Ṗ = P (Ω(t) × E)` (`frame="body"`) with
+    `P(ts[0]) = P0` and return P at `ts` (Zhilin 3.12; the solution is unique and a rotation).
+
+    `omega`: a callable `t -> (3,)`, a Diffrax path, or samples `(t_k, ω_k)` (gyro data; see
+    `omega_path`). `method`: `"rotvec"` (θ̇ = Z(θ) ω with shadow switching, Zhilin 3.14),
+    `"quat"`, `"matrix"` (Poisson equation, drifts off SO(3)), `"euler"` (sequence `seq`; errors at
+    gimbal lock), `"cayley_klein"`, `"geometric"` (RKMK Lie-group solver, exactly on SO(3)), or an
+    `AbstractKinematics` instance. Defaults: Tsit5 (RKMK-Dopri5 for `"geometric"`) with a PID
+    controller at `rtol = atol = 1e-10` (1e-6 in float32). `return_state=True` also returns the
+    native states at `ts` (normalised quaternions, shadowed rotation vectors, ...).
+    """
+    ts = check_times(as_float(ts, "ts"))
+    P0 = jnp.eye(3, dtype=ts.dtype) if P0 is None else matrix(P0, "P0")
+    if P0.shape != (3, 3):
+        raise ValueError(f"P0 must have shape (3, 3) (vmap for batches), got {tuple(P0.shape)}")
+    P0 = check_initial_rotation(P0.astype(ts.dtype), 1e-6 if ts.dtype == jnp.float64 else 1e-4)
+    w = omega_path(omega)
+    d_rtol, d_atol = default_tolerances(ts.dtype)
+    if stepsize_controller is None:
+        stepsize_controller = diffrax.PIDController(
+            rtol=d_rtol if rtol is None else rtol, atol=d_atol if atol is None else atol
+        )
+
+    if method == "geometric":
+        solver = RKMK(frame=frame) if solver is None else RKMK(method=solver, frame=frame)
+        term = LieTerm(lambda t, y, args: (check_omega(w(t)), None))
+        y0 = (P0, None)
+
+        def to_matrix(y):
+            return y[0]
+
+        native = to_matrix
+    else:
+        if isinstance(method, AbstractKinematics):
+            kin = method
+        elif method in METHODS:
+            kwargs = {"seq": seq} if method == "euler" else {}
+            kin = METHODS[method](frame=frame, **kwargs)
+        else:
+            raise ValueError(
+                f"method must be one of {sorted([*METHODS, 'geometric'])} or an "
+                f"AbstractKinematics instance, got {method!r}"
+            )
+        solver = StepEndMap(diffrax.Tsit5() if solver is None else solver, kin.step_end)
+        term = diffrax.ODETerm(lambda t, y, args: kin.vector_field(y, check_omega(w(t))))
+        y0 = kin.from_matrix(P0)
+        to_matrix = jax.vmap(kin.to_matrix)
+
+        def native(y):
+            return jax.vmap(lambda yi: kin.step_end(yi)[0])(y)
+
+    sol = diffrax.diffeqsolve(
+        term,
+        solver,
+        ts[0],
+        ts[-1],
+        dt0,
+        y0,
+        saveat=diffrax.SaveAt(ts=ts),
+        stepsize_controller=stepsize_controller,
+        max_steps=max_steps,
+        adjoint=diffrax.RecursiveCheckpointAdjoint() if adjoint is None else adjoint,
+    )
+    P = to_matrix(sol.ys)
+    return (P, native(sol.ys)) if return_state else P

@@ -1,0 +1,56 @@
+"""A Diffrax solver wrapper that maps the state at the end of every step (projection, chart
+switch), telling the inner solver when the map changed the state so that FSAL reuse is skipped."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import diffrax
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, PyTree
+
+
+class StepEndMap(diffrax.AbstractSolver):
+    """Wrap `solver`; after each accepted or rejected step apply `fn(y1) -> (y1', jumped)`.
+
+    `jumped` (a boolean scalar) says that `y1'` differs from `y1` by more than rounding (e.g. the
+    rotation vector was replaced by its shadow): the next step is then told `made_jump=True`, so a
+    first-same-as-last solver re-evaluates the vector field instead of reusing a stale stage.
+    Dense output (`SaveAt(ts=...)`) interpolates the inner solver's unmapped step, so callers map
+    saved values again (e.g. normalise saved quaternions).
+    """
+
+    solver: diffrax.AbstractSolver
+    fn: Callable[[PyTree], tuple[PyTree, Bool[Array, ""]]] = eqx.field(static=True)
+
+    @property
+    def term_structure(self):
+        return self.solver.term_structure
+
+    @property
+    def interpolation_cls(self):
+        return self.solver.interpolation_cls
+
+    def order(self, terms):
+        return self.solver.order(terms)
+
+    def error_order(self, terms):
+        return self.solver.error_order(terms)
+
+    def strong_order(self, terms):
+        return self.solver.strong_order(terms)
+
+    def init(self, terms, t0, t1, y0, args):
+        return self.solver.init(terms, t0, t1, y0, args), jnp.array(False)
+
+    def step(self, terms, t0, t1, y0, args, solver_state, made_jump):
+        inner_state, jumped = solver_state
+        y1, y_err, dense_info, inner_state, result = self.solver.step(
+            terms, t0, t1, y0, args, inner_state, jnp.logical_or(made_jump, jumped)
+        )
+        y1, jumped = self.fn(y1)
+        return y1, y_err, dense_info, (inner_state, jumped), result
+
+    def func(self, terms, t0, y0, args):
+        return self.solver.func(terms, t0, y0, args)
