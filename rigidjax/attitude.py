@@ -48,6 +48,26 @@ def omega_path(omega: OmegaLike) -> Callable[[Array], Array]:
     )
 
 
+class _KinematicsField(eqx.Module):
+    """`(t, y) -> ẏ` of a kinematics formulation driven by `omega(t)` (a stable, hashable
+    callable, so repeated solves with the same `omega` reuse one compilation)."""
+
+    kin: AbstractKinematics
+    omega: Callable
+
+    def __call__(self, t, y, args):
+        return self.kin.vector_field(y, check_omega(self.omega(t)).astype(y.dtype))
+
+
+class _LieField(eqx.Module):
+    """`(t, (R, None)) -> (ω, None)` for the RKMK solver."""
+
+    omega: Callable
+
+    def __call__(self, t, y, args):
+        return check_omega(self.omega(t)).astype(y[0].dtype), None
+
+
 def _is_concrete(x) -> bool:
     return not isinstance(x, jax.core.Tracer)
 
@@ -128,7 +148,7 @@ def darboux(
 
     if method == "geometric":
         solver = RKMK(frame=frame) if solver is None else RKMK(method=solver, frame=frame)
-        term = LieTerm(lambda t, y, args: (check_omega(w(t)), None))
+        term = LieTerm(_LieField(w))
         y0 = (P0, None)
 
         def to_matrix(y):
@@ -147,7 +167,7 @@ def darboux(
                 f"AbstractKinematics instance, got {method!r}"
             )
         solver = StepEndMap(diffrax.Tsit5() if solver is None else solver, kin.step_end)
-        term = diffrax.ODETerm(lambda t, y, args: kin.vector_field(y, check_omega(w(t))))
+        term = diffrax.ODETerm(_KinematicsField(kin, w))
         y0 = kin.from_matrix(P0)
         to_matrix = jax.vmap(kin.to_matrix)
 
