@@ -1,7 +1,10 @@
 """rigidjax: JAX-accelerated, differentiable rigid-body rotation maps, kinematics and dynamics."""
 
-from . import andoyer, euler, gibbs, kinematics, mrp, quat, so3
+from . import andoyer, euler, gibbs, inertia, invariants, kinematics, mrp, quat, so3
 from .attitude import darboux, omega_path
+from .body import RigidBody
+from .dynamics import Trajectory, simulate
+from .invariants import angular_momentum, energy
 from .kinematics import (
     AbstractKinematics,
     CayleyKlein,
@@ -15,6 +18,8 @@ from .projected_solver import StepEndMap
 
 __all__ = [
     "RKMK",
+    "RigidBody",
+    "Trajectory",
     "AbstractKinematics",
     "CayleyKlein",
     "EulerAngles",
@@ -24,13 +29,18 @@ __all__ = [
     "RotationVector",
     "StepEndMap",
     "andoyer",
+    "angular_momentum",
     "darboux",
+    "energy",
     "euler",
     "gibbs",
+    "inertia",
+    "invariants",
     "kinematics",
     "mrp",
     "omega_path",
     "quat",
+    "simulate",
     "so3",
 ]
 __version__ = "0.1.0"

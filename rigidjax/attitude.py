@@ -140,6 +140,7 @@ def darboux(
         raise ValueError(f"P0 must have shape (3, 3) (vmap for batches), got {tuple(P0.shape)}")
     P0 = check_initial_rotation(P0.astype(ts.dtype), 1e-6 if ts.dtype == jnp.float64 else 1e-4)
     w = omega_path(omega)
+    adjoint = diffrax.RecursiveCheckpointAdjoint() if adjoint is None else adjoint
     d_rtol, d_atol = default_tolerances(ts.dtype)
     if stepsize_controller is None:
         stepsize_controller = diffrax.PIDController(
@@ -166,7 +167,9 @@ def darboux(
                 f"method must be one of {sorted([*METHODS, 'geometric'])} or an "
                 f"AbstractKinematics instance, got {method!r}"
             )
-        solver = StepEndMap(diffrax.Tsit5() if solver is None else solver, kin.step_end)
+        solver = StepEndMap.wrap(
+            diffrax.Tsit5() if solver is None else solver, kin.step_end, adjoint
+        )
         term = diffrax.ODETerm(_KinematicsField(kin, w))
         y0 = kin.from_matrix(P0)
         to_matrix = jax.vmap(kin.to_matrix)
@@ -184,7 +187,7 @@ def darboux(
         saveat=diffrax.SaveAt(ts=ts),
         stepsize_controller=stepsize_controller,
         max_steps=max_steps,
-        adjoint=diffrax.RecursiveCheckpointAdjoint() if adjoint is None else adjoint,
+        adjoint=adjoint,
     )
     P = to_matrix(sol.ys)
     return (P, native(sol.ys)) if return_state else P

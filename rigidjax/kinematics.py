@@ -47,6 +47,10 @@ class AbstractKinematics(eqx.Module):
     def vector_field(self, y: Array, w: Vec) -> Array:
         """ẏ for angular velocity `w` (space ω or body Ω per `frame`)."""
 
+    def to_quat(self, y: Array) -> Float[Array, "4"]:
+        """Unit quaternion (λ0 ≥ 0) of a state."""
+        return quat.from_matrix(self.to_matrix(y))
+
     def step_end(self, y: Array) -> tuple[Array, Bool[Array, ""]]:
         """Map applied to the state after each solver step: `(y', changed_chart)`."""
         return y, jnp.array(False)
@@ -81,9 +85,12 @@ class RotationVector(AbstractKinematics):
     def to_matrix(self, y):
         return so3.exp(y)
 
+    def to_quat(self, y):
+        return quat.from_rotvec(y)
+
     def vector_field(self, y, w):
-        Zt = so3.Z(y)
-        return Zt @ w if self.frame == "space" else Zt.T @ w
+        # Zᵀ(θ) = Z(−θ)
+        return so3.Z(y if self.frame == "space" else -y) @ w
 
     def step_end(self, y):
         return so3.shadow(y), jnp.sum(y * y) > jnp.pi**2
@@ -102,6 +109,9 @@ class Quaternion(AbstractKinematics):
 
     def to_matrix(self, y):
         return quat.to_matrix(y)
+
+    def to_quat(self, y):
+        return quat.normalize(y)
 
     def vector_field(self, y, w):
         pure = jnp.concatenate([jnp.zeros_like(w[..., :1]), w], axis=-1)
@@ -126,6 +136,9 @@ class EulerAngles(AbstractKinematics):
     def to_matrix(self, y):
         return euler.to_matrix(y, self.seq)
 
+    def to_quat(self, y):
+        return quat.canonical(euler.to_quat(y, self.seq))
+
     def vector_field(self, y, w):
         return euler.omega_to_rates(y, w, self.seq, self.frame, check=True, tol=self.gimbal_tol)
 
@@ -143,6 +156,9 @@ class CayleyKlein(AbstractKinematics):
 
     def to_matrix(self, y):
         return quat.to_matrix(self._quat(y))
+
+    def to_quat(self, y):
+        return quat.normalize(self._quat(y))
 
     @staticmethod
     def _quat(y):

@@ -49,12 +49,12 @@ def _reorthonormalize(R: Array) -> Array:
     """One Newton step of the polar decomposition, `R (3E − RᵀR)/2`: removes the rounding error
     that products of exact rotations accumulate (quadratically small; a no-op in exact arithmetic),
     so the state stays orthogonal to ~1e-16 for any number of steps."""
-    return R @ (3 * jnp.eye(3, dtype=R.dtype) - R.T @ R) / 2
+    return R @ (3 * jnp.eye(3, dtype=R.dtype) - jnp.swapaxes(R, -1, -2) @ R) / 2
 
 
 def _dexpinv(theta: Array, w: Array, frame: Frame) -> Array:
-    Zt = so3.Z(theta)
-    return Zt @ w if frame == "space" else Zt.T @ w
+    """θ̇ = Z(θ) ω (left) or Zᵀ(θ) Ω = Z(−θ) Ω (right), Zhilin (3.14.21)–(3.14.22)."""
+    return jnp.einsum("...ij,...j->...i", so3.Z(theta if frame == "space" else -theta), w)
 
 
 class _LieInterpolation(diffrax.AbstractLocalInterpolation):
@@ -98,6 +98,7 @@ class LieTerm(diffrax.AbstractTerm):
 
 class RKMK(diffrax.AbstractSolver):
     """Geometric (Lie-group) Runge–Kutta solver for `y = (R, x)`, R ∈ SO(3), x any PyTree.
+    R may carry leading batch dimensions `(..., 3, 3)` (a batch integrated with one step size).
 
     The `LieTerm`'s vector field returns `(w, ẋ)` where `w` is the angular velocity
     of R: space ω (`Ṙ = ω × R`) for `frame="space"`, body Ω (`Ṙ = R (Ω × E)`) for `frame="body"`.

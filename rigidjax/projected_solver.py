@@ -24,6 +24,19 @@ class StepEndMap(diffrax.AbstractSolver):
     solver: diffrax.AbstractSolver
     fn: Callable[[PyTree], tuple[PyTree, Bool[Array, ""]]] = eqx.field(static=True)
 
+    @classmethod
+    def wrap(cls, solver, fn, adjoint: diffrax.AbstractAdjoint) -> StepEndMap:
+        """Wrap `solver`, choosing its `scan_kind` for `adjoint` as Diffrax does for an unwrapped
+        Runge–Kutta solver (`"lax"` for `ForwardMode`, which cannot differentiate the bounded
+        loop's custom VJP; `"bounded"` for `RecursiveCheckpointAdjoint`)."""
+        if isinstance(solver, diffrax.AbstractRungeKutta) and solver.scan_kind is None:
+            kind = {diffrax.ForwardMode: "lax", diffrax.RecursiveCheckpointAdjoint: "bounded"}
+            if type(adjoint) in kind:
+                solver = eqx.tree_at(
+                    lambda s: s.scan_kind, solver, kind[type(adjoint)], is_leaf=lambda x: x is None
+                )
+        return cls(solver, fn)
+
     @property
     def term_structure(self):
         return self.solver.term_structure

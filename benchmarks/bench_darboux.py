@@ -1,0 +1,634 @@
+"""Darboux problem (attitude from angular velocity): every formulation on a closed-form motion.
+
+Problem
+    Classical coning, ``P(t) = Rz(Ωt) Rx(β) Rz(−Ωt)`` with space angular velocity
+    ``ω(t) = Ω (−sin β sin Ωt, sin β cos Ωt, 1 − cos β)``, Ω = 2π rad/s, β = 0.3 rad,
+    ``P(0) = Rx(β)`` (the exact value), float64. The exact solution is computed in NumPy from the
+    closed form (independently of rigidjax).
+
+Methods
+    ``matrix`` (Poisson equation on the 9 entries), ``rotvec`` (θ̇ = Z(θ) ω, shadow switching),
+    ``quat`` (normalised after each step), ``euler`` (sequence ``EULER_SEQ``; its distance from
+    gimbal lock along the motion is checked and recorded), ``cayley_klein`` (SU(2), normalised),
+    all with Tsit5 wrapped in ``StepEndMap``, and ``geometric`` (RKMK, Dopri5 tableau): the
+    defaults of ``rigidjax.darboux``. The benchmark replicates ``darboux``'s small setup and calls
+    ``diffrax.diffeqsolve`` itself to get ``sol.stats``; at every tolerance the result is compared
+    with ``rigidjax.darboux`` itself (``max_abs_diff_vs_darboux`` in the JSON).
+
+What is measured (same run, same machine)
+    1. Work–precision, t ∈ [0, 10], 201 save times, PID controller with rtol = atol = tol:
+       ``err_max_abs`` = max over save times of max |P − P_exact| entrywise (the plotted error; it
+       is meaningful for the non-orthogonal Poisson matrix as well) and ``err_geodesic`` = max of
+       ``so3.distance`` (angle of the relative rotation; for ``matrix`` this is the angle of the
+       quaternion extracted from a non-orthogonal matrix). Right-hand-side evaluations are counted
+       exactly, in a separate compilation whose vector field increments a host counter through
+       ``jax.debug.callback`` (every execution, including FSAL re-evaluations after chart
+       switches and rejected steps). Wall time per solve is measured on a callback-free
+       compilation (``jax.jit``, compiled ahead of time; median and minimum of repeated solves;
+       the tolerance is passed as an array so one compilation serves all tolerances).
+    2. Orthogonality drift, constant step dt over t ∈ [0, T_drift]: ``so3.orthogonality_error``
+       ‖PᵀP − E‖_F of the returned matrices, and the attitude error max |P − P_exact|, at evenly
+       spaced save times; the Poisson matrix method with Tsit5 and with explicit Euler.
+    3. Batched throughput: ``jax.jit(jax.vmap(solve))`` over B initial attitudes
+       ``P0_b = exp(δ_b) P(0)``, δ_b ~ N(0, 0.3² E) (so the Euler chart stays regular), fixed 1000
+       steps of dt = 1e-3; trajectory-steps per second from the best of up to 3 runs, compile
+       time separately; the batch error at t = 1 against the superposed closed form
+       ``P_b(t) = P(t) P(0)ᵀ P0_b`` is recorded as a sanity check. A control row runs plain
+       diffrax Tsit5 on ẏ = −y with the same (3, 3) state: diffrax's own per-step cost.
+
+    Timings are wall-clock on a possibly shared machine; the load average at start and end is
+    recorded in the JSON.
+
+Usage
+    python benchmarks/bench_darboux.py [--quick] [--out-dir benchmarks/results] [--repeats 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import importlib.metadata
+import json
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import jax
+
+jax.config.update("jax_enable_x64", True)  # the benchmark's choice; rigidjax never sets it
+
+import diffrax  # noqa: E402
+import equinox as eqx  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+from rigidjax import darboux, euler, so3  # noqa: E402
+from rigidjax.kinematics import METHODS as KINEMATICS  # noqa: E402
+from rigidjax.kinematics import AbstractKinematics, check_omega  # noqa: E402
+from rigidjax.lie_solver import RKMK, LieTerm  # noqa: E402
+from rigidjax.projected_solver import StepEndMap  # noqa: E402
+
+METHODS = ["matrix", "rotvec", "quat", "euler", "cayley_klein", "geometric"]
+EULER_SEQ = "ZYX"  # Tait–Bryan: |det J| = |cos pitch| ≥ cos β on this motion (checked below)
+RATE = 2 * np.pi  # Ω, rad/s
+BETA = 0.3  # cone half-angle, rad
+DEFAULT_OUT = Path(__file__).resolve().parent / "results"
+LOADAVG_START = list(os.getloadavg()) if hasattr(os, "getloadavg") else None
+
+FULL = dict(
+    tols=[1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10, 1e-11, 1e-12],
+    t_end=10.0,
+    n_save=201,
+    drift_t=100.0,
+    drift_dt=1e-3,
+    drift_n_save=201,
+    batch=1024,
+    batch_steps=1000,
+    batch_dt=1e-3,
+)
+QUICK = dict(
+    tols=[1e-4, 1e-6, 1e-8, 1e-10, 1e-12],
+    t_end=10.0,
+    n_save=201,
+    drift_t=10.0,
+    drift_dt=1e-3,
+    drift_n_save=101,
+    batch=128,
+    batch_steps=1000,
+    batch_dt=1e-3,
+)
+
+
+# --------------------------------------------------------------------------- problem
+
+
+def rot_x(a):
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(a), np.zeros_like(a)
+    return np.stack(
+        [np.stack([o, z, z], -1), np.stack([z, c, -s], -1), np.stack([z, s, c], -1)], -2
+    )
+
+
+def rot_z(a):
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(a), np.zeros_like(a)
+    return np.stack(
+        [np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2
+    )
+
+
+def exact(ts) -> np.ndarray:
+    """Closed-form coning attitude P(t) = Rz(Ωt) Rx(β) Rz(−Ωt), shape (T, 3, 3)."""
+    ts = np.asarray(ts, dtype=np.float64)
+    return rot_z(RATE * ts) @ rot_x(np.full_like(ts, BETA)) @ rot_z(-RATE * ts)
+
+
+class ConingOmega(eqx.Module):
+    """Space angular velocity of the coning motion (floats are static: one stable hash)."""
+
+    rate: float = eqx.field(static=True)
+    beta: float = eqx.field(static=True)
+
+    def __call__(self, t):
+        s, c = np.sin(self.beta), np.cos(self.beta)
+        a = self.rate * t
+        return self.rate * jnp.stack([-s * jnp.sin(a), s * jnp.cos(a), (1 - c) + 0 * t])
+
+
+OMEGA = ConingOmega(float(RATE), float(BETA))
+
+# --------------------------------------------------------------------------- counting vector fields
+
+_COUNT = [0]
+
+
+def _increment(_):
+    _COUNT[0] += 1
+
+
+def _maybe_count(w, t, count: bool):
+    if count:
+        jax.debug.callback(_increment, t)
+    return w
+
+
+class _Field(eqx.Module):
+    """`(t, y) -> ẏ` for a kinematics formulation (as `rigidjax.attitude._KinematicsField`)."""
+
+    kin: AbstractKinematics
+    omega: Callable
+    count: bool = eqx.field(static=True)
+
+    def __call__(self, t, y, args):
+        w = _maybe_count(check_omega(self.omega(t)), t, self.count)
+        return self.kin.vector_field(y, w.astype(y.dtype))
+
+
+class _LieField(eqx.Module):
+    """`(t, (R, None)) -> (ω, None)` for RKMK (as `rigidjax.attitude._LieField`)."""
+
+    omega: Callable
+    count: bool = eqx.field(static=True)
+
+    def __call__(self, t, y, args):
+        w = _maybe_count(check_omega(self.omega(t)), t, self.count)
+        return w.astype(y[0].dtype), None
+
+
+def kinematics(method: str) -> AbstractKinematics:
+    cls = KINEMATICS[method]
+    return cls(seq=EULER_SEQ) if method == "euler" else cls()
+
+
+def setup(method: str, P0, count: bool = False, base_solver=None):
+    """(term, solver, y0, to_matrix) exactly as `rigidjax.darboux` builds them (space frame)."""
+    if method == "geometric":
+        solver = RKMK(frame="space") if base_solver is None else RKMK(method=base_solver)
+        return LieTerm(_LieField(OMEGA, count)), solver, (P0, None), lambda ys: ys[0]
+    kin = kinematics(method)
+    solver = StepEndMap(diffrax.Tsit5() if base_solver is None else base_solver, kin.step_end)
+    return diffrax.ODETerm(_Field(kin, OMEGA, count)), solver, kin.from_matrix(P0), kin.to_matrix
+
+
+def _stats(sol):
+    return {k: sol.stats[k] for k in ("num_steps", "num_accepted_steps", "num_rejected_steps")}
+
+
+def adaptive_solver(method: str, ts, count: bool):
+    """`f(tol, P0) -> (P at ts, stats)`, PID with rtol = atol = tol (a traced scalar)."""
+
+    def f(tol, P0):
+        term, solver, y0, to_matrix = setup(method, P0, count)
+        sol = diffrax.diffeqsolve(
+            term,
+            solver,
+            ts[0],
+            ts[-1],
+            None,
+            y0,
+            saveat=diffrax.SaveAt(ts=ts),
+            stepsize_controller=diffrax.PIDController(rtol=tol, atol=tol),
+            max_steps=100_000,
+        )
+        return jax.vmap(to_matrix)(sol.ys) if method != "geometric" else sol.ys[0], _stats(sol)
+
+    return jax.jit(f)
+
+
+def fixed_solver(method: str, t_end: float, dt: float, n_steps: int, ts_save, base_solver=None):
+    """`f(P0) -> (P at ts_save, stats)` with `n_steps` constant steps (not jitted)."""
+
+    def f(P0):
+        term, solver, y0, to_matrix = setup(method, P0, False, base_solver)
+        sol = diffrax.diffeqsolve(
+            term,
+            solver,
+            0.0,
+            t_end,
+            dt,
+            y0,
+            saveat=diffrax.SaveAt(ts=ts_save),
+            stepsize_controller=diffrax.ConstantStepSize(),
+            max_steps=n_steps + 16,
+        )
+        P = sol.ys[0] if method == "geometric" else jax.vmap(to_matrix)(sol.ys)
+        return P, _stats(sol)
+
+    return f
+
+
+CONTROL_NOTE = (
+    "control: plain diffrax.Tsit5 (no StepEndMap, no rigidjax) on ẏ = −y with the same (3, 3) "
+    "state, same steps and batch: diffrax's own per-step cost under vmap on this backend"
+)
+
+
+def control_solver(t_end: float, dt: float, n_steps: int, ts_save):
+    def f(P0):
+        sol = diffrax.diffeqsolve(
+            diffrax.ODETerm(lambda t, y, args: -y),
+            diffrax.Tsit5(),
+            0.0,
+            t_end,
+            dt,
+            P0,
+            saveat=diffrax.SaveAt(ts=ts_save),
+            stepsize_controller=diffrax.ConstantStepSize(),
+            max_steps=n_steps + 16,
+        )
+        return sol.ys, _stats(sol)
+
+    return f
+
+
+def compile_timed(fn, *args):
+    t0 = time.perf_counter()
+    compiled = fn.lower(*args).compile()
+    return compiled, time.perf_counter() - t0
+
+
+def block(x):
+    return jax.tree_util.tree_map(lambda a: a.block_until_ready(), x)
+
+
+def time_calls(fn, args, repeats: int, min_total: float = 0.2, max_calls: int = 200):
+    """Times of repeated calls (at least `repeats`, and until `min_total` seconds are spent)."""
+    block(fn(*args))  # warm-up
+    times = []
+    while len(times) < repeats or (sum(times) < min_total and len(times) < max_calls):
+        t0 = time.perf_counter()
+        block(fn(*args))
+        times.append(time.perf_counter() - t0)
+    return times
+
+
+def max_abs(P, Q) -> float:
+    return float(np.max(np.abs(np.asarray(P) - np.asarray(Q))))
+
+
+# --------------------------------------------------------------------------- 1. work–precision
+
+
+def euler_chart_margin(P) -> float:
+    """min |det J| of the Euler chart along attitudes P (0 at gimbal lock, 1 far from it)."""
+    angles = euler.from_matrix(jnp.asarray(P), EULER_SEQ)
+    return float(jnp.min(jnp.abs(jnp.linalg.det(euler.jacobian(angles, EULER_SEQ, "space")))))
+
+
+def work_precision(cfg, repeats: int, log) -> dict:
+    ts = jnp.linspace(0.0, cfg["t_end"], cfg["n_save"])
+    P_ex = exact(np.asarray(ts))
+    P0 = jnp.asarray(P_ex[0])
+    out = {}
+    for method in METHODS:
+        timed, c_time = compile_timed(adaptive_solver(method, ts, False), jnp.asarray(1e-8), P0)
+        counted, c_count = compile_timed(adaptive_solver(method, ts, True), jnp.asarray(1e-8), P0)
+        rows = []
+        for tol in cfg["tols"]:
+            tol_a = jnp.asarray(tol)
+            jax.effects_barrier()
+            _COUNT[0] = 0
+            P, stats = block(counted(tol_a, P0))
+            jax.effects_barrier()
+            n_eval = _COUNT[0]
+            P_t, stats_t = block(timed(tol_a, P0))
+            times = time_calls(timed, (tol_a, P0), repeats)
+            P_d = darboux(OMEGA, ts, P0=P0, method=method, seq=EULER_SEQ, rtol=tol_a, atol=tol_a)
+            stats = {k: int(v) for k, v in stats.items()}
+            steps = stats["num_steps"]
+            row = dict(
+                tol=tol,
+                rhs_evals=n_eval,
+                **stats,
+                evals_per_step=n_eval / max(steps, 1),
+                err_max_abs=max_abs(P_t, P_ex),
+                err_geodesic=float(jnp.max(so3.distance(P_t, jnp.asarray(P_ex)))),
+                orthogonality_max=float(jnp.max(so3.orthogonality_error(P_t))),
+                wall_s_median=statistics.median(times),
+                wall_s_min=min(times),
+                n_timed=len(times),
+                max_abs_diff_counted_vs_timed=max_abs(P, P_t),
+                steps_timed_equal=all(int(stats_t[k]) == stats[k] for k in stats),
+                max_abs_diff_vs_darboux=max_abs(P_d, P_t),
+            )
+            rows.append(row)
+            log(
+                f"  {method:13s} tol={tol:.0e} evals={n_eval:6d} steps={steps:5d} "
+                f"(rej {stats['num_rejected_steps']:3d}) err={row['err_max_abs']:.2e} "
+                f"wall={1e3 * row['wall_s_median']:.2f} ms"
+            )
+        out[method] = dict(compile_s=c_time, compile_counting_s=c_count, rows=rows)
+    return out
+
+
+# --------------------------------------------------------------------------- 2. drift
+
+
+def drift(cfg, log) -> dict:
+    t_end, dt = cfg["drift_t"], cfg["drift_dt"]
+    n_steps = round(t_end / dt)
+    ts = jnp.linspace(0.0, t_end, cfg["drift_n_save"])
+    P_ex = exact(np.asarray(ts))
+    P0 = jnp.asarray(P_ex[0])
+    variants = [(m, m, None) for m in METHODS] + [("matrix_euler", "matrix", diffrax.Euler())]
+    out = {}
+    for name, method, base in variants:
+        fn = jax.jit(fixed_solver(method, t_end, dt, n_steps, ts, base))
+        compiled, c = compile_timed(fn, P0)
+        t0 = time.perf_counter()
+        P, stats = block(compiled(P0))
+        run_s = time.perf_counter() - t0
+        orth = np.asarray(so3.orthogonality_error(P))
+        err = np.max(np.abs(np.asarray(P) - P_ex), axis=(-2, -1))
+        out[name] = dict(
+            method=method,
+            solver="Euler"
+            if base is not None
+            else ("RKMK-Dopri5" if name == "geometric" else "Tsit5"),
+            compile_s=c,
+            run_s=run_s,
+            num_steps=int(stats["num_steps"]),
+            orthogonality=orth.tolist(),
+            err_max_abs=err.tolist(),
+            final_orthogonality=float(orth[-1]),
+            max_orthogonality=float(orth.max()),
+            final_err_max_abs=float(err[-1]),
+        )
+        log(
+            f"  {name:13s} steps={out[name]['num_steps']} ‖PᵀP−E‖(T)={orth[-1]:.2e} "
+            f"max={orth.max():.2e} err(T)={err[-1]:.2e} run={run_s:.2f} s"
+        )
+    return dict(ts=np.asarray(ts).tolist(), dt=dt, t_end=t_end, methods=out)
+
+
+# --------------------------------------------------------------------------- 3. throughput
+
+
+def throughput(cfg, repeats: int, log) -> dict:
+    B, n, dt = cfg["batch"], cfg["batch_steps"], cfg["batch_dt"]
+    t_end = n * dt
+    ts = jnp.array([0.0, t_end])
+    P_ex = exact(np.asarray(ts))
+    delta = 0.3 * jax.random.normal(jax.random.key(0), (B, 3), dtype=jnp.float64)
+    P0s = so3.exp(delta) @ jnp.asarray(P_ex[0])
+    P_end_ex = np.asarray(P_ex[1] @ P_ex[0].T @ np.asarray(P0s))
+    # Euler chart margin along the batch (superposed closed form on a grid of 101 times)
+    grid = exact(np.linspace(0.0, t_end, 101))
+    P_batch_grid = np.einsum("tij,jk,bkl->btil", grid, P_ex[0].T, np.asarray(P0s))
+    margin = euler_chart_margin(P_batch_grid.reshape(-1, 3, 3))
+    out = {}
+    for method in [*METHODS, "control"]:
+        if method == "control":
+            fn = jax.jit(jax.vmap(control_solver(t_end, dt, n, ts)))
+        else:
+            fn = jax.jit(jax.vmap(fixed_solver(method, t_end, dt, n, ts)))
+        compiled, c = compile_timed(fn, P0s)
+        P, stats = block(compiled(P0s))
+        times = time_calls(compiled, (P0s,), repeats, min_total=0.0)
+        steps = np.asarray(stats["num_steps"])
+        best = min(times)
+        out[method] = dict(
+            compile_s=c,
+            run_s_min=best,
+            run_s_median=statistics.median(times),
+            steps_per_trajectory=int(steps.max()),
+            steps_all_equal=bool(np.all(steps == steps[0])),
+            traj_steps_per_s=B * int(steps.max()) / best,
+            max_err_at_t_end=max_abs(P[:, -1], P_end_ex) if method != "control" else None,
+        )
+        log(
+            f"  {method:13s} compile={c:5.2f} s run={best * 1e3:8.1f} ms "
+            f"→ {out[method]['traj_steps_per_s']:.3e} traj·steps/s "
+            f"err(t_end)={out[method]['max_err_at_t_end'] or 0:.1e}"
+        )
+    return dict(
+        batch=B,
+        steps=n,
+        dt=dt,
+        euler_chart_min_abs_det=margin,
+        control=CONTROL_NOTE,
+        methods=out,
+    )
+
+
+# --------------------------------------------------------------------------- output
+
+
+def machine_info() -> dict:
+    try:
+        commit = subprocess.run(
+            ["git", "rev-parse", "HEAD"],
+            capture_output=True,
+            text=True,
+            cwd=Path(__file__).resolve().parent,
+            check=False,
+        ).stdout.strip()
+    except OSError:
+        commit = ""
+    import jaxlib
+
+    return dict(
+        platform=platform.platform(),
+        processor=platform.processor() or platform.machine(),
+        python=sys.version.split()[0],
+        cpu_count=os.cpu_count(),
+        jax_backend=jax.default_backend(),
+        jax_devices=[str(d) for d in jax.devices()],
+        jax=jax.__version__,
+        jaxlib=jaxlib.__version__,
+        diffrax=diffrax.__version__,
+        equinox=eqx.__version__,
+        numpy=np.__version__,
+        rigidjax=importlib.metadata.version("rigidjax"),
+        git_commit=commit,
+        x64=True,
+        loadavg_at_start=LOADAVG_START,
+        loadavg_at_end=list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
+    )
+
+
+COLORS = {
+    "matrix": "tab:red",
+    "matrix_euler": "tab:pink",
+    "rotvec": "tab:blue",
+    "quat": "tab:green",
+    "euler": "tab:orange",
+    "cayley_klein": "tab:purple",
+    "geometric": "black",
+}
+MARKERS = {
+    "matrix": "s",
+    "rotvec": "o",
+    "quat": "^",
+    "euler": "D",
+    "cayley_klein": "v",
+    "geometric": "*",
+}
+
+
+def plot(res: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    floor = 1e-17
+    fig, axes = plt.subplots(2, 2, figsize=(13, 9.5))
+    ax = axes[0, 0]
+    for m, d in res["work_precision"].items():
+        ev = [r["rhs_evals"] for r in d["rows"]]
+        er = [max(r["err_max_abs"], floor) for r in d["rows"]]
+        solver = "RKMK-Dopri5" if m == "geometric" else "Tsit5"
+        ax.loglog(ev, er, marker=MARKERS[m], color=COLORS[m], label=f"{m} ({solver})", ms=5)
+    for r in res["work_precision"]["quat"]["rows"]:
+        ax.annotate(
+            f"{r['tol']:.0e}",
+            (r["rhs_evals"], r["err_max_abs"]),
+            textcoords="offset points",
+            xytext=(-8, -12),
+            ha="right",
+            fontsize=7,
+            color="green",
+        )
+    ax.set_xlabel("right-hand-side evaluations (counted)")
+    ax.set_ylabel("max over t of max |P − P_exact| (entrywise)")
+    ax.set_title("(a) Work–precision, PID rtol = atol (labels: tol for quat), t ∈ [0, 10]")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8, loc="upper right")
+
+    dr = res["drift"]
+    ts = np.asarray(dr["ts"])
+    for col, key, title in [
+        (axes[0, 1], "orthogonality", "(b) Orthogonality drift ‖PᵀP − E‖_F"),
+        (axes[1, 0], "err_max_abs", "(c) Attitude error max |P − P_exact|"),
+    ]:
+        for name, d in dr["methods"].items():
+            y = np.maximum(np.asarray(d[key]), floor)
+            col.semilogy(ts[1:], y[1:], color=COLORS[name], label=f"{name} ({d['solver']})", lw=1.3)
+        col.set_xlabel("t [s]")
+        col.set_title(f"{title}, constant dt = {dr['dt']:g}")
+        col.grid(True, which="both", alpha=0.3)
+        col.legend(fontsize=8, loc="center right")
+    axes[0, 1].set_ylabel(f"‖PᵀP − E‖_F (values < {floor:g} drawn at {floor:g})")
+    axes[1, 0].set_ylabel("max |P − P_exact|")
+
+    ax = axes[1, 1]
+    tp = res["throughput"]
+    names = list(tp["methods"])
+    rates = [tp["methods"][m]["traj_steps_per_s"] for m in names]
+    labels = [m if m != "control" else "control:\nTsit5 ẏ=−y" for m in names]
+    bars = ax.bar(labels, rates, color=[COLORS.get(m, "lightgray") for m in names])
+    bars[-1].set_hatch("//")
+    for b, m in zip(bars, names, strict=True):
+        d = tp["methods"][m]
+        ax.annotate(
+            f"{d['traj_steps_per_s']:.2g}\ncompile {d['compile_s']:.1f} s",
+            (b.get_x() + b.get_width() / 2, b.get_height()),
+            ha="center",
+            va="bottom",
+            fontsize=8,
+        )
+    ax.set_yscale("log")
+    ax.set_ylabel("trajectory·steps per second (log)")
+    ax.set_title(
+        f"(d) Throughput: jit(vmap), B = {tp['batch']}, {tp['steps']} steps of {tp['dt']:g}"
+    )
+    ax.set_ylim(min(rates) / 3, max(rates) * 8)
+    ax.tick_params(axis="x", labelsize=8)
+    ax.grid(True, axis="y", which="both", alpha=0.3)
+    m = res["machine"]
+    fig.suptitle(
+        f"rigidjax Darboux benchmark: coning Ω = 2π rad/s, β = {BETA} rad, float64 — "
+        f"{m['jax_backend']} ({m['cpu_count']} cores), jax {m['jax']}, diffrax {m['diffrax']}",
+        fontsize=11,
+    )
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true", help="fewer tolerances, shorter drift, B=128")
+    ap.add_argument("--out-dir", type=Path, default=DEFAULT_OUT)
+    ap.add_argument("--repeats", type=int, default=5)
+    args = ap.parse_args(argv)
+    cfg = QUICK if args.quick else FULL
+    t_start = time.perf_counter()
+
+    def log(msg):
+        print(f"[{time.perf_counter() - t_start:7.1f} s] {msg}", flush=True)
+
+    ts_check = np.linspace(0.0, cfg["t_end"], cfg["n_save"])
+    margin = euler_chart_margin(exact(ts_check))
+    log(f"Euler chart {EULER_SEQ!r}: min |det J| along the coning motion = {margin:.4f}")
+    log("1. work–precision")
+    wp = work_precision(cfg, args.repeats, log)
+    log("2. orthogonality drift")
+    dr = drift(cfg, log)
+    log("3. batched throughput")
+    tp = throughput(cfg, max(1, min(args.repeats, 3)), log)
+    res = dict(
+        benchmark="darboux",
+        date=datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        quick=args.quick,
+        machine=machine_info(),
+        parameters=dict(
+            problem="coning P(t) = Rz(Ωt) Rx(β) Rz(−Ωt), space angular velocity",
+            rate_rad_s=RATE,
+            beta_rad=BETA,
+            P0="exact(0) = Rx(β)",
+            dtype="float64",
+            euler_seq=EULER_SEQ,
+            euler_chart_min_abs_det=margin,
+            error_metric=(
+                "err_max_abs: max over save times of max_ij |P - P_exact|; err_geodesic: max of "
+                "rigidjax.so3.distance"
+            ),
+            rhs_count="exact, jax.debug.callback in the vector field (separate compilation)",
+            wall_time="median (and min) of repeated solves of a callback-free jax.jit compilation",
+            solvers="Tsit5 in StepEndMap for the kinematics classes; RKMK (Dopri5 tableau)",
+            controller="diffrax.PIDController(rtol=tol, atol=tol), dt0=None",
+            repeats=args.repeats,
+            **cfg,
+        ),
+        work_precision=wp,
+        drift=dr,
+        throughput=tp,
+    )
+    res["total_s"] = time.perf_counter() - t_start
+    args.out_dir.mkdir(parents=True, exist_ok=True)
+    (args.out_dir / "darboux.json").write_text(json.dumps(res, indent=1) + "\n")
+    plot(res, args.out_dir / "darboux.png")
+    log(f"wrote {args.out_dir / 'darboux.json'} and {args.out_dir / 'darboux.png'}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,392 @@
+"""Throughput of rigidjax's rotation maps against SciPy and jax.scipy on N rotations.
+
+What is measured
+    For each map (rotvec→matrix, matrix→rotvec, matrix→quat, quat→matrix, Euler→matrix and
+    matrix→Euler for "ZXZ" and "xyz"), the wall-clock time to convert N rotations at once with
+
+    * ``scipy.spatial.transform.Rotation`` (float64, NumPy in → NumPy out, constructor included:
+      e.g. ``Rotation.from_rotvec(x).as_matrix()``),
+    * ``rigidjax`` (``so3.exp``, ``so3.log``, ``quat.from_matrix``, ``quat.to_matrix``,
+      ``euler.to_matrix``, ``euler.from_matrix``) under ``jax.jit``, float64 and float32,
+    * ``jax.scipy.spatial.transform.Rotation`` under ``jax.jit``, float64 and float32 (skipped,
+      and recorded as unavailable in the JSON, if the installed JAX lacks it).
+
+How
+    All libraries get the same inputs: N uniformly random rotations (seeded), expressed as
+    rotation vectors, matrices, quaternions (SciPy's x, y, z, w order; rigidjax's w, x, y, z) and
+    Euler angles. JAX inputs are placed on the device beforehand, so transfers are not timed. Each
+    JAX function is lowered and compiled ahead of time (reported as ``compile_s``), called once to
+    warm up, then timed ``--repeats`` times with ``block_until_ready``; SciPy is timed the same way
+    after one warm-up call. Rates use the best (minimum) time; the median is also recorded.
+    ``max_abs_diff_vs_scipy`` compares each JAX result with SciPy's float64 result: quaternions up
+    to sign, rotation vectors up to the θ ↔ −θ ambiguity at |θ| = π, angles modulo 2π.
+
+Usage
+    python benchmarks/bench_rotations.py [--n 1000000] [--repeats 5]
+        [--out benchmarks/results/rotations.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import statistics
+import sys
+import time
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import jax
+
+jax.config.update("jax_enable_x64", True)  # the benchmark's choice; rigidjax never sets it
+
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+import scipy  # noqa: E402
+from scipy.spatial.transform import Rotation  # noqa: E402
+
+from rigidjax import euler, quat, so3  # noqa: E402
+
+try:
+    from jax.scipy.spatial.transform import Rotation as JaxRotation  # noqa: E402
+except ImportError as _e:  # pragma: no cover - depends on the installed JAX
+    JaxRotation = None
+    JAX_SCIPY_NOTE = f"jax.scipy.spatial.transform.Rotation not importable: {_e}"
+else:
+    JAX_SCIPY_NOTE = "jax.scipy.spatial.transform.Rotation available"
+
+DTYPES = {"float64": jnp.float64, "float32": jnp.float32}
+DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "rotations.json"
+
+
+# --------------------------------------------------------------------------- operations
+
+
+@dataclass(frozen=True)
+class Op:
+    """One rotation map in the three libraries.
+
+    ``scipy_in``/``rigidjax_in`` name the input arrays (they differ only in quaternion order);
+    ``rigidjax_post`` maps rigidjax's output to SciPy's convention before comparison; ``compare``
+    selects the difference measure (``plain``, ``rotvec``, ``quat`` or ``angle``).
+    """
+
+    name: str
+    scipy_in: str
+    rigidjax_in: str
+    scipy_fn: Callable
+    jax_scipy_fn: Callable | None
+    rigidjax_fn: Callable
+    compare: str = "plain"
+    rigidjax_post: Callable = staticmethod(lambda y: y)
+
+
+def _wxyz_to_xyzw(q: np.ndarray) -> np.ndarray:
+    return np.roll(q, -1, axis=-1)
+
+
+def _jsp(fn: Callable) -> Callable | None:
+    return fn if JaxRotation is not None else None
+
+
+def _euler_ops(seq: str) -> list[Op]:
+    key = f"euler_{seq}"
+    return [
+        Op(
+            f"euler_to_matrix_{seq}",
+            key,
+            key,
+            lambda x: Rotation.from_euler(seq, x).as_matrix(),
+            _jsp(lambda x: JaxRotation.from_euler(seq, x).as_matrix()),
+            lambda x: euler.to_matrix(x, seq),
+        ),
+        Op(
+            f"matrix_to_euler_{seq}",
+            "matrix",
+            "matrix",
+            lambda x: Rotation.from_matrix(x).as_euler(seq),
+            _jsp(lambda x: JaxRotation.from_matrix(x).as_euler(seq)),
+            lambda x: euler.from_matrix(x, seq),
+            compare="angle",
+        ),
+    ]
+
+
+def build_ops() -> list[Op]:
+    """The benchmarked maps, in table order."""
+    return [
+        Op(
+            "rotvec_to_matrix",
+            "rotvec",
+            "rotvec",
+            lambda x: Rotation.from_rotvec(x).as_matrix(),
+            _jsp(lambda x: JaxRotation.from_rotvec(x).as_matrix()),
+            so3.exp,
+        ),
+        Op(
+            "matrix_to_rotvec",
+            "matrix",
+            "matrix",
+            lambda x: Rotation.from_matrix(x).as_rotvec(),
+            _jsp(lambda x: JaxRotation.from_matrix(x).as_rotvec()),
+            so3.log,
+            compare="rotvec",
+        ),
+        Op(
+            "matrix_to_quat",
+            "matrix",
+            "matrix",
+            lambda x: Rotation.from_matrix(x).as_quat(),
+            _jsp(lambda x: JaxRotation.from_matrix(x).as_quat()),
+            quat.from_matrix,
+            compare="quat",
+            rigidjax_post=_wxyz_to_xyzw,
+        ),
+        Op(
+            "quat_to_matrix",
+            "quat_xyzw",
+            "quat_wxyz",
+            lambda x: Rotation.from_quat(x).as_matrix(),
+            _jsp(lambda x: JaxRotation.from_quat(x).as_matrix()),
+            quat.to_matrix,
+        ),
+        *_euler_ops("ZXZ"),
+        *_euler_ops("xyz"),
+    ]
+
+
+# --------------------------------------------------------------------------- inputs
+
+
+def make_inputs(n: int, seed: int) -> dict[str, np.ndarray]:
+    """N uniformly random rotations in every representation the ops consume (float64)."""
+    r = Rotation.random(n, rng=np.random.default_rng(seed))
+    q_xyzw = r.as_quat()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # gimbal-lock warnings are irrelevant for inputs
+        eul = {f"euler_{s}": r.as_euler(s) for s in ("ZXZ", "xyz")}
+    return {
+        "rotvec": r.as_rotvec(),
+        "matrix": r.as_matrix(),
+        "quat_xyzw": q_xyzw,
+        "quat_wxyz": np.roll(q_xyzw, 1, axis=-1),
+        **eul,
+    }
+
+
+# --------------------------------------------------------------------------- timing
+
+
+def _summary(times: list[float], n: int) -> dict:
+    best = min(times)
+    return {
+        "seconds": best,
+        "seconds_median": statistics.median(times),
+        "rotations_per_s": n / best,
+        "all_seconds": times,
+    }
+
+
+def _repeat(call: Callable[[], object], repeats: int) -> list[float]:
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        call()
+        times.append(time.perf_counter() - t0)
+    return times
+
+
+def time_scipy(fn: Callable, x: np.ndarray, repeats: int) -> tuple[dict, np.ndarray]:
+    """Time a NumPy → NumPy SciPy call; returns the summary and the (warm-up) result."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # SciPy warns on gimbal lock in as_euler
+        out = fn(x)
+        times = _repeat(lambda: fn(x), repeats)
+    return _summary(times, len(x)), out
+
+
+def time_jax(fn: Callable, x: np.ndarray, dtype, repeats: int) -> tuple[dict, np.ndarray]:
+    """AOT-compile `fn` for `x` cast to `dtype`, warm up once, then time `repeats` calls."""
+    xd = jax.device_put(jnp.asarray(x, dtype=dtype))
+    t0 = time.perf_counter()
+    compiled = jax.jit(fn).lower(xd).compile()
+    compile_s = time.perf_counter() - t0
+    out = compiled(xd).block_until_ready()
+    times = _repeat(lambda: compiled(xd).block_until_ready(), repeats)
+    summary = _summary(times, len(x))
+    summary["compile_s"] = compile_s
+    summary["output_dtype"] = str(out.dtype)
+    return summary, np.asarray(out, dtype=np.float64)
+
+
+# --------------------------------------------------------------------------- accuracy
+
+
+def _wrap(d: np.ndarray) -> np.ndarray:
+    return (d + np.pi) % (2 * np.pi) - np.pi
+
+
+def max_abs_diff(y: np.ndarray, ref: np.ndarray, kind: str) -> float:
+    """Largest absolute deviation from SciPy's result, modulo the representation's ambiguity."""
+    n = len(ref)
+    d = np.abs(y - ref).reshape(n, -1).max(axis=1)
+    if kind == "quat":  # q and −q are the same rotation
+        d = np.minimum(d, np.abs(y + ref).reshape(n, -1).max(axis=1))
+    elif kind == "rotvec":  # at |θ| = π, θ and −θ are the same rotation
+        near_pi = np.linalg.norm(ref, axis=-1) > 3.0
+        flipped = np.abs(y + ref).max(axis=1)
+        d = np.where(near_pi, np.minimum(d, flipped), d)
+    elif kind == "angle":
+        d = np.abs(_wrap(y - ref)).max(axis=1)
+    return float(d.max())
+
+
+# --------------------------------------------------------------------------- driver
+
+
+def _ratio(a: dict | None, b: dict | None) -> float | None:
+    if a is None or b is None:
+        return None
+    return a["rotations_per_s"] / b["rotations_per_s"]
+
+
+def bench_dtype(op: Op, inputs: dict, dtype, repeats: int, ref: np.ndarray, sp: dict) -> dict:
+    """rigidjax and jax.scipy results for one op at one dtype, with ratios and accuracy."""
+    rj, y = time_jax(op.rigidjax_fn, inputs[op.rigidjax_in], dtype, repeats)
+    rj["max_abs_diff_vs_scipy"] = max_abs_diff(op.rigidjax_post(y), ref, op.compare)
+    js = None
+    if op.jax_scipy_fn is not None:
+        js, yj = time_jax(op.jax_scipy_fn, inputs[op.scipy_in], dtype, repeats)
+        js["max_abs_diff_vs_scipy"] = max_abs_diff(yj, ref, op.compare)
+    return {
+        "rigidjax": rj,
+        "jax_scipy": js,
+        "ratio_vs_scipy": _ratio(rj, sp),
+        "ratio_vs_jax_scipy": _ratio(rj, js),
+        "jax_scipy_ratio_vs_scipy": _ratio(js, sp),
+    }
+
+
+def bench_op(op: Op, inputs: dict, repeats: int) -> dict:
+    sp, ref = time_scipy(op.scipy_fn, inputs[op.scipy_in], repeats)
+    result = {"scipy": sp}
+    for name, dtype in DTYPES.items():
+        result[name] = bench_dtype(op, inputs, dtype, repeats, ref, sp)
+    return result
+
+
+def machine_info() -> dict:
+    dev = jax.devices()[0]
+    return {
+        "platform": platform.platform(),
+        "processor": platform.processor() or platform.machine(),
+        "cpu_count": os.cpu_count(),
+        "python": sys.version.split()[0],
+        "jax": jax.__version__,
+        "jaxlib": getattr(jax.lib, "__version__", None) or _jaxlib_version(),
+        "scipy": scipy.__version__,
+        "numpy": np.__version__,
+        "jax_backend": jax.default_backend(),
+        "jax_device": f"{dev.platform}:{dev.id} ({getattr(dev, 'device_kind', '')})",
+    }
+
+
+def _load_average() -> list[float] | None:
+    """1/5/15-minute system load: other processes on the cores skew every timing."""
+    try:
+        return [round(x, 2) for x in os.getloadavg()]
+    except OSError:  # pragma: no cover - not available on every platform
+        return None
+
+
+def _jaxlib_version() -> str | None:
+    try:
+        import jaxlib
+
+        return jaxlib.__version__
+    except (ImportError, AttributeError):  # pragma: no cover
+        return None
+
+
+# --------------------------------------------------------------------------- output
+
+
+def _fmt_rate(entry: dict | None) -> str:
+    return "—" if entry is None else f"{entry['rotations_per_s'] / 1e6:8.2f}"
+
+
+def _fmt(x: float | None, spec: str) -> str:
+    return "—" if x is None else format(x, spec)
+
+
+def table_rows(results: dict) -> list[str]:
+    head = (
+        f"{'op':<22}{'dtype':<9}{'SciPy':>9}{'rigidjax':>10}{'jax.sp':>9}"
+        f"{'rj/SciPy':>10}{'rj/jax.sp':>11}{'compile rj':>12}{'compile js':>12}"
+        f"{'diff rj':>10}{'diff js':>10}"
+    )
+    rows = [head, "-" * len(head)]
+    for name, r in results.items():
+        for dt in DTYPES:
+            d = r[dt]
+            rj, js = d["rigidjax"], d["jax_scipy"]
+            rows.append(
+                f"{name:<22}{dt:<9}{_fmt_rate(r['scipy']):>9}{_fmt_rate(rj):>10}"
+                f"{_fmt_rate(js):>9}{_fmt(d['ratio_vs_scipy'], '.2f'):>10}"
+                f"{_fmt(d['ratio_vs_jax_scipy'], '.2f'):>11}"
+                f"{_fmt(rj['compile_s'], '.3f'):>12}"
+                f"{_fmt(js and js['compile_s'], '.3f'):>12}"
+                f"{_fmt(rj['max_abs_diff_vs_scipy'], '.1e'):>10}"
+                f"{_fmt(js and js['max_abs_diff_vs_scipy'], '.1e'):>10}"
+            )
+    return rows
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--n", type=int, default=1_000_000, help="number of rotations")
+    p.add_argument("--repeats", type=int, default=5, help="timed calls per measurement")
+    p.add_argument("--seed", type=int, default=0, help="seed of the random rotations")
+    p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="JSON output path")
+    return p.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> dict:
+    args = parse_args(argv)
+    t_start = time.perf_counter()
+    load_start = _load_average()
+    inputs = make_inputs(args.n, args.seed)
+    results = {}
+    for op in build_ops():
+        results[op.name] = bench_op(op, inputs, args.repeats)
+        print(f"  done {op.name} ({time.perf_counter() - t_start:.1f} s)", file=sys.stderr)
+    report = {
+        "benchmark": "rotations",
+        "timestamp": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "n": args.n,
+        "repeats": args.repeats,
+        "seed": args.seed,
+        "timing_statistic": "best of repeats (seconds); median in seconds_median",
+        "jax_scipy_rotation": {"available": JaxRotation is not None, "note": JAX_SCIPY_NOTE},
+        "machine": machine_info(),
+        "total_wall_s": time.perf_counter() - t_start,
+        "load_average_start": load_start,
+        "load_average_end": _load_average(),
+        "ops": results,
+    }
+    print(f"N = {args.n}, rates in 10⁶ rotations/s (best of {args.repeats}); diff = max |Δ|")
+    print("\n".join(table_rows(results)))
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(report, indent=2) + "\n")
+    print(f"load average start {load_start}, end {report['load_average_end']}")
+    print(f"wrote {args.out} (total {report['total_wall_s']:.1f} s)")
+    return report
+
+
+if __name__ == "__main__":
+    main()
