@@ -136,13 +136,16 @@ def simulate(
     omega0 = _check_finite(vector(omega0, 3, "omega0").astype(dtype), "omega0")
     q0 = quat.identity(dtype=dtype) if q0 is None else vector(q0, 4, "q0").astype(dtype)
     q0 = _check_unit_quat(q0)
-    I = body.inertia.astype(dtype)
-    batch = jnp.broadcast_shapes(I.shape[:-2], omega0.shape[:-1], q0.shape[:-1])
+    batch = jnp.broadcast_shapes(body.batch_shape, omega0.shape[:-1], q0.shape[:-1])
     B = math.prod(batch)
-    I = jnp.broadcast_to(I, (*batch, 3, 3)).reshape(B, 3, 3)
+    args = tuple(
+        jnp.broadcast_to(a.astype(dtype), (*batch, *a.shape[len(body.batch_shape) :])).reshape(
+            B, *a.shape[len(body.batch_shape) :]
+        )
+        for a in body.operator()
+    )
     omega0 = jnp.broadcast_to(omega0, (*batch, 3)).reshape(B, 3)
     q0 = jnp.broadcast_to(q0, (*batch, 4)).reshape(B, 4)
-    args = (I, jnp.linalg.inv(I))
     adjoint = diffrax.RecursiveCheckpointAdjoint() if adjoint is None else adjoint
 
     if kinematics == "geometric":
