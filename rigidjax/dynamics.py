@@ -116,6 +116,7 @@ def simulate(
     dt0: float | None = None,
     max_steps: int = 100_000,
     adjoint: diffrax.AbstractAdjoint | None = None,
+    progress_meter: diffrax.AbstractProgressMeter | None = None,
 ) -> Trajectory:
     """Integrate Euler's equations `I Ω̇ + Ω × IΩ = K` (body frame, general tensor; Zegrya–Parshin
     004) with the attitude kinematics `kinematics` (`"quat"`, `"rotvec"`, `"matrix"`, `"euler"`,
@@ -126,7 +127,7 @@ def simulate(
     batch that is integrated as ONE state in one fused loop, with a step size controlled by the
     worst member (per-member adaptivity: `jax.vmap` over `simulate` instead). `torque(t, Ω, q)`
     returns K in the body frame (or in space with `torque_frame="space"`). Any Diffrax solver,
-    step-size controller and adjoint can be passed; defaults: Tsit5 (RKMK-Dopri5 for
+    step-size controller, adjoint and progress meter can be passed; defaults: Tsit5 (RKMK-Dopri5 for
     `"geometric"`), PID at `rtol = atol = 1e-10` in float64 (1e-6 in float32).
     """
     if ts is None:
@@ -194,6 +195,7 @@ def simulate(
         stepsize_controller=stepsize_controller,
         max_steps=max_steps,
         adjoint=adjoint,
+        progress_meter=diffrax.NoProgressMeter() if progress_meter is None else progress_meter,
     )
     att, omega = sol.ys  # (T, B, ...)
     to_quat = quat.from_matrix if kin is None else jax.vmap(jax.vmap(kin.to_quat))

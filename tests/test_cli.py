@@ -1,0 +1,34 @@
+"""The `rigidjax` command end to end in a temporary folder."""
+
+import numpy as np
+
+from rigidjax.cli import main
+
+
+def test_cli_writes_trajectory(tmp_path, capsys):
+    out = tmp_path / "run"
+    rc = main(["--t-end", "20", "--num", "201", "--out", str(out), "--no-progress"])
+    assert rc == 0
+    printed = capsys.readouterr().out
+    for ext in ("npz", "csv", "png"):
+        path = out / f"trajectory.{ext}"
+        assert path.exists() and path.stat().st_size > 0
+        assert str(path.resolve()) in printed
+    data = np.load(out / "trajectory.npz")
+    assert data["omega"].shape == (201, 3) and data["quat"].shape == (201, 4)
+    assert data["matrix"].shape == (201, 3, 3)
+    # tennis-racket flip: Ω2 starts near +1 and has flipped sign within 20 s
+    assert data["omega"][0, 1] > 0.99 and data["omega"][:, 1].min() < -0.9
+    assert np.max(np.abs(data["energy"] / data["energy"][0] - 1)) < 1e-8
+    csv = np.loadtxt(out / "trajectory.csv", delimiter=",", skiprows=1)
+    np.testing.assert_allclose(csv[:, 1:4], data["omega"])
+    assert (out / "trajectory.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not list(out.glob(".trajectory*"))  # no temporary leftovers
+
+
+def test_cli_bad_inertia_writes_nothing(tmp_path, capsys):
+    out = tmp_path / "bad"
+    rc = main(["--inertia", "1", "1", "5", "--out", str(out), "--no-progress"])
+    assert rc == 1
+    assert "triangle" in capsys.readouterr().err
+    assert not out.exists() or not any(out.iterdir())
