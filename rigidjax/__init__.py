@@ -4,6 +4,7 @@ from . import andoyer, euler, gibbs, inertia, invariants, kinematics, mrp, quat,
 from .attitude import darboux, omega_path
 from .body import RigidBody
 from .dynamics import Trajectory, simulate
+from .explicit_rk import ExplicitRK
 from .invariants import angular_momentum, energy
 from .kinematics import (
     AbstractKinematics,
@@ -15,14 +16,17 @@ from .kinematics import (
 )
 from .lie_solver import RKMK, LieTerm
 from .projected_solver import StepEndMap
+from .rk4 import RK4
 
 __all__ = [
+    "RK4",
     "RKMK",
     "RigidBody",
     "Trajectory",
     "AbstractKinematics",
     "CayleyKlein",
     "EulerAngles",
+    "ExplicitRK",
     "LieTerm",
     "PoissonMatrix",
     "Quaternion",

@@ -14,6 +14,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from . import so3
 from ._util import as_float, matrix
+from .explicit_rk import unrolled as _unrolled
 from .kinematics import METHODS, AbstractKinematics, check_omega
 from .lie_solver import RKMK, LieTerm
 from .projected_solver import StepEndMap
@@ -130,9 +131,10 @@ def darboux(
     `omega_path`). `method`: `"rotvec"` (θ̇ = Z(θ) ω with shadow switching, Zhilin 3.14),
     `"quat"`, `"matrix"` (Poisson equation, drifts off SO(3)), `"euler"` (sequence `seq`; errors at
     gimbal lock), `"cayley_klein"`, `"geometric"` (RKMK Lie-group solver, exactly on SO(3)), or an
-    `AbstractKinematics` instance. Defaults: Tsit5 (RKMK-Dopri5 for `"geometric"`) with a PID
-    controller at `rtol = atol = 1e-10` (1e-6 in float32). `return_state=True` also returns the
-    native states at `ts` (normalised quaternions, shadowed rotation vectors, ...).
+    `AbstractKinematics` instance. Defaults: Tsit5 with unrolled stages (`ExplicitRK`;
+    RKMK-Dopri5 for `"geometric"`) with a PID controller at `rtol = atol = 1e-10` (1e-6 in
+    float32). `return_state=True` also returns the native states at `ts` (normalised
+    quaternions, shadowed rotation vectors, ...).
     """
     ts = check_times(as_float(ts, "ts"))
     P0 = jnp.eye(3, dtype=ts.dtype) if P0 is None else matrix(P0, "P0")
@@ -167,9 +169,7 @@ def darboux(
                 f"method must be one of {sorted([*METHODS, 'geometric'])} or an "
                 f"AbstractKinematics instance, got {method!r}"
             )
-        solver = StepEndMap.wrap(
-            diffrax.Tsit5() if solver is None else solver, kin.step_end, adjoint
-        )
+        solver = StepEndMap.wrap(_unrolled(solver), kin.step_end, adjoint)
         term = diffrax.ODETerm(_KinematicsField(kin, w))
         y0 = kin.from_matrix(P0)
         to_matrix = jax.vmap(kin.to_matrix)

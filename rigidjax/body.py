@@ -28,8 +28,10 @@ class RigidBody(eqx.Module):
         inertia = as_float(inertia, "inertia")
         # principal moments given: the tensor is diagonal by construction (a static fact that
         # lets the integrators use elementwise Euler equations)
-        self.diagonal = inertia.ndim >= 1 and inertia.shape[-1] == 3 and (
-            inertia.ndim < 2 or inertia.shape[-2] != 3
+        self.diagonal = (
+            inertia.ndim >= 1
+            and inertia.shape[-1] == 3
+            and (inertia.ndim < 2 or inertia.shape[-2] != 3)
         )
         I = as_tensor(inertia)
         m = as_float(mass, "mass").astype(I.dtype)

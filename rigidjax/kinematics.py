@@ -15,6 +15,7 @@ import abc
 from typing import Literal
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
@@ -118,7 +119,7 @@ class Quaternion(AbstractKinematics):
         return 0.5 * (quat.mul(pure, y) if self.frame == "space" else quat.mul(y, pure))
 
     def step_end(self, y):
-        return y / jnp.linalg.norm(y, axis=-1, keepdims=True), jnp.array(False)
+        return y * jax.lax.rsqrt(jnp.sum(y * y, axis=-1, keepdims=True)), jnp.array(False)
 
 
 class EulerAngles(AbstractKinematics):

@@ -18,26 +18,11 @@ import diffrax
 import equinox as eqx
 import jax.numpy as jnp
 import jax.tree_util as jtu
-from jaxtyping import Array, PyTree
+from jaxtyping import Array
 
-from . import so3
+from . import _rk, so3
 
 Frame = Literal["space", "body"]
-
-
-def _lincomb(coeffs, trees: list[PyTree]) -> PyTree:
-    """Σ c_k trees[k], skipping zero coefficients (trees may be None)."""
-    pairs = [(float(c), t) for c, t in zip(coeffs, trees, strict=False) if c != 0]
-
-    def comb(*leaves):
-        out = pairs[0][0] * leaves[0]
-        for (c, _), leaf in zip(pairs[1:], leaves[1:], strict=True):
-            out = out + c * leaf
-        return out
-
-    if not pairs:
-        return jtu.tree_map(jnp.zeros_like, trees[0])
-    return jtu.tree_map(comb, *[t for _, t in pairs])
 
 
 def _move(R0: Array, theta: Array, frame: Frame) -> Array:
@@ -115,12 +100,7 @@ class RKMK(diffrax.AbstractSolver):
     def __check_init__(self):
         if self.frame not in ("space", "body"):
             raise ValueError(f"frame must be 'space' or 'body', got {self.frame!r}")
-        tab = getattr(type(self.method), "tableau", None)
-        if not isinstance(tab, diffrax.ButcherTableau) or tab.implicit:
-            raise ValueError(
-                f"method must be an explicit diffrax Runge–Kutta solver (e.g. diffrax.Dopri5()), "
-                f"got {type(self.method).__name__}"
-            )
+        _rk.tableau_of(self.method)
 
     @property
     def interpolation_cls(self):
@@ -145,29 +125,28 @@ class RKMK(diffrax.AbstractSolver):
 
     def step(self, terms, t0, t1, y0, args, solver_state, made_jump):
         del solver_state, made_jump
-        tab = type(self.method).tableau
+        tab = _rk.tableau_of(self.method)
         R0, x0 = y0
         h = t1 - t0
-        Ks, kxs = [], []
-        for i in range(tab.num_stages):
-            if i == 0:
-                theta, x, t = jnp.zeros_like(R0[..., 0]), x0, t0 + float(tab.c1) * h
+
+        def stage(t, inc):
+            # inc = (θ, Δx): local rotation vector and increment of x at this stage
+            if inc is None:
+                theta, x = jnp.zeros_like(R0[..., 0]), x0
             else:
-                a = tab.a_lower[i - 1]
-                theta = h * _lincomb(a, Ks)
-                x = jtu.tree_map(lambda x0_, d: x0_ + h * d, x0, _lincomb(a, kxs))
-                t = t0 + float(tab.c[i - 1]) * h
+                theta, x = inc[0], jtu.tree_map(lambda a, b: a + b, x0, inc[1])
             w, kx = terms.vf(t, (_move(R0, theta, self.frame), x), args)
-            Ks.append(_dexpinv(theta, w, self.frame))
-            kxs.append(kx)
-        Theta = h * _lincomb(tab.b_sol, Ks)
+            return _dexpinv(theta, w, self.frame), kx
+
+        ks = _rk.stages(tab, t0, h, stage)
+        Theta, dx = _rk.increment(h, tab.b_sol, ks)
         R1 = _reorthonormalize(_move(R0, Theta, self.frame))
-        x1 = jtu.tree_map(lambda x0_, d: x0_ + h * d, x0, _lincomb(tab.b_sol, kxs))
-        theta_err = h * _lincomb(tab.b_error, Ks)
-        x_err = jtu.tree_map(lambda d: h * d, _lincomb(tab.b_error, kxs))
+        x1 = jtu.tree_map(lambda a, b: a + b, x0, dx)
+        theta_err, x_err = _rk.increment(h, tab.b_error, ks)
         E_err = so3.hat(theta_err)
         R_err = E_err @ R1 if self.frame == "space" else R1 @ E_err
         # Stage increments in local coordinates, as the tableau's own dense output expects them.
-        k = (h * jnp.stack(Ks), jtu.tree_map(lambda *ks: h * jnp.stack(ks), *kxs))
-        dense_info = dict(R0=R0, y0=(jnp.zeros_like(Theta), x0), y1=(Theta, x1), k=k)
+        dense_info = dict(
+            R0=R0, y0=(jnp.zeros_like(Theta), x0), y1=(Theta, x1), k=_rk.stacked(h, ks)
+        )
         return (R1, x1), (R_err, x_err), dense_info, None, diffrax.RESULTS.successful
