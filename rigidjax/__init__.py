@@ -1,10 +1,24 @@
 """rigidjax: JAX-accelerated, differentiable rigid-body rotation maps, kinematics and dynamics."""
 
-from . import andoyer, euler, gibbs, inertia, invariants, kinematics, mrp, quat, so3
+from . import (
+    andoyer,
+    euler,
+    gibbs,
+    heavy_top,
+    inertia,
+    invariants,
+    kinematics,
+    mrp,
+    quat,
+    so3,
+    stability,
+)
 from .attitude import darboux, omega_path
 from .body import RigidBody
 from .dynamics import Trajectory, simulate
 from .explicit_rk import ExplicitRK
+from .heavy_top import HeavyTop, simulate_heavy_top
+from .identify import InertiaEstimate, identify_inertia
 from .invariants import angular_momentum, energy
 from .kinematics import (
     AbstractKinematics,
@@ -27,6 +41,8 @@ __all__ = [
     "CayleyKlein",
     "EulerAngles",
     "ExplicitRK",
+    "HeavyTop",
+    "InertiaEstimate",
     "LieTerm",
     "PoissonMatrix",
     "Quaternion",
@@ -38,6 +54,8 @@ __all__ = [
     "energy",
     "euler",
     "gibbs",
+    "heavy_top",
+    "identify_inertia",
     "inertia",
     "invariants",
     "kinematics",
@@ -45,6 +63,8 @@ __all__ = [
     "omega_path",
     "quat",
     "simulate",
+    "simulate_heavy_top",
+    "stability",
     "so3",
 ]
 __version__ = "0.1.0"

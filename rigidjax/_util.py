@@ -4,7 +4,10 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 
+import equinox as eqx
+import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike
 
 
@@ -69,3 +72,21 @@ def poly(x: Array, coeffs: Sequence[float]) -> Array:
     for c in reversed(coeffs[:-1]):
         out = out * x + c
     return out
+
+
+def validate(
+    x: Array,
+    bad: Callable,
+    message: str,
+    detail: Callable[[np.ndarray], str] | None = None,
+) -> Array:
+    """Check `x` with `bad(xp, x) -> bool array` and return it, raising a clear error if any is
+    true: a ValueError at once (with `detail(x)` appended) when `x` is concrete, else an
+    `equinox.error_if` that raises at run time under jit/vmap. The concrete check runs in NumPy,
+    so it works on constants inside a trace as well."""
+    if isinstance(x, jax.core.Tracer):
+        return eqx.error_if(x, jnp.any(bad(jnp, x)), message)
+    xn = np.asarray(x)
+    if np.any(bad(np, xn)):
+        raise ValueError(message + (detail(xn) if detail is not None else ""))
+    return x

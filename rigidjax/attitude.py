@@ -12,8 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from . import so3
-from ._util import as_float, matrix
+from ._util import as_float, matrix, validate
 from .explicit_rk import unrolled as _unrolled
 from .kinematics import METHODS, AbstractKinematics, check_omega
 from .lie_solver import RKMK, LieTerm
@@ -69,37 +68,38 @@ class _LieField(eqx.Module):
         return check_omega(self.omega(t)).astype(y[0].dtype), None
 
 
-def _is_concrete(x) -> bool:
-    return not isinstance(x, jax.core.Tracer)
-
-
 def check_times(ts: Array) -> Array:
     """`ts` as a 1-D strictly increasing array of at least two times (clear error otherwise)."""
     if ts.ndim != 1 or ts.shape[0] < 2:
         raise ValueError(f"ts must be a 1-D array of at least 2 times, got shape {tuple(ts.shape)}")
-    if _is_concrete(ts):
-        bad = np.flatnonzero(~(np.diff(np.asarray(ts)) > 0))
-        if bad.size:
-            raise ValueError(
-                f"ts must be strictly increasing and finite; ts[{bad[0] + 1}] = "
-                f"{float(ts[bad[0] + 1])} follows ts[{bad[0]}] = {float(ts[bad[0]])}"
-            )
-        return ts
-    return eqx.error_if(ts, ~jnp.all(jnp.diff(ts) > 0), "ts must be strictly increasing")
+
+    def detail(t):
+        k = int(np.flatnonzero(~(np.diff(t) > 0))[0])
+        return f": ts[{k + 1}] = {t[k + 1]} follows ts[{k}] = {t[k]}"
+
+    return validate(
+        ts, lambda xp, t: ~(xp.diff(t) > 0), "ts must be strictly increasing and finite", detail
+    )
 
 
 def check_initial_rotation(P0: Array, atol: float, name: str = "P0") -> Array:
     """P0 with a clear error (stating the deviation when P0 is concrete) if it is no rotation."""
-    if _is_concrete(P0):
-        err = float(jnp.max(so3.orthogonality_error(P0)))
-        det = float(jnp.min(jnp.linalg.det(P0)))
-        if not (err <= atol and abs(det - 1) <= atol):
-            raise ValueError(
-                f"{name} is not a rotation matrix: ‖PᵀP − E‖ = {err:.3g}, det = {det:.6g} "
-                f"(tolerance {atol:g}); pass rigidjax.so3.project({name}) for the nearest rotation"
-            )
-        return P0
-    return so3.check_rotation(P0, atol, name)
+
+    def bad(xp, P):
+        err = xp.linalg.norm(xp.swapaxes(P, -1, -2) @ P - xp.eye(3), axis=(-2, -1))
+        return ~((err <= atol) & (xp.abs(xp.linalg.det(P) - 1) <= atol))
+
+    def detail(P):
+        err = np.linalg.norm(P.T @ P - np.eye(3))
+        return f": ‖PᵀP − E‖ = {err:.3g}, det = {np.linalg.det(P):.6g}"
+
+    return validate(
+        P0,
+        bad,
+        f"{name} is not a rotation matrix (tolerance {atol:g}); pass rigidjax.so3.project({name}) "
+        f"for the nearest rotation",
+        detail,
+    )
 
 
 def default_tolerances(dtype) -> tuple[float, float]:

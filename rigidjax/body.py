@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
-from ._util import as_float
+from ._util import as_float, validate
 from .inertia import as_tensor, check_inertia, principal_axes
 
 
@@ -37,10 +36,12 @@ class RigidBody(eqx.Module):
         m = as_float(mass, "mass").astype(I.dtype)
         if check:
             I = check_inertia(I, "inertia")
-            if isinstance(m, jax.core.Tracer):
-                m = eqx.error_if(m, ~(m > 0), "mass must be positive and finite")
-            elif not bool(jnp.all(m > 0) & jnp.all(jnp.isfinite(m))):
-                raise ValueError(f"mass must be positive and finite, got {m}")
+            m = validate(
+                m,
+                lambda xp, v: ~((v > 0) & xp.isfinite(v)),
+                "mass must be positive and finite",
+                lambda v: f", got {v}",
+            )
         self.inertia = I
         self.mass = m
 

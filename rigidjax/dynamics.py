@@ -11,10 +11,11 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import jax.tree_util as jtu
+import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from . import quat
-from ._util import as_float, vector
+from ._util import as_float, validate, vector
 from .attitude import check_times, default_tolerances
 from .body import RigidBody, euler_rhs
 from .explicit_rk import unrolled as _unrolled
@@ -82,23 +83,17 @@ class _BatchField(eqx.Module):
 
 
 def _check_unit_quat(q0: Array) -> Array:
-    n = jnp.sqrt(jnp.sum(q0 * q0, axis=-1))
     tol = 1e-6 if q0.dtype == jnp.float64 else 1e-4
-    msg = "q0 must be a unit quaternion (w, x, y, z); normalise it with rigidjax.quat.normalize"
-    if isinstance(q0, jax.core.Tracer):
-        return eqx.error_if(q0, ~(jnp.abs(n - 1) <= tol), msg)
-    if not bool(jnp.all(jnp.abs(n - 1) <= tol)):
-        raise ValueError(f"{msg}: |q0| = {float(jnp.max(jnp.abs(n - 1)) + 1):.6g}")
-    return q0
+    return validate(
+        q0,
+        lambda xp, q: ~(xp.abs(xp.sqrt(xp.sum(q * q, axis=-1)) - 1) <= tol),
+        "q0 must be a unit quaternion (w, x, y, z); normalise it with rigidjax.quat.normalize",
+        lambda q: f": |q0| = {np.linalg.norm(q, axis=-1).ravel()[0]:.6g}",
+    )
 
 
 def _check_finite(x: Array, name: str) -> Array:
-    msg = f"{name} must be finite"
-    if isinstance(x, jax.core.Tracer):
-        return eqx.error_if(x, ~jnp.all(jnp.isfinite(x)), msg)
-    if not bool(jnp.all(jnp.isfinite(x))):
-        raise ValueError(f"{msg}, got {x}")
-    return x
+    return validate(x, lambda xp, v: ~xp.isfinite(v), f"{name} must be finite", lambda v: f": {v}")
 
 
 def simulate(

@@ -355,3 +355,15 @@ def su2_act(U: ArrayLike, r: ArrayLike) -> Vec:
     U = _c2(U, "U")
     S = vec_to_sigma(r)
     return sigma_to_vec(U @ S @ jnp.conj(jnp.swapaxes(U, -1, -2)))
+
+
+def retract(q: ArrayLike, delta: ArrayLike) -> Quat:
+    """Move `q` by the body-frame rotation vector `delta`: `q ∘ exp(δ)` (a chart of SO(3) around q;
+    a gradient with respect to a rotation lives in this 3-dimensional tangent space)."""
+    return mul(q, from_rotvec(delta))
+
+
+def local(q_ref: ArrayLike, q: ArrayLike) -> Vec:
+    """Inverse of `retract`: the body-frame rotation vector `δ = log(q_ref⁻¹ ∘ q)`, |δ| ≤ π."""
+    q_ref = vector(q_ref, 4, "q_ref")
+    return to_rotvec(mul(conj(q_ref) / norm2(q_ref)[..., None], q))

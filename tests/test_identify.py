@@ -1,0 +1,116 @@
+"""Inertia identification from data generated with SciPy (not with rigidjax)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.integrate import solve_ivp
+from scipy.spatial.transform import Rotation
+
+from rigidjax import identify_inertia
+from rigidjax.identify import inertia_from_params, params_from_inertia
+from rigidjax.inertia import check_inertia
+
+TS = np.linspace(0.0, 8.0, 81)
+R = Rotation.from_rotvec([0.3, -0.5, 0.2]).as_matrix()
+I_TRUE = R @ np.diag([1.0, 2.0, 2.6]) @ R.T  # full, non-diagonal tensor
+W0 = np.array([0.4, 1.1, -0.7])
+Q0 = Rotation.from_rotvec([0.1, 0.2, -0.3]).as_quat(scalar_first=True)
+K = np.array([0.1, -0.2, 0.15])  # constant body-frame torque for the absolute-scale case
+
+
+def scipy_data(torque=(0.0, 0.0, 0.0)):
+    """Euler's equations + q̇ = ½ q∘(0, Ω) with SciPy DOP853 (independent of rigidjax)."""
+
+    def rhs(t, y):
+        w, q = y[:3], y[3:]
+        dw = np.linalg.solve(I_TRUE, torque - np.cross(w, I_TRUE @ w))
+        dq = 0.5 * np.concatenate([[-q[1:] @ w], q[0] * w + np.cross(q[1:], w)])
+        return np.concatenate([dw, dq])
+
+    sol = solve_ivp(
+        rhs,
+        (TS[0], TS[-1]),
+        np.concatenate([W0, Q0]),
+        t_eval=TS,
+        method="DOP853",
+        rtol=1e-13,
+        atol=1e-13,
+    )
+    q = sol.y[3:].T
+    return sol.y[:3].T, q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+OMEGA, QUAT = scipy_data()
+
+
+def test_gyro_data_full_tensor():
+    rng = np.random.default_rng(0)
+    est = identify_inertia(TS, omega_obs=OMEGA + 1e-3 * rng.normal(size=OMEGA.shape))
+    assert bool(est.converged)
+    assert "trace" in est.scale
+    ref = I_TRUE / np.trace(I_TRUE)
+    err = np.abs(np.asarray(est.inertia) - ref).max()
+    assert err <= 0.005 * np.trace(ref), err
+    # the Gauss–Newton uncertainty is of the size of the actual error
+    assert err < 6 * float(np.max(est.inertia_std)) and float(np.max(est.inertia_std)) < 5e-3
+    np.testing.assert_allclose(est.omega0, W0, atol=5e-3)
+    np.testing.assert_allclose(est.principal_moments, np.array([1.0, 2.0, 2.6]) / 5.6, atol=2e-3)
+
+
+def test_attitude_data_only():
+    rng = np.random.default_rng(1)
+    noisy = Rotation.from_quat(QUAT, scalar_first=True) * Rotation.from_rotvec(
+        1e-3 * rng.normal(size=(len(TS), 3))
+    )
+    est = identify_inertia(TS, quat_obs=noisy.as_quat(scalar_first=True))
+    assert bool(est.converged)
+    ref = I_TRUE / np.trace(I_TRUE)
+    assert np.abs(np.asarray(est.inertia) - ref).max() <= 0.005
+    # the fitted initial attitude matches the truth (up to the sign of q)
+    assert abs(abs(float(jnp.dot(est.q0, Q0))) - 1) < 1e-5
+
+
+def test_known_torque_gives_absolute_inertia():
+    omega, quat_ = scipy_data(K)
+    est = identify_inertia(
+        TS, omega_obs=omega, quat_obs=quat_, torque=lambda t, w, q: jnp.asarray(K)
+    )
+    assert bool(est.converged) and est.scale.startswith("absolute")
+    np.testing.assert_allclose(est.inertia, I_TRUE, atol=1e-6)
+    np.testing.assert_allclose(est.principal_moments, [1.0, 2.0, 2.6], atol=1e-6)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.floats(-3, 3), min_size=6, max_size=6))
+def test_every_parameter_is_a_physical_body(params):
+    for trace, p in [(None, np.asarray(params)), (1.0, np.asarray(params[:5]))]:
+        I = inertia_from_params(jnp.asarray(p), trace)
+        check_inertia(I, rtol=1e-12)  # symmetric, positive definite, triangle inequality
+        back = params_from_inertia(I, trace)
+        np.testing.assert_allclose(inertia_from_params(back, trace), I, rtol=1e-9, atol=1e-12)
+
+
+def test_bad_input():
+    with pytest.raises(ValueError, match="too few samples"):
+        identify_inertia(TS[:2], omega_obs=OMEGA[:2])
+    with pytest.raises(ValueError, match="strictly increasing"):
+        identify_inertia(TS[::-1], omega_obs=OMEGA)
+    with pytest.raises(ValueError, match="omega_obs"):
+        identify_inertia(TS)
+    with pytest.raises(ValueError, match=r"omega_obs must have shape \(81, 3\)"):
+        identify_inertia(TS, omega_obs=OMEGA[:10])
+
+
+def test_vmap_over_datasets():
+    """Two datasets (different noise) fitted in one vmapped call equal the separate fits."""
+    ts = TS[:41]
+    rng = np.random.default_rng(2)
+    data = OMEGA[None, :41] + 1e-3 * rng.normal(size=(2, 41, 3))
+    batched = jax.vmap(lambda w: identify_inertia(ts, omega_obs=w).inertia)(jnp.asarray(data))
+    single = identify_inertia(ts, omega_obs=data[1]).inertia
+    np.testing.assert_allclose(batched[1], single, atol=1e-8)
+    ref = I_TRUE / np.trace(I_TRUE)
+    assert np.abs(np.asarray(batched) - ref).max() < 0.005
