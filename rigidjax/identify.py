@@ -2,9 +2,11 @@
 
 Least squares through the simulator (optimistix Levenberg–Marquardt; Jacobians in forward mode
 through Diffrax with `ForwardMode`). The inertia is parameterised so that EVERY parameter value is
-a physical body: with the second-moment ("pseudo-inertia") matrix Σ = L Lᵀ, L lower triangular
-with a positive (exponentiated) diagonal, the inertia `I = tr(Σ) E − Σ` is positive definite and
-its principal moments `I_i = σ_j + σ_k` satisfy the triangle inequality (σ the eigenvalues of Σ).
+a physical body: with the second-moment ("pseudo-inertia") matrix Σ = L Lᵀ ⪰ 0 (L lower
+triangular, six free entries), the inertia `I = tr(Σ) E − Σ` has principal moments
+`I_i = σ_j + σ_k ≥ 0` (σ ≥ 0 the eigenvalues of Σ), which satisfy the triangle inequality. Planar
+bodies (one σ = 0, `I3 = I1 + I2`) lie inside the parameter space, not on an unreachable
+boundary; only a rank-one Σ (a rod, `I3 = 0`) is singular.
 """
 
 from __future__ import annotations
@@ -56,35 +58,29 @@ class InertiaEstimate(eqx.Module):
         return principal_axes(self.inertia)[1]
 
 
-def _tril(params: Array, gauge_fixed: bool) -> Array:
-    """L (lower triangular, positive diagonal) from 5 (first diagonal entry fixed to 1) or 6
-    parameters: (log L11, log L22[, log L00], L10, L20, L21)."""
-    if gauge_fixed:
-        logd = jnp.concatenate([jnp.zeros(1, params.dtype), params[:2]])
-        off = params[2:5]
-    else:
-        logd, off = params[:3], params[3:6]
-    L = jnp.diag(jnp.exp(logd))
-    return L.at[1, 0].set(off[0]).at[2, 0].set(off[1]).at[2, 1].set(off[2])
+def _tril(params: Array) -> Array:
+    """L (lower triangular) from (L00, L11, L22, L10, L20, L21)."""
+    L = jnp.diag(params[:3])
+    return L.at[1, 0].set(params[3]).at[2, 0].set(params[4]).at[2, 1].set(params[5])
 
 
 def inertia_from_params(params: Array, trace: float | None) -> Float[Array, "3 3"]:
-    """`I = tr(Σ) E − Σ`, Σ = L Lᵀ, rescaled to `trace` if given (physical for every value)."""
-    L = _tril(params, trace is not None)
+    """`I = tr(Σ) E − Σ`, Σ = L Lᵀ, rescaled to `trace` if given (physical for every value;
+    with `trace` the overall scale of L is a redundant direction, harmless to Levenberg–Marquardt
+    and removed from the covariance by the pseudo-inverse)."""
+    L = _tril(params)
     S = L @ L.T
     I = jnp.trace(S) * jnp.eye(3, dtype=S.dtype) - S
     return I if trace is None else I * (trace / jnp.trace(I))
 
 
-def params_from_inertia(I: Array, trace: float | None) -> Array:
-    """Inverse of `inertia_from_params` (Σ = tr(I)/2 E − I, then Cholesky)."""
+def params_from_inertia(I: Array, trace: float | None = None) -> Array:
+    """Parameters of `I` (Σ = tr(I)/2 E − I, Cholesky; a planar body's singular Σ is nudged by
+    1e-9·tr Σ so the factor exists)."""
+    del trace  # the same factor serves both gauges
     S = jnp.trace(I) / 2 * jnp.eye(3, dtype=I.dtype) - I
-    L = jnp.linalg.cholesky(S)
-    if trace is not None:
-        L = L / L[0, 0]
-        return jnp.stack([jnp.log(L[1, 1]), jnp.log(L[2, 2]), L[1, 0], L[2, 0], L[2, 1]])
-    d = jnp.log(jnp.diagonal(L))
-    return jnp.concatenate([d, jnp.stack([L[1, 0], L[2, 0], L[2, 1]])])
+    L = jnp.linalg.cholesky(S + 1e-9 * jnp.trace(S) * jnp.eye(3, dtype=I.dtype))
+    return jnp.concatenate([jnp.diagonal(L), jnp.stack([L[1, 0], L[2, 0], L[2, 1]])])
 
 
 def identify_inertia(
@@ -104,7 +100,7 @@ def identify_inertia(
     atol: float = 1e-10,
     solver_rtol: float = 1e-10,
     solver_atol: float = 1e-12,
-    max_steps: int = 100,
+    max_steps: int = 256,
     sim_max_steps: int = 100_000,
 ) -> InertiaEstimate:
     """Fit the inertia tensor and the initial state to gyro data `omega_obs (T, 3)` (body angular
@@ -118,7 +114,9 @@ def identify_inertia(
     Scale: torque-free motion depends on I only up to a factor (Euler's equations are
     homogeneous in I), so without `torque` the tensor is normalised to `trace` (default 1) and
     `result.scale` says so; with a known `torque(t, Ω, q)` the absolute tensor is fitted (unless
-    `trace` is given). `vmap`-able over datasets.
+    `trace` is given). `vmap`-able over datasets. A (nearly) planar body, `I3 ≈ I1 + I2`, sits
+    where Σ is singular and the Cholesky factor flattens the cost: convergence is slower there
+    (raise `max_steps`).
     """
     ts = check_times(as_float(ts, "ts"))
     if omega_obs is None and quat_obs is None:
@@ -144,7 +142,7 @@ def identify_inertia(
 
     fit_q0 = quat_obs is not None
     n_res = 3 * T * ((omega_obs is not None) + fit_q0)
-    n_par = (5 if trace is not None else 6) + 3 + 3 * fit_q0
+    n_par = (5 if trace is not None else 6) + 3 + 3 * fit_q0  # identifiable unknowns
     if n_res <= n_par:
         raise ValueError(
             f"too few samples: {n_res} residuals for {n_par} unknowns; give more times in ts"
@@ -215,7 +213,7 @@ def _fit(
     settings reuse it)."""
     dtype = ts.dtype
     fit_q0 = quat_obs is not None
-    k = 5 if trace is not None else 6
+    k = 6
 
     def unpack(p):
         I = inertia_from_params(p[:k], trace)
@@ -263,7 +261,8 @@ def _fit(
     r = residuals(p, fit_q0)
     J = jax.jacfwd(residuals)(p, fit_q0)
     cost = 0.5 * jnp.sum(r * r)
-    s2 = 2 * cost / (r.shape[0] - p.shape[0])
+    # with `trace` fixed the scale of L is not identifiable: one parameter fewer
+    s2 = 2 * cost / (r.shape[0] - p.shape[0] + (trace is not None))
     cov = s2 * jnp.linalg.pinv(J.T @ J)
     JI = jax.jacfwd(lambda q: inertia_from_params(q, trace))(p[:k]).reshape(9, k)
     I_std = jnp.sqrt(jnp.diagonal(JI @ cov[:k, :k] @ JI.T)).reshape(3, 3)

@@ -53,7 +53,9 @@ def _directional_fd(f, x, v, h=1e-5):
 
 
 @pytest.mark.parametrize(
-    "kinematics", ["quat", "rotvec", "geometric", "matrix", "euler", "cayley_klein"]
+    "kinematics",
+    ["quat", "rotvec", "geometric"]
+    + [pytest.param(k, marks=pytest.mark.slow) for k in ("matrix", "euler", "cayley_klein")],
 )
 def test_reverse_mode_every_kinematics(kinematics):
     f = jax.jit(lambda x: loss(x, kinematics, diffrax.RecursiveCheckpointAdjoint()))
@@ -64,11 +66,12 @@ def test_reverse_mode_every_kinematics(kinematics):
         np.testing.assert_allclose(g @ v, _directional_fd(f, X0, v), rtol=1e-6, atol=1e-8)
 
 
-def test_forward_mode_jacobian_matches_reverse():
+def test_forward_mode_matches_reverse():
     """`diffrax.ForwardMode` (needed by optimistix's Jacobians) gives the same derivatives."""
-    fwd = jax.jacfwd(lambda x: loss(x, "quat", diffrax.ForwardMode()))(X0)
+    v = jax.random.normal(jax.random.PRNGKey(7), X0.shape)
+    _, fwd = jax.jvp(lambda x: loss(x, "quat", diffrax.ForwardMode()), (X0,), (v,))
     rev = jax.grad(lambda x: loss(x, "quat", diffrax.RecursiveCheckpointAdjoint()))(X0)
-    np.testing.assert_allclose(fwd, rev, rtol=1e-9, atol=1e-11)
+    np.testing.assert_allclose(fwd, rev @ v, rtol=1e-9, atol=1e-11)
 
 
 def test_long_horizon_gradient_10k_steps():
