@@ -10,7 +10,8 @@ Methods
     ``matrix`` (Poisson equation on the 9 entries), ``rotvec`` (θ̇ = Z(θ) ω, shadow switching),
     ``quat`` (normalised after each step), ``euler`` (sequence ``EULER_SEQ``; its distance from
     gimbal lock along the motion is checked and recorded), ``cayley_klein`` (SU(2), normalised),
-    all with Tsit5 wrapped in ``StepEndMap``, and ``geometric`` (RKMK, Dopri5 tableau): the
+    all with Tsit5 (unrolled stages, ``rigidjax.ExplicitRK``) wrapped in ``StepEndMap``, and
+    ``geometric`` (RKMK, Dopri5 tableau): the
     defaults of ``rigidjax.darboux``. The benchmark replicates ``darboux``'s small setup and calls
     ``diffrax.diffeqsolve`` itself to get ``sol.stats``; at every tolerance the result is compared
     with ``rigidjax.darboux`` itself (``max_abs_diff_vs_darboux`` in the JSON).
@@ -68,6 +69,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 from rigidjax import darboux, euler, so3  # noqa: E402
+from rigidjax.explicit_rk import unrolled  # noqa: E402
 from rigidjax.kinematics import METHODS as KINEMATICS  # noqa: E402
 from rigidjax.kinematics import AbstractKinematics, check_omega  # noqa: E402
 from rigidjax.lie_solver import RKMK, LieTerm  # noqa: E402
@@ -192,7 +194,7 @@ def setup(method: str, P0, count: bool = False, base_solver=None):
         solver = RKMK(frame="space") if base_solver is None else RKMK(method=base_solver)
         return LieTerm(_LieField(OMEGA, count)), solver, (P0, None), lambda ys: ys[0]
     kin = kinematics(method)
-    solver = StepEndMap(diffrax.Tsit5() if base_solver is None else base_solver, kin.step_end)
+    solver = StepEndMap(unrolled(base_solver), kin.step_end)
     return diffrax.ODETerm(_Field(kin, OMEGA, count)), solver, kin.from_matrix(P0), kin.to_matrix
 
 
