@@ -1,6 +1,7 @@
 """rigidjax: JAX-accelerated, differentiable rigid-body rotation maps, kinematics and dynamics."""
 
 from . import (
+    analytic,
     andoyer,
     euler,
     gibbs,
@@ -51,6 +52,7 @@ __all__ = [
     "Quaternion",
     "RotationVector",
     "StepEndMap",
+    "analytic",
     "andoyer",
     "angular_momentum",
     "darboux",
