@@ -74,19 +74,87 @@ def poly(x: Array, coeffs: Sequence[float]) -> Array:
     return out
 
 
+def is_concrete(x) -> bool:
+    """True unless `x` is a tracer (inside jit/vmap/grad): its values can be checked now."""
+    return not isinstance(x, jax.core.Tracer)
+
+
 def validate(
     x: Array,
     bad: Callable,
     message: str,
     detail: Callable[[np.ndarray], str] | None = None,
+    *,
+    hint: str = "",
+    on: Array | None = None,
 ) -> Array:
-    """Check `x` with `bad(xp, x) -> bool array` and return it, raising a clear error if any is
-    true: a ValueError at once (with `detail(x)` appended) when `x` is concrete, else an
-    `equinox.error_if` that raises at run time under jit/vmap. The concrete check runs in NumPy,
-    so it works on constants inside a trace as well."""
-    if isinstance(x, jax.core.Tracer):
-        return eqx.error_if(x, jnp.any(bad(jnp, x)), message)
+    """Check `x` with `bad(xp, x) -> bool array` (`xp` is NumPy or `jax.numpy`) and raise a clear
+    error if any entry is true: a ValueError `message + detail(x) + hint` at once when `x` is
+    concrete, else an `equinox.error_if` with `message + hint` that raises at run time under
+    jit/vmap. The concrete check runs in NumPy, so it works on constants inside a trace as well.
+
+    Returns `on` (default `x`), to which the run-time check is attached: use the returned value
+    (an unused check is removed with the dead code). For a check made only on concrete values
+    (e.g. where traced callers expect NaN), guard the call with `is_concrete(x)`."""
+    out = x if on is None else on
+    if not is_concrete(x):
+        return eqx.error_if(out, jnp.any(bad(jnp, x)), message + hint)
     xn = np.asarray(x)
     if np.any(bad(np, xn)):
-        raise ValueError(message + (detail(xn) if detail is not None else ""))
-    return x
+        raise ValueError(message + (detail(xn) if detail is not None else "") + hint)
+    return out
+
+
+def _got(v: np.ndarray) -> str:
+    return f", got {v}"
+
+
+def check_finite(x: Array, name: str) -> Array:
+    """`x`, checked to be finite everywhere (see `validate`)."""
+    return validate(x, lambda xp, v: ~xp.isfinite(v), f"{name} must be finite", _got)
+
+
+def check_positive(x: Array, name: str) -> Array:
+    """`x`, checked to be positive and finite everywhere (see `validate`)."""
+    return validate(
+        x, lambda xp, v: ~((v > 0) & xp.isfinite(v)), f"{name} must be positive and finite", _got
+    )
+
+
+def norm_tolerance(dtype) -> float:
+    """Tolerance of the checks of unit quaternions and vectors and of rotation matrices: 1e-6 in
+    float64, 1e-4 in lower precision."""
+    return 1e-6 if dtype == jnp.float64 else 1e-4
+
+
+def check_unit_norm(x: Array, name: str, hint: str = "") -> Array:
+    """`x (..., n)`, checked to have unit norm within `norm_tolerance` (see `validate`): a unit
+    quaternion (w, x, y, z) when n = 4, else a unit vector. The error names `name`, the
+    offending norm (concrete `x`) and the fix `hint`; by default "normalise it with
+    rigidjax.quat.normalize" for quaternions."""
+    tol = norm_tolerance(x.dtype)
+    quaternion = x.shape[-1] == 4
+    if not hint:
+        hint = "; normalise it with rigidjax.quat.normalize" if quaternion else "; normalise it"
+
+    def bad(xp, v):
+        return ~(xp.abs(xp.sqrt(xp.sum(v * v, axis=-1)) - 1) <= tol)
+
+    def detail(v):
+        n = np.linalg.norm(v, axis=-1)
+        if n.ndim == 0:
+            return f": |{name}| = {n:.9g}"
+        k = np.unravel_index(np.argmax(np.abs(n - 1)), n.shape)  # the worst (NaN first)
+        return f": |{name}[{', '.join(map(str, k))}]| = {n[k]:.9g}"
+
+    what = "quaternion (w, x, y, z)" if quaternion else "vector"
+    return validate(x, bad, f"{name} must be a unit {what}", detail, hint=hint)
+
+
+def initial_vector(x: ArrayLike, n: int, name: str, dtype) -> Array:
+    """One finite `(n,)` vector of `dtype`, for integrators that take a single state (a batch
+    gets an error pointing to `jax.vmap`)."""
+    x = vector(x, n, name).astype(dtype)
+    if x.shape != (n,):
+        raise ValueError(f"{name} must have shape ({n},) (jax.vmap for batches), got {x.shape}")
+    return check_finite(x, name)

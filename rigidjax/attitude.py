@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from ._util import as_float, matrix, validate
+from ._util import as_float, matrix, norm_tolerance, validate
 from .explicit_rk import unrolled as _unrolled
 from .kinematics import METHODS, AbstractKinematics, check_omega
 from .lie_solver import RKMK, LieTerm
@@ -96,15 +96,68 @@ def check_initial_rotation(P0: Array, atol: float, name: str = "P0") -> Array:
     return validate(
         P0,
         bad,
-        f"{name} is not a rotation matrix (tolerance {atol:g}); pass rigidjax.so3.project({name}) "
-        f"for the nearest rotation",
+        f"{name} is not a rotation matrix",
         detail,
+        hint=f" (tolerance {atol:g}); pass rigidjax.so3.project({name}) for the nearest rotation",
     )
 
 
 def default_tolerances(dtype) -> tuple[float, float]:
     """(rtol, atol): 1e-10 in float64, 1e-6 in float32."""
     return (1e-10, 1e-10) if jnp.finfo(dtype).eps < 1e-10 else (1e-6, 1e-6)
+
+
+def solve_saved(
+    term: diffrax.AbstractTerm,
+    solver: diffrax.AbstractSolver,
+    ts: Array,
+    y0,
+    *,
+    args=None,
+    step_end: Callable | None = None,
+    stepsize_controller: diffrax.AbstractStepSizeController | None = None,
+    rtol: float | None = None,
+    atol: float | None = None,
+    tolerances: tuple[float, float] | None = None,
+    norm: Callable | None = None,
+    dt0: float | None = None,
+    max_steps: int = 100_000,
+    adjoint: diffrax.AbstractAdjoint | None = None,
+    progress_meter: diffrax.AbstractProgressMeter | None = None,
+):
+    """`diffrax.diffeqsolve` of `term` from `ts[0]` to `ts[-1]`, saving at `ts`, with the
+    integrators' shared defaults; returns `(ys, stats)` (the step counts).
+
+    `solver` is wrapped in `StepEndMap` with `step_end` when given (for `adjoint`, default
+    `RecursiveCheckpointAdjoint`). Without `stepsize_controller`, a `PIDController` at `rtol`,
+    `atol` (defaults `tolerances`, else `default_tolerances(ts.dtype)`), with error norm `norm`
+    when given."""
+    adjoint = diffrax.RecursiveCheckpointAdjoint() if adjoint is None else adjoint
+    if step_end is not None:
+        solver = StepEndMap.wrap(solver, step_end, adjoint)
+    if stepsize_controller is None:
+        d_rtol, d_atol = default_tolerances(ts.dtype) if tolerances is None else tolerances
+        stepsize_controller = diffrax.PIDController(
+            rtol=d_rtol if rtol is None else rtol,
+            atol=d_atol if atol is None else atol,
+            **({} if norm is None else {"norm": norm}),
+        )
+    sol = diffrax.diffeqsolve(
+        term,
+        solver,
+        ts[0],
+        ts[-1],
+        dt0,
+        y0,
+        args=args,
+        saveat=diffrax.SaveAt(ts=ts),
+        stepsize_controller=stepsize_controller,
+        max_steps=max_steps,
+        adjoint=adjoint,
+        progress_meter=diffrax.NoProgressMeter() if progress_meter is None else progress_meter,
+    )
+    stats = {k: sol.stats[k] for k in ("num_steps", "num_accepted_steps", "num_rejected_steps")}
+    return sol.ys, stats
 
 
 def darboux(
@@ -140,19 +193,14 @@ def darboux(
     P0 = jnp.eye(3, dtype=ts.dtype) if P0 is None else matrix(P0, "P0")
     if P0.shape != (3, 3):
         raise ValueError(f"P0 must have shape (3, 3) (vmap for batches), got {tuple(P0.shape)}")
-    P0 = check_initial_rotation(P0.astype(ts.dtype), 1e-6 if ts.dtype == jnp.float64 else 1e-4)
+    P0 = check_initial_rotation(P0.astype(ts.dtype), norm_tolerance(ts.dtype))
     w = omega_path(omega)
-    adjoint = diffrax.RecursiveCheckpointAdjoint() if adjoint is None else adjoint
-    d_rtol, d_atol = default_tolerances(ts.dtype)
-    if stepsize_controller is None:
-        stepsize_controller = diffrax.PIDController(
-            rtol=d_rtol if rtol is None else rtol, atol=d_atol if atol is None else atol
-        )
 
     if method == "geometric":
         solver = RKMK(frame=frame) if solver is None else RKMK(method=solver, frame=frame)
         term = LieTerm(_LieField(w))
         y0 = (P0, None)
+        step_end = None
 
         def to_matrix(y):
             return y[0]
@@ -169,7 +217,7 @@ def darboux(
                 f"method must be one of {sorted([*METHODS, 'geometric'])} or an "
                 f"AbstractKinematics instance, got {method!r}"
             )
-        solver = StepEndMap.wrap(_unrolled(solver), kin.step_end, adjoint)
+        solver, step_end = _unrolled(solver), kin.step_end
         term = diffrax.ODETerm(_KinematicsField(kin, w))
         y0 = kin.from_matrix(P0)
         to_matrix = jax.vmap(kin.to_matrix)
@@ -177,17 +225,18 @@ def darboux(
         def native(y):
             return jax.vmap(lambda yi: kin.step_end(yi)[0])(y)
 
-    sol = diffrax.diffeqsolve(
+    ys, _ = solve_saved(
         term,
         solver,
-        ts[0],
-        ts[-1],
-        dt0,
+        ts,
         y0,
-        saveat=diffrax.SaveAt(ts=ts),
+        step_end=step_end,
         stepsize_controller=stepsize_controller,
+        rtol=rtol,
+        atol=atol,
+        dt0=dt0,
         max_steps=max_steps,
         adjoint=adjoint,
     )
-    P = to_matrix(sol.ys)
-    return (P, native(sol.ys)) if return_state else P
+    P = to_matrix(ys)
+    return (P, native(ys)) if return_state else P

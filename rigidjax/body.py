@@ -6,7 +6,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
-from ._util import as_float, validate
+from ._util import as_float, check_positive
 from .inertia import as_tensor, check_inertia, principal_axes
 
 
@@ -36,12 +36,7 @@ class RigidBody(eqx.Module):
         m = as_float(mass, "mass").astype(I.dtype)
         if check:
             I = check_inertia(I, "inertia")
-            m = validate(
-                m,
-                lambda xp, v: ~((v > 0) & xp.isfinite(v)),
-                "mass must be positive and finite",
-                lambda v: f", got {v}",
-            )
+            m = check_positive(m, "mass")
         self.inertia = I
         self.mass = m
 

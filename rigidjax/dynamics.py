@@ -11,17 +11,15 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import jax.tree_util as jtu
-import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from . import quat
-from ._util import as_float, validate, vector
-from .attitude import check_times, default_tolerances
+from ._util import as_float, check_finite, check_unit_norm, vector
+from .attitude import check_times, solve_saved
 from .body import RigidBody, euler_rhs
 from .explicit_rk import unrolled as _unrolled
 from .kinematics import METHODS, AbstractKinematics
 from .lie_solver import RKMK, LieTerm
-from .projected_solver import StepEndMap
 
 Torque = Callable[[Array, Array, Array], Array]
 
@@ -82,20 +80,6 @@ class _BatchField(eqx.Module):
         return jax.vmap(self.dyn, in_axes=(None, 0, 0, 0, 0))(t, att, omega, I, I_inv)
 
 
-def _check_unit_quat(q0: Array) -> Array:
-    tol = 1e-6 if q0.dtype == jnp.float64 else 1e-4
-    return validate(
-        q0,
-        lambda xp, q: ~(xp.abs(xp.sqrt(xp.sum(q * q, axis=-1)) - 1) <= tol),
-        "q0 must be a unit quaternion (w, x, y, z); normalise it with rigidjax.quat.normalize",
-        lambda q: f": |q0| = {np.linalg.norm(q, axis=-1).ravel()[0]:.6g}",
-    )
-
-
-def _check_finite(x: Array, name: str) -> Array:
-    return validate(x, lambda xp, v: ~xp.isfinite(v), f"{name} must be finite", lambda v: f": {v}")
-
-
 def simulate(
     body: RigidBody,
     omega0: ArrayLike,
@@ -132,9 +116,9 @@ def simulate(
         raise ValueError("ts (the output times) is required")
     ts = check_times(as_float(ts, "ts"))
     dtype = ts.dtype
-    omega0 = _check_finite(vector(omega0, 3, "omega0").astype(dtype), "omega0")
+    omega0 = check_finite(vector(omega0, 3, "omega0").astype(dtype), "omega0")
     q0 = quat.identity(dtype=dtype) if q0 is None else vector(q0, 4, "q0").astype(dtype)
-    q0 = _check_unit_quat(q0)
+    q0 = check_unit_norm(q0, "q0")
     batch = jnp.broadcast_shapes(body.batch_shape, omega0.shape[:-1], q0.shape[:-1])
     B = math.prod(batch)
     args = tuple(
@@ -145,13 +129,13 @@ def simulate(
     )
     omega0 = jnp.broadcast_to(omega0, (*batch, 3)).reshape(B, 3)
     q0 = jnp.broadcast_to(q0, (*batch, 4)).reshape(B, 4)
-    adjoint = diffrax.RecursiveCheckpointAdjoint() if adjoint is None else adjoint
 
     if kinematics == "geometric":
         kin = None
         solver = RKMK(frame="body") if solver is None else RKMK(method=solver, frame="body")
         term = LieTerm(_BatchField(_Dynamics(None, torque, torque_frame)))
         att0 = quat.to_matrix(q0)
+        step_end = None
     else:
         if isinstance(kinematics, AbstractKinematics):
             kin = kinematics
@@ -164,38 +148,32 @@ def simulate(
                 f"kinematics must be one of {sorted([*METHODS, 'geometric'])} or an "
                 f"AbstractKinematics instance, got {kinematics!r}"
             )
-        step_end = jax.vmap(kin.step_end)
+        kin_step_end = jax.vmap(kin.step_end)
 
-        def fn(y):
-            att, jumped = step_end(y[0])
+        def step_end(y):
+            att, jumped = kin_step_end(y[0])
             return (att, y[1]), jnp.any(jumped)
 
-        solver = StepEndMap.wrap(_unrolled(solver), fn, adjoint)
+        solver = _unrolled(solver)
         term = diffrax.ODETerm(_BatchField(_Dynamics(kin, torque, torque_frame)))
         att0 = jax.vmap(kin.from_matrix)(quat.to_matrix(q0))
 
-    if stepsize_controller is None:
-        d_rtol, d_atol = default_tolerances(dtype)
-        stepsize_controller = diffrax.PIDController(
-            rtol=d_rtol if rtol is None else rtol,
-            atol=d_atol if atol is None else atol,
-            norm=_batch_max_rms,
-        )
-    sol = diffrax.diffeqsolve(
+    (att, omega), stats = solve_saved(
         term,
         solver,
-        ts[0],
-        ts[-1],
-        dt0,
+        ts,
         (att0, omega0),
         args=args,
-        saveat=diffrax.SaveAt(ts=ts),
+        step_end=step_end,
         stepsize_controller=stepsize_controller,
+        rtol=rtol,
+        atol=atol,
+        norm=_batch_max_rms,
+        dt0=dt0,
         max_steps=max_steps,
         adjoint=adjoint,
-        progress_meter=diffrax.NoProgressMeter() if progress_meter is None else progress_meter,
-    )
-    att, omega = sol.ys  # (T, B, ...)
+        progress_meter=progress_meter,
+    )  # (T, B, ...)
     to_quat = quat.from_matrix if kin is None else jax.vmap(jax.vmap(kin.to_quat))
     q = quat.canonical(to_quat(att))
     T = ts.shape[0]
@@ -203,5 +181,5 @@ def simulate(
         ts=ts,
         omega=jnp.moveaxis(omega, 0, 1).reshape(*batch, T, 3),
         quat=jnp.moveaxis(q, 0, 1).reshape(*batch, T, 4),
-        stats={k: sol.stats[k] for k in ("num_steps", "num_accepted_steps", "num_rejected_steps")},
+        stats=stats,
     )

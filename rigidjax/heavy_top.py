@@ -47,11 +47,18 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from . import quat
-from ._util import as_float, vector
-from .attitude import check_times, default_tolerances
+from ._util import (
+    as_float,
+    check_finite,
+    check_unit_norm,
+    initial_vector,
+    norm_tolerance,
+    validate,
+    vector,
+)
+from .attitude import check_times, solve_saved
 from .body import RigidBody, euler_rhs
 from .explicit_rk import unrolled as _unrolled
-from .projected_solver import StepEndMap
 
 __all__ = [
     "HeavyTop",
@@ -72,19 +79,6 @@ Scalar = Float[Array, "*batch"]
 Vec = Float[Array, "*batch 3"]
 
 
-def _concrete(x) -> bool:
-    return not isinstance(x, jax.core.Tracer)
-
-
-def _check_finite(x: Array, name: str) -> Array:
-    msg = f"{name} must be finite"
-    if _concrete(x):
-        if not bool(jnp.all(jnp.isfinite(x))):
-            raise ValueError(f"{msg}, got {x}")
-        return x
-    return eqx.error_if(x, ~jnp.all(jnp.isfinite(x)), msg)
-
-
 class HeavyTop(eqx.Module):
     """A heavy rigid body with one fixed point O.
 
@@ -102,8 +96,8 @@ class HeavyTop(eqx.Module):
     def __init__(self, inertia: ArrayLike, mass: ArrayLike, com: ArrayLike, g: ArrayLike = 9.81):
         self.body = RigidBody(inertia, mass)
         dtype = self.body.inertia.dtype
-        self.com = _check_finite(vector(com, 3, "com").astype(dtype), "com")
-        self.g = _check_finite(as_float(g, "g").astype(dtype), "g")
+        self.com = check_finite(vector(com, 3, "com").astype(dtype), "com")
+        self.g = check_finite(as_float(g, "g").astype(dtype), "g")
 
     @property
     def inertia(self) -> Float[Array, "*batch 3 3"]:
@@ -204,11 +198,8 @@ def _is_kovalevskaya(top: HeavyTop, rtol: float) -> Bool[Array, "*batch"]:
 
 
 def _require(ok: Array, x: Array, msg: str) -> Array:
-    if _concrete(ok):
-        if not bool(jnp.all(ok)):
-            raise ValueError(msg)
-        return x
-    return eqx.error_if(x, ~jnp.all(ok), msg)
+    """`x`, with an error `msg` where the case test `ok` fails (see `validate`)."""
+    return validate(ok, lambda xp, v: ~v, msg, on=x)
 
 
 def lagrange_integral(
@@ -326,15 +317,10 @@ def _normalize_quat(y):
     return (om, ga, q * jax.lax.rsqrt(jnp.sum(q * q))), jnp.array(False)
 
 
-def _check_unit(x: Array, name: str, hint: str) -> Array:
-    n = jnp.sqrt(jnp.sum(x * x, axis=-1))
-    tol = 1e-6 if x.dtype == jnp.float64 else 1e-4
-    msg = f"{name} must be a unit vector (|{name}| = 1){hint}"
-    if _concrete(x):
-        if not bool(jnp.all(jnp.abs(n - 1) <= tol)):
-            raise ValueError(f"{msg}; got |{name}| = {float(n):.9g}")
-        return x / n
-    return eqx.error_if(x, ~(jnp.abs(n - 1) <= tol), msg) / n
+def _unit(x: Array, name: str, hint: str = "") -> Array:
+    """`x` checked to be a unit vector (within `norm_tolerance`) and then normalised exactly."""
+    x = check_unit_norm(x, name, hint)
+    return x / jnp.linalg.norm(x, axis=-1, keepdims=True)
 
 
 def simulate_heavy_top(
@@ -375,70 +361,46 @@ def simulate_heavy_top(
             f"{top.body.batch_shape}; use jax.vmap over the top for batches"
         )
     top = jax.tree_util.tree_map(lambda x: x.astype(dtype), top)
-    omega0 = vector(omega0, 3, "omega0").astype(dtype)
-    if omega0.shape != (3,):
-        raise ValueError(f"omega0 must have shape (3,) (vmap for batches), got {omega0.shape}")
-    omega0 = _check_finite(omega0, "omega0")
+    omega0 = initial_vector(omega0, 3, "omega0", dtype)
 
     if q0 is not None:
-        q0 = vector(q0, 4, "q0").astype(dtype)
-        if q0.shape != (4,):
-            raise ValueError(f"q0 must have shape (4,) (vmap for batches), got {q0.shape}")
-        q0 = _check_unit(q0, "q0", " (scalar-first (w, x, y, z)); see rigidjax.quat.normalize")
+        q0 = _unit(initial_vector(q0, 4, "q0", dtype), "q0")
         gamma_q = vertical_from_quat(q0)
         if gamma0 is not None:
             g = vector(gamma0, 3, "gamma0").astype(dtype)
-            tol = 1e-6 if dtype == jnp.float64 else 1e-4
-            bad = jnp.max(jnp.abs(g - gamma_q)) > tol
-            msg = "gamma0 disagrees with q0: gamma0 must equal P(q0)^T e_Z (or give only one)"
-            if _concrete(bad):
-                if bool(bad):
-                    raise ValueError(f"{msg}; P(q0)^T e_Z = {gamma_q}, gamma0 = {g}")
-            else:
-                gamma_q = eqx.error_if(gamma_q, bad, msg)
+            tol = norm_tolerance(dtype)
+            gamma_q = validate(
+                g - gamma_q,
+                lambda xp, d: xp.max(xp.abs(d)) > tol,
+                "gamma0 disagrees with q0: gamma0 must equal P(q0)^T e_Z (or give only one)",
+                lambda d: f"; P(q0)^T e_Z = {gamma_q}, gamma0 = {g}",
+                on=gamma_q,
+            )
         gamma0 = gamma_q
     elif gamma0 is None:
         raise ValueError("give the initial vertical gamma0 (body axes) or the attitude q0")
-    gamma0 = vector(gamma0, 3, "gamma0").astype(dtype)
-    if gamma0.shape != (3,):
-        raise ValueError(f"gamma0 must have shape (3,) (vmap for batches), got {gamma0.shape}")
-    gamma0 = _check_unit(
-        gamma0, "gamma0", " (the space vertical e_Z in body axes, gamma = P^T e_Z)"
+    gamma0 = _unit(
+        initial_vector(gamma0, 3, "gamma0", dtype),
+        "gamma0",
+        "; normalise it (the space vertical e_Z in body axes, gamma = P^T e_Z)",
     )
 
-    adjoint = diffrax.RecursiveCheckpointAdjoint() if adjoint is None else adjoint
-    solver = _unrolled(solver)
-    if q0 is None:
-        y0 = (omega0, gamma0)
-    else:
-        y0 = (omega0, gamma0, q0)
-        solver = StepEndMap.wrap(solver, _normalize_quat, adjoint)
-    if stepsize_controller is None:
-        d_rtol, d_atol = default_tolerances(dtype)
-        stepsize_controller = diffrax.PIDController(
-            rtol=d_rtol if rtol is None else rtol, atol=d_atol if atol is None else atol
-        )
-    sol = diffrax.diffeqsolve(
+    ys, stats = solve_saved(
         diffrax.ODETerm(_Field()),
-        solver,
-        ts[0],
-        ts[-1],
-        dt0,
-        y0,
+        _unrolled(solver),
+        ts,
+        (omega0, gamma0) if q0 is None else (omega0, gamma0, q0),
         args=top,
-        saveat=diffrax.SaveAt(ts=ts),
+        step_end=None if q0 is None else _normalize_quat,
         stepsize_controller=stepsize_controller,
+        rtol=rtol,
+        atol=atol,
+        dt0=dt0,
         max_steps=max_steps,
         adjoint=adjoint,
     )
-    q = None if q0 is None else quat.canonical(quat.normalize(sol.ys[2]))
-    return HeavyTopTrajectory(
-        ts=ts,
-        omega=sol.ys[0],
-        gamma=sol.ys[1],
-        quat=q,
-        stats={k: sol.stats[k] for k in ("num_steps", "num_accepted_steps", "num_rejected_steps")},
-    )
+    q = None if q0 is None else quat.canonical(quat.normalize(ys[2]))
+    return HeavyTopTrajectory(ts=ts, omega=ys[0], gamma=ys[1], quat=q, stats=stats)
 
 
 def drift(top: HeavyTop, traj: HeavyTopTrajectory) -> dict[str, Array]:

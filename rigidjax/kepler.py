@@ -25,11 +25,10 @@ import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from ._util import as_float, vector
-from .attitude import check_times
+from ._util import as_float, check_positive, initial_vector, is_concrete, validate, vector
+from .attitude import check_times, solve_saved
 from .explicit_rk import unrolled as _unrolled
 
 Vec = Float[Array, "*batch 3"]
@@ -37,35 +36,21 @@ Scalar = Float[Array, "*batch"]
 Potential = Callable[[Array], Array]
 
 
-def _is_concrete(x) -> bool:
-    return not isinstance(x, jax.core.Tracer)
-
-
-def _positive(x: Array, name: str) -> Array:
-    msg = f"{name} must be positive and finite"
-    if _is_concrete(x):  # NumPy: jnp ops on constants are staged out inside a jit trace
-        xn = np.asarray(x)
-        if not (np.all(xn > 0) and np.all(np.isfinite(xn))):
-            raise ValueError(f"{msg}, got {xn}")
-        return x
-    return eqx.error_if(x, ~jnp.all((x > 0) & jnp.isfinite(x)), msg)
-
-
-def _nonzero(x: Array, name: str) -> Array:
-    msg = f"{name} must be non-zero and finite (alpha > 0 attraction, alpha < 0 repulsion)"
-    if _is_concrete(x):
-        xn = np.asarray(x)
-        if not (np.all(xn != 0) and np.all(np.isfinite(xn))):
-            raise ValueError(f"{msg}, got {xn}")
-        return x
-    return eqx.error_if(x, ~jnp.all((x != 0) & jnp.isfinite(x)), msg)
+def _check_alpha(alpha: Array) -> Array:
+    return validate(
+        alpha,
+        lambda xp, v: ~((v != 0) & xp.isfinite(v)),
+        "alpha must be non-zero and finite",
+        lambda v: f", got {v}",
+        hint=" (alpha > 0 attraction, alpha < 0 repulsion)",
+    )
 
 
 def reduced_mass(m1: ArrayLike, m2: ArrayLike) -> Scalar:
     """`m = m1 m2/(m1 + m2)`: the two-body problem reduces to one point of this mass moving in the
     central field U(|r1 − r2|) (Zegrya–Parshin 004)."""
-    m1 = _positive(as_float(m1, "m1"), "m1")
-    m2 = _positive(as_float(m2, "m2"), "m2")
+    m1 = check_positive(as_float(m1, "m1"), "m1")
+    m2 = check_positive(as_float(m2, "m2"), "m2")
     return m1 * m2 / (m1 + m2)
 
 
@@ -173,10 +158,14 @@ def elements(
     """
     r, v = vector(r, 3, "r"), vector(v, 3, "v")
     dtype = jnp.result_type(r.dtype, v.dtype)
-    m = _positive(as_float(mass, "mass").astype(dtype), "mass")
-    alpha = _nonzero(as_float(alpha, "alpha").astype(dtype), "alpha")
-    if _is_concrete(r) and not np.all(np.linalg.norm(np.asarray(r), axis=-1) > 0):
-        raise ValueError("r must be non-zero (the point is at the centre of the field)")
+    m = check_positive(as_float(mass, "mass").astype(dtype), "mass")
+    alpha = _check_alpha(as_float(alpha, "alpha").astype(dtype))
+    if is_concrete(r):  # traced: NaN elements
+        validate(
+            r,
+            lambda xp, v: ~(xp.linalg.norm(v, axis=-1) > 0),
+            "r must be non-zero (the point is at the centre of the field)",
+        )
     E = energy(r, v, m, alpha)
     Mv = m[..., None] * jnp.cross(r, v)
     M2 = jnp.sum(Mv * Mv, axis=-1)
@@ -323,40 +312,13 @@ def _field_args(alpha, potential, dtype):
     alpha = as_float(alpha, "alpha").astype(dtype)
     if alpha.shape != ():
         raise ValueError(f"alpha must be a scalar (vmap for batches), got shape {alpha.shape}")
-    return _nonzero(alpha, "alpha")
+    return _check_alpha(alpha)
 
 
-def _solve(term, y0, ts, args, solver, stepsize_controller, rtol, atol, dt0, max_steps, adjoint):
-    dtype = ts.dtype
-    tol = 1e-12 if jnp.finfo(dtype).eps < 1e-10 else 1e-6
-    if stepsize_controller is None:
-        stepsize_controller = diffrax.PIDController(
-            rtol=tol if rtol is None else rtol, atol=tol if atol is None else atol
-        )
-    sol = diffrax.diffeqsolve(
-        term,
-        _unrolled(solver),
-        ts[0],
-        ts[-1],
-        dt0,
-        y0,
-        args=args,
-        saveat=diffrax.SaveAt(ts=ts),
-        stepsize_controller=stepsize_controller,
-        max_steps=max_steps,
-        adjoint=diffrax.RecursiveCheckpointAdjoint() if adjoint is None else adjoint,
-    )
-    stats = {k: sol.stats[k] for k in ("num_steps", "num_accepted_steps", "num_rejected_steps")}
-    return sol.ys, stats
-
-
-def _state(x, name, dtype):
-    x = vector(x, 3, name).astype(dtype)
-    if x.shape != (3,):
-        raise ValueError(f"{name} must have shape (3,) (vmap for batches), got {x.shape}")
-    if _is_concrete(x) and not np.all(np.isfinite(np.asarray(x))):
-        raise ValueError(f"{name} must be finite, got {x}")
-    return x
+def _tolerances(dtype) -> tuple[float, float]:
+    """(rtol, atol): 1e-12 in float64, 1e-6 in float32 (tighter than the rotation integrators:
+    orbits are followed over many periods)."""
+    return (1e-12, 1e-12) if jnp.finfo(dtype).eps < 1e-10 else (1e-6, 1e-6)
 
 
 def simulate_central(
@@ -387,23 +349,24 @@ def simulate_central(
     """
     ts = check_times(as_float(ts, "ts"))
     dtype = ts.dtype
-    r0, v0 = _state(r0, "r0", dtype), _state(v0, "v0", dtype)
-    m = _positive(as_float(mass, "mass").astype(dtype), "mass")
+    r0, v0 = initial_vector(r0, 3, "r0", dtype), initial_vector(v0, 3, "v0", dtype)
+    m = check_positive(as_float(mass, "mass").astype(dtype), "mass")
     if m.shape != ():
         raise ValueError(f"mass must be a scalar (vmap for batches), got shape {m.shape}")
     alpha = _field_args(alpha, potential, dtype)
-    (r, v), stats = _solve(
+    (r, v), stats = solve_saved(
         diffrax.ODETerm(_CentralField(potential)),
-        (r0, v0),
+        _unrolled(solver),
         ts,
-        (m, alpha),
-        solver,
-        stepsize_controller,
-        rtol,
-        atol,
-        dt0,
-        max_steps,
-        adjoint,
+        (r0, v0),
+        args=(m, alpha),
+        stepsize_controller=stepsize_controller,
+        rtol=rtol,
+        atol=atol,
+        tolerances=_tolerances(dtype),
+        dt0=dt0,
+        max_steps=max_steps,
+        adjoint=adjoint,
     )
     return CentralTrajectory(ts=ts, r=r, v=v, stats=stats)
 
@@ -434,22 +397,24 @@ def simulate_two_body(
     ts = check_times(as_float(ts, "ts"))
     dtype = ts.dtype
     y0 = tuple(
-        _state(x, n, dtype) for x, n in zip((r1, v1, r2, v2), ("r1", "v1", "r2", "v2"), strict=True)
+        initial_vector(x, 3, n, dtype)
+        for x, n in zip((r1, v1, r2, v2), ("r1", "v1", "r2", "v2"), strict=True)
     )
-    m1 = _positive(as_float(m1, "m1").astype(dtype), "m1")
-    m2 = _positive(as_float(m2, "m2").astype(dtype), "m2")
+    m1 = check_positive(as_float(m1, "m1").astype(dtype), "m1")
+    m2 = check_positive(as_float(m2, "m2").astype(dtype), "m2")
     alpha = _field_args(alpha, potential, dtype)
-    ys, stats = _solve(
+    ys, stats = solve_saved(
         diffrax.ODETerm(_TwoBodyField(potential)),
-        y0,
+        _unrolled(solver),
         ts,
-        (m1, m2, alpha),
-        solver,
-        stepsize_controller,
-        rtol,
-        atol,
-        dt0,
-        max_steps,
-        adjoint,
+        y0,
+        args=(m1, m2, alpha),
+        stepsize_controller=stepsize_controller,
+        rtol=rtol,
+        atol=atol,
+        tolerances=_tolerances(dtype),
+        dt0=dt0,
+        max_steps=max_steps,
+        adjoint=adjoint,
     )
     return TwoBodyTrajectory(ts, *ys, stats=stats)

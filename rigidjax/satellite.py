@@ -41,43 +41,29 @@ from __future__ import annotations
 
 import diffrax
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from . import quat, so3
-from ._util import as_float, vector
+from ._util import as_float, check_positive, is_concrete, validate, vector
 from .body import RigidBody
 from .sixdof import SixDofTrajectory, Wrench, simulate_6dof
 
 Vec = Float[Array, "*batch 3"]
 
 
-def _is_concrete(x) -> bool:
-    return not isinstance(x, jax.core.Tracer)
-
-
-def _positive(x: Array, name: str) -> Array:
-    if _is_concrete(x):  # NumPy: jnp ops on constants are staged out inside a jit trace
-        xn = np.asarray(x)
-        if not (np.all(xn > 0) and np.all(np.isfinite(xn))):
-            raise ValueError(f"{name} must be positive and finite, got {xn}")
-        return x
-    return eqx.error_if(x, ~jnp.all((x > 0) & jnp.isfinite(x)), f"{name} must be positive")
-
-
 def mean_motion(mu: ArrayLike, a: ArrayLike) -> Array:
     """`n = √(μ/a³)` (Kepler's third law `T²/a³ = 4π²/μ` of 004 with α/m = μ)."""
-    mu = _positive(as_float(mu, "mu"), "mu")
-    return jnp.sqrt(mu / _positive(as_float(a, "a"), "a") ** 3)
+    mu = check_positive(as_float(mu, "mu"), "mu")
+    return jnp.sqrt(mu / check_positive(as_float(a, "a"), "a") ** 3)
 
 
 def circular_orbit(mu: ArrayLike, radius: ArrayLike) -> tuple[Vec, Vec]:
     """`(R0, V0)` of a circular orbit in the space XY plane: `R0 = (r, 0, 0)`,
     `V0 = (0, √(μ/r), 0)` (orbit normal +Z)."""
-    mu = _positive(as_float(mu, "mu"), "mu")
-    r = _positive(as_float(radius, "radius"), "radius")
+    mu = check_positive(as_float(mu, "mu"), "mu")
+    r = check_positive(as_float(radius, "radius"), "radius")
     z = jnp.zeros_like(r)
     return jnp.stack([r, z, z], -1), jnp.stack([z, jnp.sqrt(mu / r), z], -1)
 
@@ -150,14 +136,18 @@ def _moments(inertia) -> Array:
         return I
     if I.shape != (3, 3):
         raise ValueError(f"inertia must be moments (3,) or a tensor (3, 3), got {I.shape}")
-    if _is_concrete(I):
-        In = np.asarray(I)
-        off = float(np.max(np.abs(In - np.diag(np.diagonal(In)))))
-        if off > 1e-12 * float(np.max(np.abs(np.diagonal(In)))):
-            raise ValueError(
-                "the libration formulas need principal axes along LVLH (x along-track, y orbit "
-                f"normal, z nadir): the inertia tensor must be diagonal, off-diagonal {off:.3g}"
-            )
+    if is_concrete(I):  # a traced tensor is taken as diagonal
+
+        def off(xp, I):
+            return xp.max(xp.abs(I - I * xp.eye(3)))
+
+        validate(
+            I,
+            lambda xp, I: off(xp, I) > 1e-12 * xp.max(xp.abs(xp.diagonal(I))),
+            "the libration formulas need principal axes along LVLH (x along-track, y orbit "
+            "normal, z nadir): the inertia tensor must be diagonal",
+            lambda I: f", off-diagonal {off(np, I):.3g}",
+        )
     return jnp.diagonal(I)
 
 
@@ -166,13 +156,14 @@ def pitch_frequency(inertia: ArrayLike | RigidBody, n: ArrayLike) -> Array:
     `ω_pitch = n √(3 (I_x − I_z)/I_y)` (x along-track, y orbit normal, z nadir). Raises for a
     concrete inertia with `I_x ≤ I_z` (the pitch equilibrium is then unstable)."""
     I = _moments(inertia)
-    if _is_concrete(I):
-        Ixn, _, Izn = np.asarray(I)
-        if not Ixn > Izn:
-            raise ValueError(
-                f"pitch equilibrium is unstable for I_x ≤ I_z (I_x = {Ixn}, I_z = {Izn}): "
-                "no libration frequency"
-            )
+    if is_concrete(I):  # traced: NaN
+        validate(
+            I,
+            lambda xp, I: ~(I[0] > I[2]),
+            "pitch equilibrium is unstable for I_x ≤ I_z",
+            lambda I: f" (I_x = {I[0]}, I_z = {I[2]})",
+            hint=": no libration frequency",
+        )
     Ix, Iy, Iz = I[0], I[1], I[2]
     return as_float(n, "n") * jnp.sqrt(3 * (Ix - Iz) / Iy)
 
@@ -240,7 +231,7 @@ def simulate_satellite(
     if not isinstance(body, RigidBody):
         raise TypeError(f"body must be a rigidjax.RigidBody, got {type(body).__name__}")
     ts = as_float(ts, "ts")
-    mu = _positive(as_float(mu, "mu").astype(ts.dtype), "mu")
+    mu = check_positive(as_float(mu, "mu").astype(ts.dtype), "mu")
     if mu.shape != ():
         raise ValueError(f"mu must be a scalar, got shape {mu.shape}")
     loads = _SatelliteLoads(

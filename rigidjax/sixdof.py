@@ -30,21 +30,15 @@ import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from . import quat
-from ._util import as_float, vector
-from .attitude import check_times, default_tolerances
+from ._util import as_float, check_unit_norm, initial_vector, vector
+from .attitude import check_times, solve_saved
 from .body import RigidBody, euler_rhs
 from .explicit_rk import unrolled as _unrolled
-from .projected_solver import StepEndMap
 
 Vec = Float[Array, "*batch 3"]
-
-
-def _is_concrete(x) -> bool:
-    return not isinstance(x, jax.core.Tracer)
 
 
 class RigidState(eqx.Module):
@@ -236,33 +230,6 @@ class SixDofTrajectory(eqx.Module):
         return self.state.matrix
 
 
-def _check_finite(x: Array, name: str) -> Array:
-    if _is_concrete(x):  # NumPy: jnp ops on constants are staged out inside a jit trace
-        if not np.all(np.isfinite(np.asarray(x))):
-            raise ValueError(f"{name} must be finite, got {x}")
-        return x
-    return eqx.error_if(x, ~jnp.all(jnp.isfinite(x)), f"{name} must be finite")
-
-
-def _check_unit_quat(q0: Array) -> Array:
-    tol = 1e-6 if q0.dtype == jnp.float64 else 1e-4
-    msg = "q0 must be a unit quaternion (w, x, y, z); normalise it with rigidjax.quat.normalize"
-    if _is_concrete(q0):
-        n = float(np.linalg.norm(np.asarray(q0)))
-        if not abs(n - 1) <= tol:
-            raise ValueError(f"{msg}: |q0| = {n:.6g}")
-        return q0
-    n = jnp.sqrt(jnp.sum(q0 * q0, axis=-1))
-    return eqx.error_if(q0, ~(jnp.abs(n - 1) <= tol), msg)
-
-
-def _single(x: ArrayLike, n: int, name: str, dtype) -> Array:
-    x = vector(x, n, name).astype(dtype)
-    if x.shape != (n,):
-        raise ValueError(f"{name} must have shape ({n},) (jax.vmap for batches), got {x.shape}")
-    return _check_finite(x, name)
-
-
 def simulate_6dof(
     body: RigidBody,
     R0: ArrayLike,
@@ -304,35 +271,26 @@ def simulate_6dof(
         raise TypeError(f"wrench must be a callable (t, state) -> Wrench, got {wrench!r}")
     ts = check_times(as_float(ts, "ts"))
     dtype = ts.dtype
-    R0 = _single(R0, 3, "R0", dtype)
-    V0 = _single(V0, 3, "V0", dtype)
-    omega0 = _single(omega0, 3, "omega0", dtype)
-    q0 = quat.identity(dtype=dtype) if q0 is None else _single(q0, 4, "q0", dtype)
-    q0 = _check_unit_quat(q0)
+    R0 = initial_vector(R0, 3, "R0", dtype)
+    V0 = initial_vector(V0, 3, "V0", dtype)
+    omega0 = initial_vector(omega0, 3, "omega0", dtype)
+    q0 = quat.identity(dtype=dtype) if q0 is None else initial_vector(q0, 4, "q0", dtype)
+    q0 = check_unit_norm(q0, "q0")
     I, I_inv = (a.astype(dtype) for a in body.operator())
-    args = (I, I_inv, body.mass.astype(dtype))
-    adjoint = diffrax.RecursiveCheckpointAdjoint() if adjoint is None else adjoint
-    solver = StepEndMap.wrap(_unrolled(solver), _renormalise, adjoint)
-    if stepsize_controller is None:
-        d_rtol, d_atol = default_tolerances(dtype)
-        stepsize_controller = diffrax.PIDController(
-            rtol=d_rtol if rtol is None else rtol, atol=d_atol if atol is None else atol
-        )
-    sol = diffrax.diffeqsolve(
+    ys, stats = solve_saved(
         diffrax.ODETerm(_SixDofField(wrench)),
-        solver,
-        ts[0],
-        ts[-1],
-        dt0,
+        _unrolled(solver),
+        ts,
         RigidState(R0, V0, q0, omega0),
-        args=args,
-        saveat=diffrax.SaveAt(ts=ts),
+        args=(I, I_inv, body.mass.astype(dtype)),
+        step_end=_renormalise,
         stepsize_controller=stepsize_controller,
+        rtol=rtol,
+        atol=atol,
+        dt0=dt0,
         max_steps=max_steps,
         adjoint=adjoint,
     )
-    ys: RigidState = sol.ys
     # saved values are dense-output interpolants of the unmapped step: normalise again
     q = quat.canonical(quat.normalize(ys.q))
-    stats = {k: sol.stats[k] for k in ("num_steps", "num_accepted_steps", "num_rejected_steps")}
     return SixDofTrajectory(ts=ts, state=RigidState(ys.R, ys.V, q, ys.omega), stats=stats)

@@ -201,7 +201,7 @@ def test_bad_inputs():
         ht.simulate_heavy_top(GENERIC, W0, [0.0, 0.0, 1.0], TS, q0=Q0)
     with pytest.raises(ValueError, match="give the initial vertical"):
         ht.simulate_heavy_top(GENERIC, W0, ts=TS)
-    with pytest.raises(ValueError, match="q0 must be a unit vector"):
+    with pytest.raises(ValueError, match="q0 must be a unit quaternion"):
         ht.simulate_heavy_top(GENERIC, W0, ts=TS, q0=[1.0, 1.0, 0.0, 0.0])
     with pytest.raises(ValueError, match="com must have shape"):
         ht.HeavyTop([1.0, 1.0, 1.0], 1.0, [0.0, 1.0])
