@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
+from . import so3
 from ._util import as_float, matrix, norm_tolerance, validate
 from .explicit_rk import unrolled as _unrolled
 from .kinematics import METHODS, AbstractKinematics, check_omega
@@ -79,26 +80,6 @@ def check_times(ts: Array) -> Array:
 
     return validate(
         ts, lambda xp, t: ~(xp.diff(t) > 0), "ts must be strictly increasing and finite", detail
-    )
-
-
-def check_initial_rotation(P0: Array, atol: float, name: str = "P0") -> Array:
-    """P0 with a clear error (stating the deviation when P0 is concrete) if it is no rotation."""
-
-    def bad(xp, P):
-        err = xp.linalg.norm(xp.swapaxes(P, -1, -2) @ P - xp.eye(3), axis=(-2, -1))
-        return ~((err <= atol) & (xp.abs(xp.linalg.det(P) - 1) <= atol))
-
-    def detail(P):
-        err = np.linalg.norm(P.T @ P - np.eye(3))
-        return f": ‖PᵀP − E‖ = {err:.3g}, det = {np.linalg.det(P):.6g}"
-
-    return validate(
-        P0,
-        bad,
-        f"{name} is not a rotation matrix",
-        detail,
-        hint=f" (tolerance {atol:g}); pass rigidjax.so3.project({name}) for the nearest rotation",
     )
 
 
@@ -193,7 +174,7 @@ def darboux(
     P0 = jnp.eye(3, dtype=ts.dtype) if P0 is None else matrix(P0, "P0")
     if P0.shape != (3, 3):
         raise ValueError(f"P0 must have shape (3, 3) (vmap for batches), got {tuple(P0.shape)}")
-    P0 = check_initial_rotation(P0.astype(ts.dtype), norm_tolerance(ts.dtype))
+    P0 = so3.check_rotation(P0.astype(ts.dtype), norm_tolerance(ts.dtype), "P0")
     w = omega_path(omega)
 
     if method == "geometric":

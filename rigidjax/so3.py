@@ -8,12 +8,12 @@ from __future__ import annotations
 
 from typing import Literal
 
-import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
 from . import _series, quat
-from ._util import matrix, vector
+from ._util import matrix, validate, vector
 
 Vec = Float[Array, "*batch 3"]
 Mat = Float[Array, "*batch 3 3"]
@@ -169,16 +169,25 @@ def orthogonality_error(P: ArrayLike) -> Array:
 
 
 def check_rotation(P: ArrayLike, atol: float = 1e-6, name: str = "P") -> Mat:
-    """Return `P` unchanged, with a runtime error if it is not a rotation to within `atol`
-    (orthogonality `‖PᵀP − E‖_F` and `det P = 1`). Works under jit and vmap."""
+    """Return `P` unchanged if it is a rotation to within `atol` (`‖PᵀP − E‖_F` and `det P − 1`);
+    otherwise a ValueError stating the deviation (concrete input) or a runtime error (under
+    jit/vmap), with the fix."""
     P = matrix(P, name)
-    err = orthogonality_error(P)
-    det = jnp.linalg.det(P)
-    return eqx.error_if(
+
+    def bad(xp, A):
+        err = xp.linalg.norm(xp.swapaxes(A, -1, -2) @ A - xp.eye(3), axis=(-2, -1))
+        return ~((err <= atol) & (xp.abs(xp.linalg.det(A) - 1) <= atol))
+
+    def detail(A):
+        err = np.linalg.norm(np.swapaxes(A, -1, -2) @ A - np.eye(3), axis=(-2, -1))
+        return f": ‖PᵀP − E‖ = {np.max(err):.3g}, det = {np.min(np.linalg.det(A)):.6g}"
+
+    return validate(
         P,
-        ~((err <= atol) & (jnp.abs(det - 1) <= atol)),
-        f"{name} is not a rotation matrix (needs PᵀP = E and det P = 1 to within atol={atol}); "
-        f"use rigidjax.so3.project to get the nearest rotation",
+        bad,
+        f"{name} is not a rotation matrix",
+        detail,
+        hint=f" (tolerance {atol:g}); pass rigidjax.so3.project({name}) for the nearest rotation",
     )
 
 
