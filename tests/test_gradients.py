@@ -66,6 +66,7 @@ def test_reverse_mode_every_kinematics(kinematics):
         np.testing.assert_allclose(g @ v, _directional_fd(f, X0, v), rtol=1e-6, atol=1e-8)
 
 
+@pytest.mark.slow
 def test_forward_mode_matches_reverse():
     """`diffrax.ForwardMode` (needed by optimistix's Jacobians) gives the same derivatives."""
     v = jax.random.normal(jax.random.PRNGKey(7), X0.shape)

@@ -115,6 +115,7 @@ def test_bad_input():
         identify_inertia(TS, omega_obs=OMEGA[:10])
 
 
+@pytest.mark.slow
 def test_vmap_over_datasets():
     """Two datasets (different noise) fitted in one vmapped call equal the separate fits."""
     ts = TS[:41]
