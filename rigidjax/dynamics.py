@@ -184,7 +184,12 @@ def simulate(
         solver = _unrolled(solver)
         step_end = _normalize_components
         att0, omega0 = q0.T, omega0.T
-        args = tuple(a.T for a in args)
+        # one body for the whole batch: keep its moments (3, 1) and let them broadcast, instead
+        # of streaming a (3, B) copy through every stage
+        args = tuple(
+            a.astype(dtype)[:, None] if body.batch_shape == () else b.T
+            for a, b in zip(body.operator(), args, strict=True)
+        )
     elif kinematics == "geometric":
         kin = None
         solver = RKMK(frame="body") if solver is None else RKMK(method=solver, frame="body")
