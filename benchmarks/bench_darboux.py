@@ -48,13 +48,8 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import importlib.metadata
 import json
-import os
-import platform
 import statistics
-import subprocess
-import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -67,6 +62,7 @@ import diffrax  # noqa: E402
 import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
+from _machine import load_average, machine_info  # noqa: E402
 
 from rigidjax import darboux, euler, so3  # noqa: E402
 from rigidjax.explicit_rk import unrolled  # noqa: E402
@@ -80,7 +76,7 @@ EULER_SEQ = "ZYX"  # Tait–Bryan: |det J| = |cos pitch| ≥ cos β on this moti
 RATE = 2 * np.pi  # Ω, rad/s
 BETA = 0.3  # cone half-angle, rad
 DEFAULT_OUT = Path(__file__).resolve().parent / "results"
-LOADAVG_START = list(os.getloadavg()) if hasattr(os, "getloadavg") else None
+LOADAVG_START = load_average()
 
 FULL = dict(
     tols=[1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10, 1e-11, 1e-12],
@@ -442,39 +438,6 @@ def throughput(cfg, repeats: int, log) -> dict:
 # --------------------------------------------------------------------------- output
 
 
-def machine_info() -> dict:
-    try:
-        commit = subprocess.run(
-            ["git", "rev-parse", "HEAD"],
-            capture_output=True,
-            text=True,
-            cwd=Path(__file__).resolve().parent,
-            check=False,
-        ).stdout.strip()
-    except OSError:
-        commit = ""
-    import jaxlib
-
-    return dict(
-        platform=platform.platform(),
-        processor=platform.processor() or platform.machine(),
-        python=sys.version.split()[0],
-        cpu_count=os.cpu_count(),
-        jax_backend=jax.default_backend(),
-        jax_devices=[str(d) for d in jax.devices()],
-        jax=jax.__version__,
-        jaxlib=jaxlib.__version__,
-        diffrax=diffrax.__version__,
-        equinox=eqx.__version__,
-        numpy=np.__version__,
-        rigidjax=importlib.metadata.version("rigidjax"),
-        git_commit=commit,
-        x64=True,
-        loadavg_at_start=LOADAVG_START,
-        loadavg_at_end=list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
-    )
-
-
 COLORS = {
     "matrix": "tab:red",
     "matrix_euler": "tab:pink",
@@ -564,10 +527,10 @@ def plot(res: dict, path: Path) -> None:
     ax.set_ylim(min(rates) / 3, max(rates) * 8)
     ax.tick_params(axis="x", labelsize=8)
     ax.grid(True, axis="y", which="both", alpha=0.3)
-    m = res["machine"]
+    m, v = res["machine"], res["machine"]["versions"]
     fig.suptitle(
         f"rigidjax Darboux benchmark: coning Ω = 2π rad/s, β = {BETA} rad, float64 — "
-        f"{m['jax_backend']} ({m['cpu_count']} cores), jax {m['jax']}, diffrax {m['diffrax']}",
+        f"{m['jax_backend']} ({m['cpu_count']} cores), jax {v['jax']}, diffrax {v['diffrax']}",
         fontsize=11,
     )
     fig.tight_layout()
@@ -600,7 +563,7 @@ def main(argv=None) -> int:
         benchmark="darboux",
         date=datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         quick=args.quick,
-        machine=machine_info(),
+        machine=dict(machine_info(), loadavg_at_start=LOADAVG_START),
         parameters=dict(
             problem="coning P(t) = Rz(Ωt) Rx(β) Rz(−Ωt), space angular velocity",
             rate_rad_s=RATE,

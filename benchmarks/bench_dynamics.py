@@ -66,10 +66,8 @@ _T_PROCESS_START = time.perf_counter()
 
 import argparse  # noqa: E402
 import datetime  # noqa: E402
-import importlib.metadata  # noqa: E402
 import json  # noqa: E402
 import os  # noqa: E402
-import platform  # noqa: E402
 import statistics  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
@@ -83,6 +81,7 @@ jax.config.update("jax_enable_x64", True)  # the benchmark's choice; rigidjax ne
 import diffrax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
+from _machine import load_average, machine_info  # noqa: E402
 
 from rigidjax import RK4, RigidBody, simulate  # noqa: E402
 from rigidjax.explicit_rk import ExplicitRK  # noqa: E402
@@ -98,14 +97,7 @@ SCIPY_TOLS = [1e-8, 1e-9, 1e-10, 1e-11, 3e-12, 1e-12, 3e-13, 1e-13, 5e-14, 2.5e-
 TARGETS = dict(ratio_vs_lean=0.7, scipy_speedup_per_trajectory=1000.0, first_compile_s=2.0)
 
 
-def _load_average() -> list[float] | None:
-    try:
-        return [round(x, 2) for x in os.getloadavg()]
-    except OSError:  # pragma: no cover
-        return None
-
-
-LOADAVG_START = _load_average()
+LOADAVG_START = load_average()
 LOAD_ROUNDS: list = []  # load average after each interleaved JAX timing round
 
 # --------------------------------------------------------------------------- problem
@@ -395,7 +387,7 @@ def time_jax(cfg: dict, w0, q0, repeats: int, log) -> tuple[dict, dict]:
             block(comp(wj, qj))
             results[name]["all_seconds"].append(time.perf_counter() - t0)
             results[name]["all_cpu_seconds"].append(time.process_time() - c0)
-        LOAD_ROUNDS.append(_load_average())
+        LOAD_ROUNDS.append(load_average())
         log(f"  round {r + 1}/{repeats} done (load {LOAD_ROUNDS[-1]})")
     for res in results.values():
         s = res["all_seconds"]
@@ -537,48 +529,6 @@ def scipy_part(cfg, w0, q0, w_ref, q_ref, target_err: float, repeats: int, log) 
     return out
 
 
-def machine_info() -> dict:
-    import jaxlib
-    import scipy
-
-    def git(*cmd) -> subprocess.CompletedProcess | None:
-        # read-only git queries; GIT_OPTIONAL_LOCKS=0: never refresh (write) the index
-        try:
-            return subprocess.run(
-                ["git", *cmd],
-                capture_output=True,
-                text=True,
-                cwd=Path(__file__).resolve().parent,
-                env={**os.environ, "GIT_OPTIONAL_LOCKS": "0"},
-                check=False,
-            )
-        except OSError:
-            return None
-
-    rev = git("rev-parse", "HEAD")
-    commit = rev.stdout.strip() if rev is not None else ""
-    diff = git("diff", "--quiet", "HEAD", "--", "rigidjax")
-    dirty = None if diff is None or diff.returncode > 1 else diff.returncode == 1
-    return dict(
-        platform=platform.platform(),
-        processor=platform.processor() or platform.machine(),
-        python=sys.version.split()[0],
-        cpu_count=os.cpu_count(),
-        jax_backend=jax.default_backend(),
-        jax_devices=[str(d) for d in jax.devices()],
-        jax=jax.__version__,
-        jaxlib=jaxlib.__version__,
-        diffrax=diffrax.__version__,
-        numpy=np.__version__,
-        scipy=scipy.__version__,
-        rigidjax=importlib.metadata.version("rigidjax"),
-        git_commit=commit,
-        rigidjax_has_uncommitted_changes=dirty,
-        longdouble_eps=float(np.finfo(np.longdouble).eps),
-        x64=True,
-    )
-
-
 def run(args) -> dict:
     t_start = time.perf_counter()
     cfg = dict(QUICK if args.quick else FULL)
@@ -607,7 +557,7 @@ def run(args) -> dict:
 
     log("JAX contenders")
     results, outputs = time_jax(cfg, w0, q0, args.repeats, log)
-    load_after_jax = _load_average()
+    load_after_jax = load_average()
 
     log("NumPy")
     results["numpy_rk4"], outputs["numpy_rk4"] = time_numpy(cfg, w0, q0, args.repeats, log)
@@ -730,7 +680,7 @@ def run(args) -> dict:
         load_average_start=LOADAVG_START,
         load_average_jax_rounds=LOAD_ROUNDS,
         load_average_after_jax=load_after_jax,
-        load_average_end=_load_average(),
+        load_average_end=load_average(),
         reference_seconds=ref_s,
         reference_check_tight_dop853=dict(rtol=2.5e-14, atol=1e-16, error=ref_check),
         fresh_process=probes,

@@ -43,16 +43,15 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import importlib.metadata
 import json
 import math
-import os
-import platform
 import resource
 import subprocess
 import sys
 import time
 from pathlib import Path
+
+from _machine import load_average, machine_info  # noqa: E402
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "identify.json"
 ROTVEC = (0.3, -0.5, 0.2)
@@ -63,13 +62,6 @@ NOISE = 1e-3
 GRAD_T = 10.0
 SIM_DEFAULT_MAX_STEPS = 100_000  # simulate's default
 SIM_CONFIGS = ["default", "tight", "store_all"]
-
-
-def _load_average() -> list[float] | None:
-    try:
-        return [round(x, 2) for x in os.getloadavg()]
-    except OSError:  # pragma: no cover
-        return None
 
 
 def _maxrss_mib() -> float:
@@ -376,55 +368,9 @@ def run_worker(args: list[str]) -> dict:
     return res
 
 
-def machine_info() -> dict:
-    import diffrax
-    import jax
-    import jaxlib
-    import numpy as np
-    import optimistix
-    import scipy
-
-    def git(*cmd) -> subprocess.CompletedProcess | None:
-        # read-only git queries; GIT_OPTIONAL_LOCKS=0: never refresh (write) the index
-        try:
-            return subprocess.run(
-                ["git", *cmd],
-                capture_output=True,
-                text=True,
-                cwd=Path(__file__).resolve().parent,
-                env={**os.environ, "GIT_OPTIONAL_LOCKS": "0"},
-                check=False,
-            )
-        except OSError:
-            return None
-
-    rev = git("rev-parse", "HEAD")
-    diff = git("diff", "--quiet", "HEAD", "--", "rigidjax")
-    return dict(
-        platform=platform.platform(),
-        processor=platform.processor() or platform.machine(),
-        python=sys.version.split()[0],
-        cpu_count=os.cpu_count(),
-        jax_backend=jax.default_backend(),
-        jax_devices=[str(d) for d in jax.devices()],
-        jax=jax.__version__,
-        jaxlib=jaxlib.__version__,
-        diffrax=diffrax.__version__,
-        optimistix=optimistix.__version__,
-        numpy=np.__version__,
-        scipy=scipy.__version__,
-        rigidjax=importlib.metadata.version("rigidjax"),
-        git_commit=rev.stdout.strip() if rev is not None else "",
-        rigidjax_has_uncommitted_changes=(
-            None if diff is None or diff.returncode > 1 else diff.returncode == 1
-        ),
-        x64=True,
-    )
-
-
 def run(args) -> dict:
     t_start = time.perf_counter()
-    load_start = _load_average()
+    load_start = load_average()
     Ts = [201] if args.quick else [201, 1001]
     Ns = [1000, 10_000]
     configs = ["default"] if args.quick else [*SIM_CONFIGS, "lean_scan", "lean_scan_remat"]
@@ -510,7 +456,7 @@ def run(args) -> dict:
         ),
         machine=machine_info(),
         load_average_start=load_start,
-        load_average_end=_load_average(),
+        load_average_end=load_average(),
         total_wall_s=round(time.perf_counter() - t_start, 1),
         identify=ident,
         grad=grad,

@@ -31,8 +31,6 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
-import os
-import platform
 import statistics
 import sys
 import time
@@ -47,7 +45,7 @@ jax.config.update("jax_enable_x64", True)  # the benchmark's choice; rigidjax ne
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-import scipy  # noqa: E402
+from _machine import load_average, machine_info  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
 from rigidjax import euler, quat, so3  # noqa: E402
@@ -280,42 +278,6 @@ def bench_op(op: Op, inputs: dict, repeats: int) -> dict:
     return result
 
 
-def machine_info() -> dict:
-    dev = jax.devices()[0]
-    return {
-        "platform": platform.platform(),
-        "processor": platform.processor() or platform.machine(),
-        "cpu_count": os.cpu_count(),
-        "python": sys.version.split()[0],
-        "jax": jax.__version__,
-        "jaxlib": getattr(jax.lib, "__version__", None) or _jaxlib_version(),
-        "scipy": scipy.__version__,
-        "numpy": np.__version__,
-        "jax_backend": jax.default_backend(),
-        "jax_device": f"{dev.platform}:{dev.id} ({getattr(dev, 'device_kind', '')})",
-    }
-
-
-def _load_average() -> list[float] | None:
-    """1/5/15-minute system load: other processes on the cores skew every timing."""
-    try:
-        return [round(x, 2) for x in os.getloadavg()]
-    except OSError:  # pragma: no cover - not available on every platform
-        return None
-
-
-def _jaxlib_version() -> str | None:
-    try:
-        import jaxlib
-
-        return jaxlib.__version__
-    except (ImportError, AttributeError):  # pragma: no cover
-        return None
-
-
-# --------------------------------------------------------------------------- output
-
-
 def _fmt_rate(entry: dict | None) -> str:
     return "—" if entry is None else f"{entry['rotations_per_s'] / 1e6:8.2f}"
 
@@ -359,7 +321,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> dict:
     args = parse_args(argv)
     t_start = time.perf_counter()
-    load_start = _load_average()
+    load_start = load_average()
     inputs = make_inputs(args.n, args.seed)
     results = {}
     for op in build_ops():
@@ -376,7 +338,7 @@ def main(argv: list[str] | None = None) -> dict:
         "machine": machine_info(),
         "total_wall_s": time.perf_counter() - t_start,
         "load_average_start": load_start,
-        "load_average_end": _load_average(),
+        "load_average_end": load_average(),
         "ops": results,
     }
     print(f"N = {args.n}, rates in 10⁶ rotations/s (best of {args.repeats}); diff = max |Δ|")
