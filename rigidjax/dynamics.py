@@ -91,9 +91,11 @@ class _BatchField(eqx.Module):
 
 class _QuaternionComponents(eqx.Module):
     """Fast path for the common case (quaternion kinematics, principal moments): the batch state
-    is `(q (4, B), Ω (3, B))`, and Euler's equations and `q̇ = ½ q ∘ (0, Ω)` are written out
-    component by component (no per-body vmap), so XLA fuses each step into one vectorised loop
-    (benchmarks/bench_dynamics.py). Same equations as `_Dynamics` with `Quaternion` kinematics."""
+    is `(q (4, B), Ω (3, B))` and the equations are written out component by component (no
+    per-body vmap), so XLA fuses each step into one vectorised loop (benchmarks/bench_dynamics.py):
+    Euler's equations in principal axes `I1 Ω̇1 + (I3 − I2) Ω2 Ω3 = K1` (cyclic; Zegrya–Parshin
+    004) and `q̇ = ½ q ∘ (0, Ω)` (Borisov–Mamaev 001; exercises 002 #101). These are the same
+    equations as `euler_rhs` + `Quaternion.vector_field`, which the general path uses."""
 
     torque: Torque | None
     torque_frame: str = eqx.field(static=True)
