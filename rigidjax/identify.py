@@ -258,8 +258,8 @@ def _fit(
         p0 = fit(p0, False).value
     sol = fit(jnp.concatenate([p0, jnp.zeros(3, dtype)]) if fit_q0 else p0, fit_q0)
     p = sol.value
-    r = residuals(p, fit_q0)
-    J = jax.jacfwd(residuals)(p, fit_q0)
+    # residuals and Jacobian at the solution from one forward-mode pass
+    J, r = jax.jacfwd(lambda q: (residuals(q, fit_q0),) * 2, has_aux=True)(p)
     cost = 0.5 * jnp.sum(r * r)
     # with `trace` fixed the scale of L is not identifiable: one parameter fewer
     s2 = 2 * cost / (r.shape[0] - p.shape[0] + (trace is not None))
