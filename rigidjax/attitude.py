@@ -106,14 +106,25 @@ def solve_saved(
     adjoint: diffrax.AbstractAdjoint | None = None,
     progress_meter: diffrax.AbstractProgressMeter | None = None,
 ):
-    """`diffrax.diffeqsolve` of `term` from `ts[0]` to `ts[-1]`, saving at `ts`, with the
-    integrators' shared defaults; returns `(ys, stats)` (the step counts).
+    """Integrate `term` from `ts[0]` through every output time `ts[k]`, with the integrators'
+    shared defaults; returns `(ys (T, ...), stats)` (step counts summed over the intervals).
+
+    One `diffrax.diffeqsolve` per output interval `[ts[k], ts[k+1]]`, all in one `lax.scan`:
+    steps end exactly at the output times, so the saved values are step-end states (after
+    `step_end`: normalised quaternions, shadowed rotation vectors), never interpolants, and no
+    dense output is formed inside the step loop — on CPU that machinery cost more than half the
+    time of a batched fixed-step solve (benchmarks/bench_dynamics.py). Fixed steps
+    (`diffrax.ConstantStepSize`) take `dt0` and restart the grid at each output time (the same
+    steps as one solve when the output times lie on the grid). Adaptive controllers start at
+    `dt0` (default: Diffrax's initial-step heuristic) and each later interval at the previous
+    interval's mean accepted step. `max_steps` bounds each interval.
 
     `solver` is wrapped in `StepEndMap` with `step_end` when given (for `adjoint`, default
     `RecursiveCheckpointAdjoint`). Without `stepsize_controller`, a `PIDController` at `rtol`,
     `atol` (defaults `tolerances`, else `default_tolerances(ts.dtype)`), with error norm `norm`
     when given."""
     adjoint = diffrax.RecursiveCheckpointAdjoint() if adjoint is None else adjoint
+    meter = diffrax.NoProgressMeter() if progress_meter is None else progress_meter
     if step_end is not None:
         solver = StepEndMap.wrap(solver, step_end, adjoint)
     if stepsize_controller is None:
@@ -123,22 +134,56 @@ def solve_saved(
             atol=d_atol if atol is None else atol,
             **({} if norm is None else {"norm": norm}),
         )
-    sol = diffrax.diffeqsolve(
-        term,
-        solver,
-        ts[0],
-        ts[-1],
-        dt0,
-        y0,
-        args=args,
-        saveat=diffrax.SaveAt(ts=ts),
-        stepsize_controller=stepsize_controller,
-        max_steps=max_steps,
-        adjoint=adjoint,
-        progress_meter=diffrax.NoProgressMeter() if progress_meter is None else progress_meter,
+    adaptive = isinstance(stepsize_controller, diffrax.AbstractAdaptiveStepSizeController)
+    if not adaptive and not isinstance(stepsize_controller, diffrax.ConstantStepSize):
+        raise ValueError(
+            "stepsize_controller must be diffrax.ConstantStepSize (with dt0) or an adaptive "
+            f"controller such as diffrax.PIDController, got {type(stepsize_controller).__name__}"
+            " (steps always end at the output times ts)"
+        )
+    if not adaptive and dt0 is None:
+        raise ValueError("dt0 (the step size) is required with diffrax.ConstantStepSize")
+    if adaptive:
+        if dt0 is None:
+            t_next, _ = stepsize_controller.init(
+                term, ts[0], ts[-1], y0, None, args, solver.func, solver.error_order(term)
+            )
+            h0 = t_next - ts[0]
+        else:
+            h0 = jnp.asarray(dt0, ts.dtype)
+    else:
+        h0 = jnp.zeros((), ts.dtype)  # unused: the fixed dt0 is static
+    span = ts[-1] - ts[0]
+    keys = ("num_steps", "num_accepted_steps", "num_rejected_steps")
+
+    def interval(carry, t01):
+        y, h, meter_state = carry
+        sol = diffrax.diffeqsolve(
+            term,
+            solver,
+            t01[0],
+            t01[1],
+            h if adaptive else dt0,
+            y,
+            args=args,
+            saveat=diffrax.SaveAt(t1=True),
+            stepsize_controller=stepsize_controller,
+            max_steps=max_steps,
+            adjoint=adjoint,
+        )
+        y1 = jax.tree_util.tree_map(lambda a: a[-1], sol.ys)
+        if adaptive:  # the next interval starts at this one's mean accepted step
+            h = (t01[1] - t01[0]) / jnp.maximum(sol.stats["num_accepted_steps"], 1)
+        meter_state = meter.step(meter_state, (t01[1] - ts[0]) / span)
+        return (y1, h, meter_state), (y1, jnp.stack([sol.stats[k] for k in keys]))
+
+    (_, _, meter_state), (ys, counts) = jax.lax.scan(
+        interval, (y0, h0, meter.init()), jnp.stack([ts[:-1], ts[1:]], axis=1)
     )
-    stats = {k: sol.stats[k] for k in ("num_steps", "num_accepted_steps", "num_rejected_steps")}
-    return sol.ys, stats
+    meter.close(meter_state)
+    ys = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), y0, ys)
+    stats = dict(zip(keys, jnp.sum(counts, axis=0), strict=True))
+    return ys, stats
 
 
 def darboux(

@@ -91,39 +91,48 @@ class _BatchField(eqx.Module):
 
 class _QuaternionComponents(eqx.Module):
     """Fast path for the common case (quaternion kinematics, principal moments): the batch state
-    is `(q (4, B), Ω (3, B))` and the equations are written out component by component (no
-    per-body vmap), so XLA fuses each step into one vectorised loop (benchmarks/bench_dynamics.py):
-    Euler's equations in principal axes `I1 Ω̇1 + (I3 − I2) Ω2 Ω3 = K1` (cyclic; Zegrya–Parshin
-    004) and `q̇ = ½ q ∘ (0, Ω)` (Borisov–Mamaev 001; exercises 002 #101). These are the same
-    equations as `euler_rhs` + `Quaternion.vector_field`, which the general path uses."""
+    is seven separate `(B,)` component arrays `((Ω1, Ω2, Ω3), (q0, q1, q2, q3))` and the
+    equations are written out component by component (no per-body vmap, no stacking), so XLA
+    fuses each step into a few vectorised loops (benchmarks/bench_dynamics.py): Euler's equations
+    in principal axes `Ω̇1 = (I2 − I3)/I1 Ω2 Ω3 + K1/I1` (cyclic; Zegrya–Parshin 004) and
+    `q̇ = ½ q ∘ (0, Ω)` (Borisov–Mamaev 001; exercises 002 #101). These are the same equations
+    as `euler_rhs` + `Quaternion.vector_field`, which the general path uses.
+
+    `args = (c, J)`: `c_i = (I_j − I_k)/I_i` (cyclic) and `J_i = 1/I_i`, each a scalar (one
+    body for the whole batch) or `(B,)`."""
 
     torque: Torque | None
     torque_frame: str = eqx.field(static=True)
 
     def __call__(self, t, y, args):
-        (q, w), (I, J) = y, args  # (4, B), (3, B); moments and reciprocals (3, B)
-        (q0, q1, q2, q3), (w0, w1, w2) = q, w
-        m0, m1, m2 = I * w  # M = I Ω
-        k = jnp.stack([w1 * m2 - w2 * m1, w2 * m0 - w0 * m2, w0 * m1 - w1 * m0])  # Ω × M
+        ((w0, w1, w2), (q0, q1, q2, q3)), (c, J) = y, args
+        dw = (c[0] * w1 * w2, c[1] * w2 * w0, c[2] * w0 * w1)
         if self.torque is not None:
+            w, q = jnp.stack((w0, w1, w2)), jnp.stack((q0, q1, q2, q3))  # (3, B), (4, B)
             K = jax.vmap(self.torque, in_axes=(None, -1, -1), out_axes=-1)(t, w, q)
             if self.torque_frame == "space":
                 K = quat.rotate(quat.conj(q.T), K.T).T
-            k = k - K.astype(k.dtype)
-        dq = 0.5 * jnp.stack(
-            [
-                -(q1 * w0 + q2 * w1 + q3 * w2),
-                q0 * w0 + q2 * w2 - q3 * w1,
-                q0 * w1 + q3 * w0 - q1 * w2,
-                q0 * w2 + q1 * w1 - q2 * w0,
-            ]
+            K = K.astype(w0.dtype)
+            dw = tuple(d + Ji * Ki for d, Ji, Ki in zip(dw, J, K, strict=True))
+        dq = (
+            -0.5 * (q1 * w0 + q2 * w1 + q3 * w2),
+            0.5 * (q0 * w0 + q2 * w2 - q3 * w1),
+            0.5 * (q0 * w1 + q3 * w0 - q1 * w2),
+            0.5 * (q0 * w2 + q1 * w1 - q2 * w0),
         )
-        return dq, -J * k
+        return dw, dq
 
 
 def _normalize_components(y):
-    q, w = y
-    return (q * jax.lax.rsqrt(jnp.sum(q * q, axis=0)), w), jnp.array(False)
+    w, q = y
+    r = jax.lax.rsqrt(sum(a * a for a in q))
+    return (w, tuple(a * r for a in q)), jnp.array(False)
+
+
+def _component_args(I: Array) -> tuple:
+    """`(c, J)` of `_QuaternionComponents` from principal moments `I (..., 3)`."""
+    I1, I2, I3 = (I[..., i] for i in range(3))
+    return ((I2 - I3) / I1, (I3 - I1) / I2, (I1 - I2) / I3), (1 / I1, 1 / I2, 1 / I3)
 
 
 def simulate(
@@ -180,25 +189,29 @@ def simulate(
         kinematics == "quat" or type(kinematics) is Quaternion and kinematics.frame == "body"
     )
     if components:
-        kin = Quaternion(frame="body")
         axis = -1
         term = diffrax.ODETerm(_QuaternionComponents(torque, torque_frame))
         solver = _unrolled(solver)
         step_end = _normalize_components
-        att0, omega0 = q0.T, omega0.T
-        # one body for the whole batch: keep its moments (3, 1) and let them broadcast, instead
-        # of streaming a (3, B) copy through every stage
-        args = tuple(
-            a.astype(dtype)[:, None] if body.batch_shape == () else b.T
-            for a, b in zip(body.operator(), args, strict=True)
-        )
+        y0 = (tuple(omega0.T), tuple(q0.T))  # seven (B,) arrays, Ω first
+        # one body for the whole batch: scalar coefficients that broadcast, instead of
+        # streaming (B,) copies through every stage
+        I = body.operator()[0].astype(dtype)
+        args = _component_args(I if body.batch_shape == () else args[0])
+
+        def finish(ys):
+            return jnp.stack(ys[0], axis=-1), jnp.stack(ys[1], axis=-1)
+
     elif kinematics == "geometric":
-        kin = None
         solver = RKMK(frame="body") if solver is None else RKMK(method=solver, frame="body")
         axis = 0  # RKMK takes the batch on leading axes
         term = LieTerm(_BatchField(_Dynamics(None, torque, torque_frame), axis))
-        att0 = quat.to_matrix(q0)
+        y0 = (quat.to_matrix(q0), omega0)
         step_end = None
+
+        def finish(ys):
+            return ys[1], quat.from_matrix(ys[0])
+
     else:
         if isinstance(kinematics, AbstractKinematics):
             kin = kinematics
@@ -220,15 +233,18 @@ def simulate(
 
         solver = _unrolled(solver)
         term = diffrax.ODETerm(_BatchField(_Dynamics(kin, torque, torque_frame), axis))
-        att0 = jax.vmap(kin.from_matrix, out_axes=axis)(quat.to_matrix(q0))
-        omega0 = omega0.T
+        y0 = (jax.vmap(kin.from_matrix, out_axes=axis)(quat.to_matrix(q0)), omega0.T)
         args = tuple(jnp.moveaxis(a, 0, -1) for a in args)
 
-    (att, omega), stats = solve_saved(
+        def finish(ys):  # (T, ..., B) -> (T, B, ...)
+            att, omega = (jnp.moveaxis(a, -1, 1) for a in ys)
+            return omega, jax.vmap(jax.vmap(kin.to_quat))(att)
+
+    ys, stats = solve_saved(
         term,
         solver,
         ts,
-        (att0, omega0),
+        y0,
         args=args,
         step_end=step_end,
         stepsize_controller=stepsize_controller,
@@ -240,10 +256,8 @@ def simulate(
         adjoint=adjoint,
         progress_meter=progress_meter,
     )
-    if axis != 0:  # back to (T, B, ...)
-        att, omega = jnp.moveaxis(att, axis, 1), jnp.moveaxis(omega, axis, 1)
-    to_quat = quat.from_matrix if kin is None else jax.vmap(jax.vmap(kin.to_quat))
-    q = quat.canonical(to_quat(att))
+    omega, q = finish(ys)
+    q = quat.canonical(q)
     T = ts.shape[0]
     return Trajectory(
         ts=ts,
