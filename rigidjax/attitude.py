@@ -114,8 +114,9 @@ def solve_saved(
     `step_end`: normalised quaternions, shadowed rotation vectors), never interpolants, and no
     dense output is formed inside the step loop — on CPU that machinery cost more than half the
     time of a batched fixed-step solve (benchmarks/bench_dynamics.py). Fixed steps
-    (`diffrax.ConstantStepSize`) take `dt0` and restart the grid at each output time (the same
-    steps as one solve when the output times lie on the grid). Adaptive controllers start at
+    (`diffrax.ConstantStepSize`) divide each interval into the fewest equal steps of at most
+    `dt0` (to a relative 1e-6, so that rounding in the output times never adds a step): the same
+    steps as one solve when the output times lie on the `dt0` grid. Adaptive controllers start at
     `dt0` (default: Diffrax's initial-step heuristic) and each later interval at the previous
     interval's mean accepted step. `max_steps` bounds each interval.
 
@@ -143,27 +144,39 @@ def solve_saved(
         )
     if not adaptive and dt0 is None:
         raise ValueError("dt0 (the step size) is required with diffrax.ConstantStepSize")
-    if adaptive:
-        if dt0 is None:
-            t_next, _ = stepsize_controller.init(
-                term, ts[0], ts[-1], y0, None, args, solver.func, solver.error_order(term)
-            )
-            h0 = t_next - ts[0]
-        else:
-            h0 = jnp.asarray(dt0, ts.dtype)
-    else:
-        h0 = jnp.zeros((), ts.dtype)  # unused: the fixed dt0 is static
+    dt0 = None if dt0 is None else jnp.asarray(dt0, ts.dtype)  # traced: no recompiling per value
+    return _solve_intervals(
+        term, solver, stepsize_controller, ts, y0, args, dt0, max_steps, adjoint, meter
+    )
+
+
+@eqx.filter_jit  # one compilation per problem structure, as `diffrax.diffeqsolve` itself
+def _solve_intervals(
+    term, solver, stepsize_controller, ts, y0, args, dt0, max_steps, adjoint, meter
+):
+    """The `lax.scan` over output intervals of `solve_saved`."""
+    adaptive = isinstance(stepsize_controller, diffrax.AbstractAdaptiveStepSizeController)
+    if adaptive and dt0 is None:
+        t_next, _ = stepsize_controller.init(
+            term, ts[0], ts[-1], y0, None, args, solver.func, solver.error_order(term)
+        )
+        dt0 = t_next - ts[0]
     span = ts[-1] - ts[0]
     keys = ("num_steps", "num_accepted_steps", "num_rejected_steps")
 
     def interval(carry, t01):
         y, h, meter_state = carry
+        if not adaptive:  # the fewest equal steps of at most dt0 (to 1e-6, against rounding)
+            width = t01[1] - t01[0]
+            n = jnp.maximum(jnp.ceil(width / dt0 * (1 - 1e-6)), 1)
+            # a hair above width/n, so that Diffrax's ceil(width/h) is exactly n
+            h = width / n * (1 + 4 * jnp.finfo(width.dtype).eps)
         sol = diffrax.diffeqsolve(
             term,
             solver,
             t01[0],
             t01[1],
-            h if adaptive else dt0,
+            h,
             y,
             args=args,
             saveat=diffrax.SaveAt(t1=True),
@@ -178,12 +191,11 @@ def solve_saved(
         return (y1, h, meter_state), (y1, jnp.stack([sol.stats[k] for k in keys]))
 
     (_, _, meter_state), (ys, counts) = jax.lax.scan(
-        interval, (y0, h0, meter.init()), jnp.stack([ts[:-1], ts[1:]], axis=1)
+        interval, (y0, dt0, meter.init()), jnp.stack([ts[:-1], ts[1:]], axis=1)
     )
     meter.close(meter_state)
     ys = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), y0, ys)
-    stats = dict(zip(keys, jnp.sum(counts, axis=0), strict=True))
-    return ys, stats
+    return ys, dict(zip(keys, jnp.sum(counts, axis=0), strict=True))
 
 
 def darboux(
@@ -212,7 +224,8 @@ def darboux(
     gimbal lock), `"cayley_klein"`, `"geometric"` (RKMK Lie-group solver, exactly on SO(3)), or an
     `AbstractKinematics` instance. Defaults: Tsit5 with unrolled stages (`ExplicitRK`;
     RKMK-Dopri5 for `"geometric"`) with a PID controller at `rtol = atol = 1e-10` (1e-6 in
-    float32). `return_state=True` also returns the native states at `ts` (normalised
+    float32). Steps end at every output time and the values at `ts` are step-end states
+    (`solve_saved`). `return_state=True` also returns the native states at `ts` (normalised
     quaternions, shadowed rotation vectors, ...).
     """
     ts = check_times(as_float(ts, "ts"))
@@ -231,7 +244,6 @@ def darboux(
         def to_matrix(y):
             return y[0]
 
-        native = to_matrix
     else:
         if isinstance(method, AbstractKinematics):
             kin = method
@@ -248,9 +260,6 @@ def darboux(
         y0 = kin.from_matrix(P0)
         to_matrix = jax.vmap(kin.to_matrix)
 
-        def native(y):
-            return jax.vmap(lambda yi: kin.step_end(yi)[0])(y)
-
     ys, _ = solve_saved(
         term,
         solver,
@@ -265,4 +274,4 @@ def darboux(
         adjoint=adjoint,
     )
     P = to_matrix(ys)
-    return (P, native(ys)) if return_state else P
+    return (P, P if method == "geometric" else ys) if return_state else P

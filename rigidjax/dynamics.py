@@ -89,6 +89,19 @@ class _BatchField(eqx.Module):
         )
 
 
+class _BatchStepEnd(eqx.Module):
+    """The kinematics' step-end map (normalisation, chart switch) on a flattened batch
+    `(att, Ω)` with the batch on axis `axis`; reports a jump if any member jumped."""
+
+    kin: AbstractKinematics
+    axis: int = eqx.field(static=True)
+
+    def __call__(self, y):
+        step_end = jax.vmap(self.kin.step_end, in_axes=self.axis, out_axes=(self.axis, 0))
+        att, jumped = step_end(y[0])
+        return (att, y[1]), jnp.any(jumped)
+
+
 class _QuaternionComponents(eqx.Module):
     """Fast path for the common case (quaternion kinematics, principal moments): the batch state
     is seven separate `(B,)` component arrays `((Ω1, Ω2, Ω3), (q0, q1, q2, q3))` and the
@@ -162,10 +175,13 @@ def simulate(
     batch that is integrated as ONE state in one fused loop, with a step size controlled by the
     worst member (per-member adaptivity: `jax.vmap` over `simulate` instead). `torque(t, Ω, q)`
     returns K in the body frame (or in space with `torque_frame="space"`). Any Diffrax solver,
-    step-size controller, adjoint and progress meter can be passed; defaults: Tsit5 with unrolled
-    stages (`ExplicitRK`; RKMK-Dopri5 for `"geometric"`), PID at `rtol = atol = 1e-10` in
-    float64 (1e-6 in float32). For large batches at fixed steps, `solver=RK4()` with
-    `diffrax.ConstantStepSize()` and `dt0` is the fastest path (benchmarks/bench_dynamics.py).
+    step-size controller (`diffrax.ConstantStepSize` with `dt0`, or adaptive), adjoint and
+    progress meter can be passed; defaults: Tsit5 with unrolled stages (`ExplicitRK`;
+    RKMK-Dopri5 for `"geometric"`), PID at `rtol = atol = 1e-10` in float64 (1e-6 in float32).
+    Steps end at every output time and the values at `ts` are step-end states (unit
+    quaternions, no interpolation; `max_steps` bounds each output interval). For large batches
+    at fixed steps, `solver=RK4()` with `diffrax.ConstantStepSize()` and `dt0` runs at the rate
+    of a hand-written `lax.scan` kernel (benchmarks/bench_dynamics.py).
     """
     if ts is None:
         raise ValueError("ts (the output times) is required")
@@ -225,12 +241,7 @@ def simulate(
                 f"AbstractKinematics instance, got {kinematics!r}"
             )
         axis = -1  # batch last: components first, bodies along the vectorised axis
-        kin_step_end = jax.vmap(kin.step_end, in_axes=axis, out_axes=(axis, 0))
-
-        def step_end(y):
-            att, jumped = kin_step_end(y[0])
-            return (att, y[1]), jnp.any(jumped)
-
+        step_end = _BatchStepEnd(kin, axis)
         solver = _unrolled(solver)
         term = diffrax.ODETerm(_BatchField(_Dynamics(kin, torque, torque_frame), axis))
         y0 = (jax.vmap(kin.from_matrix, out_axes=axis)(quat.to_matrix(q0)), omega0.T)

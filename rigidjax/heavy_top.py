@@ -399,7 +399,7 @@ def simulate_heavy_top(
         max_steps=max_steps,
         adjoint=adjoint,
     )
-    q = None if q0 is None else quat.canonical(quat.normalize(ys[2]))
+    q = None if q0 is None else quat.canonical(ys[2])  # step-end states: already unit
     return HeavyTopTrajectory(ts=ts, omega=ys[0], gamma=ys[1], quat=q, stats=stats)
 
 

@@ -1,5 +1,6 @@
 """Euler's equations + attitude kinematics against SciPy solve_ivp (DOP853) and closed forms."""
 
+import diffrax
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -7,7 +8,7 @@ import pytest
 from reference import rigid_body_dop853
 from scipy.spatial.transform import Rotation
 
-from rigidjax import RigidBody, angular_momentum, energy, simulate
+from rigidjax import RK4, RigidBody, angular_momentum, energy, simulate
 from rigidjax.invariants import drift
 
 TS = jnp.linspace(0.0, 5.0, 6)
@@ -84,6 +85,80 @@ def test_space_torque_changes_space_momentum_linearly():
     )
     np.testing.assert_allclose(traj.omega, w_ref, atol=1e-8)
     np.testing.assert_allclose(traj.matrix, P_ref, atol=1e-8)
+
+
+def test_space_torque_on_principal_axes_fast_path():
+    """The component fast path (principal moments, quaternions) with a torque given in space
+    and depending on t, Ω and q, against the SciPy reference."""
+
+    def torque(t, w, q):
+        return jnp.array([0.1 * jnp.sin(t), -0.2 * w[0], 0.05 + 0.1 * q[1]])
+
+    def torque_body_np(t, w, q):
+        K = np.array([0.1 * np.sin(t), -0.2 * w[0], 0.05 + 0.1 * q[1]])
+        return Rotation.from_quat(q, scalar_first=True).inv().apply(K)
+
+    traj = simulate(RigidBody(I_DIAG), W0, Q0, TS, torque=torque, torque_frame="space", **TIGHT)
+    w_ref, P_ref = scipy_reference(np.diag(I_DIAG), W0, Q0, TS, torque_body_np)
+    np.testing.assert_allclose(traj.omega, w_ref, atol=1e-8)
+    np.testing.assert_allclose(traj.matrix, P_ref, atol=1e-8)
+
+
+FIXED = dict(solver=RK4(), stepsize_controller=diffrax.ConstantStepSize(), dt0=0.01)
+
+
+def test_outputs_are_step_end_states_fixed_steps():
+    """Steps end at every output time: with fixed steps and output times on the grid, saving 11
+    times takes the same 100 steps as saving only the end, and the saved quaternions are the
+    renormalised step-end states (unit to rounding), not interpolants."""
+    body, ts = RigidBody(I_DIAG), jnp.linspace(0.0, 1.0, 11)
+    many = simulate(body, W0, Q0, ts, **FIXED)
+    ends = simulate(body, W0, Q0, ts[::10], **FIXED)
+    assert int(many.stats["num_steps"]) == int(ends.stats["num_steps"]) == 100
+    np.testing.assert_allclose(many.omega[::10], ends.omega, atol=1e-14)
+    np.testing.assert_allclose(many.quat[::10], ends.quat, atol=1e-14)
+    np.testing.assert_allclose(jnp.linalg.norm(many.quat, axis=-1), 1.0, atol=4e-16)
+    w_ref, P_ref = scipy_reference(np.diag(I_DIAG), W0, Q0, np.asarray(ts))
+    np.testing.assert_allclose(many.omega, w_ref, atol=1e-8)  # RK4 at h = 0.01
+    np.testing.assert_allclose(many.matrix, P_ref, atol=1e-8)
+
+
+def test_outputs_adaptive_steps_clipped_not_multiplied():
+    """Adaptive steps are clipped at the output times and each interval starts from the previous
+    one's step: 51 outputs cost at most one extra step per output, same accuracy."""
+    body = RigidBody(I_DIAG)
+    sparse = simulate(body, W0, Q0, TS, **TIGHT)
+    dense = simulate(body, W0, Q0, jnp.linspace(0.0, 5.0, 51), **TIGHT)
+    np.testing.assert_allclose(dense.omega[::10], sparse.omega, atol=1e-10)
+    np.testing.assert_allclose(dense.quat[::10], sparse.quat, atol=1e-10)
+    assert int(dense.stats["num_steps"]) <= int(sparse.stats["num_steps"]) + 50
+    assert int(dense.stats["num_accepted_steps"]) >= 50
+
+
+def test_compiled_once_per_structure():
+    """Repeated calls with the same structure and shapes reuse one compilation (the torque
+    is traced once), whatever the values."""
+    traces = []
+
+    def torque(t, w, q):
+        traces.append(None)
+        return jnp.zeros(3)
+
+    for w0 in (W0, 2 * W0):
+        simulate(RigidBody(I_DIAG), w0, Q0, TS, torque=torque, **FIXED)
+    n = len(traces)
+    simulate(RigidBody(1.5 * I_DIAG), 3 * W0, Q0, 2 * TS, torque=torque, **FIXED)
+    assert n > 0 and len(traces) == n
+
+
+def test_progress_meter_and_controllers(capfd):
+    body = RigidBody(I_DIAG)
+    simulate(body, W0, Q0, TS, progress_meter=diffrax.TextProgressMeter(), **FIXED)
+    assert "100.00%" in capfd.readouterr().out
+    with pytest.raises(ValueError, match="dt0"):
+        simulate(body, W0, Q0, TS, stepsize_controller=diffrax.ConstantStepSize())
+    with pytest.raises(ValueError, match="stepsize_controller must be"):
+        simulate(body, W0, Q0, TS, stepsize_controller=diffrax.StepTo(ts=TS), dt0=None)
 
 
 def test_invariants_long_run():
