@@ -46,8 +46,9 @@ class _BatchMaxRMS(eqx.Module):
 
     def __call__(self, y) -> Array:
         leaves = [jnp.moveaxis(x, self.axis, 0) for x in jtu.tree_leaves(y)]
-        flat = jnp.concatenate([x.reshape(x.shape[0], -1) for x in leaves], axis=1)
-        return jnp.max(jnp.sqrt(jnp.mean(flat * flat, axis=1)))
+        squares = sum(jnp.sum((x * x).reshape(x.shape[0], -1), axis=1) for x in leaves)
+        count = sum(math.prod(x.shape[1:]) for x in leaves)
+        return jnp.sqrt(jnp.max(squares) / count)
 
 
 class _Dynamics(eqx.Module):
