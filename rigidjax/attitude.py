@@ -119,8 +119,8 @@ def solve_saved(
     steps as one solve when the output times lie on the `dt0` grid. Adaptive controllers start at
     `dt0` (default: Diffrax's initial-step heuristic) and each later interval at the previous
     interval's mean accepted step; output times closer together than the natural step cost one
-    step each (identification from 1001 gyro samples: ~6× the steps of interpolated output,
-    benchmarks/results/identify.json). `max_steps` bounds each interval.
+    step each (an identification fit to 1001 gyro samples: 0.71 s vs 0.11 s with Diffrax's
+    interpolated output; benchmarks/results/identify.json). `max_steps` bounds each interval.
 
     `solver` is wrapped in `StepEndMap` with `step_end` when given (for `adjoint`, default
     `RecursiveCheckpointAdjoint`). Without `stepsize_controller`, a `PIDController` at `rtol`,
