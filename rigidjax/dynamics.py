@@ -40,7 +40,9 @@ class Trajectory(eqx.Module):
 
 class _BatchMaxRMS(eqx.Module):
     """Error norm of a batch integrated as one state: the largest per-member RMS, so every
-    member meets the tolerance (the default RMS over the whole batch would average it away)."""
+    member meets the tolerance (the default RMS over the whole batch would average it away).
+    Squares are summed leaf by leaf: concatenating the leaves made XLA recompute the stages of
+    a component state (adaptive Dopri8 on 600 bodies hung; benchmarks/bench_dynamics.py)."""
 
     axis: int = eqx.field(static=True)
 
