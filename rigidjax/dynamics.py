@@ -41,8 +41,8 @@ class Trajectory(eqx.Module):
 class _BatchMaxRMS(eqx.Module):
     """Error norm of a batch integrated as one state: the largest per-member RMS, so every
     member meets the tolerance (the default RMS over the whole batch would average it away).
-    Squares are summed leaf by leaf: concatenating the leaves made XLA recompute the stages of
-    a component state (adaptive Dopri8 on 600 bodies hung; benchmarks/bench_dynamics.py)."""
+    Squares are summed leaf by leaf: concatenating the leaves of the component state made
+    adaptive solves collapse (Dopri8 on 600 bodies did not finish in 100 s; 8 ms now)."""
 
     axis: int = eqx.field(static=True)
 
