@@ -1,8 +1,10 @@
-"""Machine and version facts recorded in every benchmark JSON (shared by the bench scripts)."""
+"""Machine and version facts recorded in every benchmark JSON, and the JSON writer (shared by the
+bench scripts)."""
 
 from __future__ import annotations
 
 import importlib.metadata
+import json
 import os
 import platform
 import subprocess
@@ -63,3 +65,11 @@ def machine_info() -> dict:
         ),
         loadavg_at_record=load_average(),
     )
+
+
+def write_json(path: Path, obj) -> None:
+    """Write `obj` as indented JSON to `path` atomically (a killed run leaves the old file)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(obj, indent=2) + "\n")
+    tmp.replace(path)

@@ -48,7 +48,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import json
 import statistics
 import time
 from collections.abc import Callable
@@ -62,7 +61,7 @@ import diffrax  # noqa: E402
 import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-from _machine import load_average, machine_info  # noqa: E402
+from _machine import load_average, machine_info, write_json  # noqa: E402
 
 from rigidjax import darboux, euler, so3  # noqa: E402
 from rigidjax.explicit_rk import unrolled  # noqa: E402
@@ -588,8 +587,7 @@ def main(argv=None) -> int:
         throughput=tp,
     )
     res["total_s"] = time.perf_counter() - t_start
-    args.out_dir.mkdir(parents=True, exist_ok=True)
-    (args.out_dir / "darboux.json").write_text(json.dumps(res, indent=1) + "\n")
+    write_json(args.out_dir / "darboux.json", res)
     plot(res, args.out_dir / "darboux.png")
     log(f"wrote {args.out_dir / 'darboux.json'} and {args.out_dir / 'darboux.png'}")
     return 0

@@ -89,7 +89,7 @@ jax.config.update("jax_enable_x64", True)  # the benchmark's choice; rigidjax ne
 import diffrax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-from _machine import load_average, machine_info  # noqa: E402
+from _machine import load_average, machine_info, write_json  # noqa: E402
 
 from rigidjax import RK4, RigidBody, simulate  # noqa: E402
 from rigidjax.explicit_rk import ExplicitRK  # noqa: E402
@@ -879,10 +879,7 @@ def main(argv=None) -> None:
         print(json.dumps(compile_probe(args._probe, args._B, args._N, FULL["dt"], args.seed)))
         return
     out = run(args)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(out, indent=2) + "\n")
-    tmp.replace(args.out)
+    write_json(args.out, out)
     print_table(out)
     print(f"wrote {args.out}")
 

@@ -51,7 +51,7 @@ import sys
 import time
 from pathlib import Path
 
-from _machine import load_average, machine_info  # noqa: E402
+from _machine import load_average, machine_info, write_json  # noqa: E402
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "identify.json"
 ROTVEC = (0.3, -0.5, 0.2)
@@ -528,10 +528,7 @@ def main(argv=None) -> None:
         print(json.dumps(grad_worker(args._grad, args._configs.split(","), args.grad_repeats)))
         return
     out = run(args)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(out, indent=2) + "\n")
-    tmp.replace(args.out)
+    write_json(args.out, out)
     print_table(out)
     print(f"wrote {args.out}")
 

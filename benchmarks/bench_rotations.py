@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import json
 import statistics
 import sys
 import time
@@ -45,7 +44,7 @@ jax.config.update("jax_enable_x64", True)  # the benchmark's choice; rigidjax ne
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-from _machine import load_average, machine_info  # noqa: E402
+from _machine import load_average, machine_info, write_json  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
 from rigidjax import euler, quat, so3  # noqa: E402
@@ -343,8 +342,7 @@ def main(argv: list[str] | None = None) -> dict:
     }
     print(f"N = {args.n}, rates in 10⁶ rotations/s (best of {args.repeats}); diff = max |Δ|")
     print("\n".join(table_rows(results)))
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(report, indent=2) + "\n")
+    write_json(args.out, report)
     print(f"load average start {load_start}, end {report['load_average_end']}")
     print(f"wrote {args.out} (total {report['total_wall_s']:.1f} s)")
     return report
