@@ -64,11 +64,11 @@ import numpy as np  # noqa: E402
 from _machine import load_average, machine_info, write_json  # noqa: E402
 
 from rigidjax import darboux, euler, so3  # noqa: E402
-from rigidjax.explicit_rk import unrolled  # noqa: E402
+from rigidjax.solvers.explicit_rk import unrolled  # noqa: E402
 from rigidjax.kinematics import METHODS as KINEMATICS  # noqa: E402
 from rigidjax.kinematics import AbstractKinematics, check_omega  # noqa: E402
-from rigidjax.lie_solver import RKMK, LieTerm  # noqa: E402
-from rigidjax.projected_solver import StepEndMap  # noqa: E402
+from rigidjax.solvers.rkmk import RKMK, LieTerm  # noqa: E402
+from rigidjax.solvers.step_end_map import StepEndMap  # noqa: E402
 
 METHODS = ["matrix", "rotvec", "quat", "euler", "cayley_klein", "geometric"]
 EULER_SEQ = "ZYX"  # Tait–Bryan: |det J| = |cos pitch| ≥ cos β on this motion (checked below)
@@ -156,7 +156,7 @@ def _maybe_count(w, t, count: bool):
 
 
 class _Field(eqx.Module):
-    """`(t, y) -> ẏ` for a kinematics formulation (as `rigidjax.attitude._KinematicsField`)."""
+    """`(t, y) -> ẏ` for a kinematics formulation (as `rigidjax.kinematics.darboux._KinematicsField`)."""
 
     kin: AbstractKinematics
     omega: Callable
@@ -168,7 +168,7 @@ class _Field(eqx.Module):
 
 
 class _LieField(eqx.Module):
-    """`(t, (R, None)) -> (ω, None)` for RKMK (as `rigidjax.attitude._LieField`)."""
+    """`(t, (R, None)) -> (ω, None)` for RKMK (as `rigidjax.kinematics.darboux._LieField`)."""
 
     omega: Callable
     count: bool = eqx.field(static=True)

@@ -92,8 +92,8 @@ import numpy as np  # noqa: E402
 from _machine import load_average, machine_info, write_json  # noqa: E402
 
 from rigidjax import RK4, RigidBody, simulate  # noqa: E402
-from rigidjax.explicit_rk import ExplicitRK  # noqa: E402
-from rigidjax.projected_solver import StepEndMap  # noqa: E402
+from rigidjax.solvers.explicit_rk import ExplicitRK  # noqa: E402
+from rigidjax.solvers.step_end_map import StepEndMap  # noqa: E402
 
 _T_IMPORTED = time.perf_counter()
 

@@ -1,29 +1,22 @@
-"""rigidjax: JAX-accelerated, differentiable rigid-body rotation maps, kinematics and dynamics."""
+"""rigidjax: JAX-accelerated, differentiable rigid-body rotation maps, kinematics and dynamics.
 
-from . import (
-    analytic,
-    andoyer,
-    euler,
-    gibbs,
-    heavy_top,
-    inertia,
-    invariants,
-    kepler,
-    kinematics,
-    mrp,
-    quat,
-    satellite,
-    sixdof,
-    so3,
-    stability,
-)
-from .attitude import darboux, omega_path
-from .body import RigidBody
-from .dynamics import Trajectory, simulate
-from .explicit_rk import ExplicitRK
-from .heavy_top import HeavyTop, simulate_heavy_top
-from .identify import InertiaEstimate, identify_inertia
-from .invariants import angular_momentum, energy
+The package is layered; each layer uses only the ones above it:
+
+- `rotations`: rotation maps (`so3`, `quat`, `euler`, `gibbs`, `mrp`, `andoyer`);
+- `solvers`: Diffrax solvers (`ExplicitRK`, `RK4`, `RKMK`, `StepEndMap`);
+- `_integrate`: the one driver from `SolveOptions` to `diffrax.diffeqsolve` to a trajectory;
+- `kinematics`: the Darboux problem (`darboux`, the kinematics formulations);
+- `mechanics`: bodies, inertia, Euler's equations (`simulate`), heavy top, 6-DOF, Kepler, ...;
+- `analytic`: closed forms (Jacobi elliptic functions, Euler–Poinsot, the symmetric top);
+- `fit`: identification (`identify_inertia`);
+- `cli`: the `rigidjax` command.
+"""
+
+import sys as _sys
+
+from . import analytic, fit, kinematics, mechanics, rotations, solvers
+from ._integrate import SolveOptions
+from .fit import InertiaEstimate, identify_inertia
 from .kinematics import (
     AbstractKinematics,
     CayleyKlein,
@@ -31,16 +24,51 @@ from .kinematics import (
     PoissonMatrix,
     Quaternion,
     RotationVector,
+    darboux,
+    omega_path,
 )
-from .lie_solver import RKMK, LieTerm
-from .projected_solver import StepEndMap
-from .rk4 import RK4
+from .mechanics import (
+    HeavyTop,
+    RigidBody,
+    Trajectory,
+    angular_momentum,
+    energy,
+    heavy_top,
+    inertia,
+    invariants,
+    kepler,
+    satellite,
+    simulate,
+    simulate_heavy_top,
+    sixdof,
+    stability,
+)
+from .rotations import andoyer, euler, gibbs, mrp, quat, so3
+from .solvers import RK4, RKMK, ExplicitRK, LieTerm, StepEndMap
+
+# The modules' flat names of rigidjax 0.1 (`import rigidjax.quat`, `rigidjax.heavy_top`, ...)
+# keep working: they are the same module objects as in the layered packages.
+for _name, _module in {
+    "andoyer": andoyer,
+    "euler": euler,
+    "gibbs": gibbs,
+    "heavy_top": heavy_top,
+    "inertia": inertia,
+    "invariants": invariants,
+    "kepler": kepler,
+    "mrp": mrp,
+    "quat": quat,
+    "satellite": satellite,
+    "sixdof": sixdof,
+    "so3": so3,
+    "stability": stability,
+}.items():
+    _sys.modules.setdefault(f"{__name__}.{_name}", _module)
+del _name, _module
 
 __all__ = [
     "RK4",
     "RKMK",
-    "RigidBody",
-    "Trajectory",
     "AbstractKinematics",
     "CayleyKlein",
     "EulerAngles",
@@ -50,29 +78,36 @@ __all__ = [
     "LieTerm",
     "PoissonMatrix",
     "Quaternion",
+    "RigidBody",
     "RotationVector",
+    "SolveOptions",
     "StepEndMap",
+    "Trajectory",
     "analytic",
     "andoyer",
     "angular_momentum",
     "darboux",
     "energy",
     "euler",
+    "fit",
     "gibbs",
     "heavy_top",
     "identify_inertia",
     "inertia",
-    "kepler",
     "invariants",
+    "kepler",
     "kinematics",
+    "mechanics",
     "mrp",
     "omega_path",
     "quat",
+    "rotations",
     "satellite",
     "simulate",
     "simulate_heavy_top",
     "sixdof",
-    "stability",
     "so3",
+    "solvers",
+    "stability",
 ]
 __version__ = "0.1.0"

@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from rigidjax import darboux, so3
 from rigidjax.kinematics import RotationVector
-from rigidjax.lie_solver import RKMK, LieTerm
+from rigidjax.solvers.rkmk import RKMK, LieTerm
 
 METHODS = ["rotvec", "quat", "matrix", "euler", "cayley_klein", "geometric"]
 TS = jnp.linspace(0.0, 6.0, 7)

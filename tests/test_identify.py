@@ -10,7 +10,7 @@ from reference import rigid_body_dop853
 from scipy.spatial.transform import Rotation
 
 from rigidjax import identify_inertia
-from rigidjax.identify import inertia_from_params, params_from_inertia
+from rigidjax.fit.identify import inertia_from_params, params_from_inertia
 from rigidjax.inertia import check_inertia
 
 TS = np.linspace(0.0, 8.0, 81)

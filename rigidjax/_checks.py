@@ -1,0 +1,154 @@
+"""Argument checks shared by every public function: one validation helper (`validate`) that raises a
+ValueError on concrete input and an `equinox.error_if` under tracing, with the same message."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike
+
+
+def as_float(x: ArrayLike, name: str = "x") -> Array:
+    """`x` as a floating JAX array (integers are promoted to the default float dtype)."""
+    try:
+        x = jnp.asarray(x)
+    except TypeError as e:  # pragma: no cover - message clarity only
+        raise TypeError(f"{name} must be array-like, got {type(x).__name__}") from e
+    if jnp.issubdtype(x.dtype, jnp.complexfloating):
+        raise TypeError(f"{name} must be real, got dtype {x.dtype}")
+    if not jnp.issubdtype(x.dtype, jnp.floating):
+        x = x.astype(jnp.result_type(float))
+    return x
+
+
+def floats(*args: tuple[ArrayLike, str]) -> list[Array]:
+    """`(x, name)` pairs as float arrays of one common (promoted) dtype, shapes untouched."""
+    xs = [as_float(x, name) for x, name in args]
+    dtype = jnp.result_type(*xs)
+    return [x.astype(dtype) for x in xs]
+
+
+def check_shape(x: Array, trailing: Sequence[int], name: str) -> None:
+    """Raise a ValueError at trace time if `x` does not end in the dimensions `trailing`."""
+    trailing = tuple(trailing)
+    if x.ndim < len(trailing) or tuple(x.shape[x.ndim - len(trailing) :]) != trailing:
+        want = "(..., " + ", ".join(map(str, trailing)) + ")"
+        raise ValueError(f"{name} must have shape {want}, got {tuple(x.shape)}")
+
+
+def vector(x: ArrayLike, n: int, name: str) -> Array:
+    """Float array with trailing dimension `n`, checked."""
+    x = as_float(x, name)
+    check_shape(x, (n,), name)
+    return x
+
+
+def matrix(x: ArrayLike, name: str) -> Array:
+    """Float array with trailing shape (3, 3), checked."""
+    x = as_float(x, name)
+    check_shape(x, (3, 3), name)
+    return x
+
+
+def is_concrete(x) -> bool:
+    """True unless `x` is a tracer (inside jit/vmap/grad): its values can be checked now."""
+    return not isinstance(x, jax.core.Tracer)
+
+
+def validate(
+    x: Array,
+    bad: Callable,
+    message: str,
+    detail: Callable[[np.ndarray], str] | None = None,
+    *,
+    hint: str = "",
+    on: Array | None = None,
+) -> Array:
+    """Check `x` with `bad(xp, x) -> bool array` (`xp` is NumPy or `jax.numpy`) and raise a clear
+    error if any entry is true: a ValueError `message + detail(x) + hint` at once when `x` is
+    concrete, else an `equinox.error_if` with `message + hint` that raises at run time under
+    jit/vmap. The concrete check runs in NumPy, so it works on constants inside a trace as well.
+
+    Returns `on` (default `x`), to which the run-time check is attached: use the returned value
+    (an unused check is removed with the dead code). For a check made only on concrete values
+    (e.g. where traced callers expect NaN), guard the call with `is_concrete(x)`."""
+    out = x if on is None else on
+    if not is_concrete(x):
+        return eqx.error_if(out, jnp.any(bad(jnp, x)), message + hint)
+    xn = np.asarray(x)
+    if np.any(bad(np, xn)):
+        raise ValueError(message + (detail(xn) if detail is not None else "") + hint)
+    return out
+
+
+def _got(v: np.ndarray) -> str:
+    return f", got {v}"
+
+
+def check_finite(x: Array, name: str) -> Array:
+    """`x`, checked to be finite everywhere (see `validate`)."""
+    return validate(x, lambda xp, v: ~xp.isfinite(v), f"{name} must be finite", _got)
+
+
+def check_positive(x: Array, name: str) -> Array:
+    """`x`, checked to be positive and finite everywhere (see `validate`)."""
+    return validate(
+        x, lambda xp, v: ~((v > 0) & xp.isfinite(v)), f"{name} must be positive and finite", _got
+    )
+
+
+def norm_tolerance(dtype) -> float:
+    """Tolerance of the checks of unit quaternions and vectors and of rotation matrices: 1e-6 in
+    float64, 1e-4 in lower precision."""
+    return 1e-6 if dtype == jnp.float64 else 1e-4
+
+
+def check_unit_norm(x: Array, name: str, hint: str = "") -> Array:
+    """`x (..., n)`, checked to have unit norm within `norm_tolerance` (see `validate`): a unit
+    quaternion (w, x, y, z) when n = 4, else a unit vector. The error names `name`, the
+    offending norm (concrete `x`) and the fix `hint`; by default "normalise it with
+    rigidjax.quat.normalize" for quaternions."""
+    tol = norm_tolerance(x.dtype)
+    quaternion = x.shape[-1] == 4
+    if not hint:
+        hint = "; normalise it with rigidjax.quat.normalize" if quaternion else "; normalise it"
+
+    def bad(xp, v):
+        return ~(xp.abs(xp.sqrt(xp.sum(v * v, axis=-1)) - 1) <= tol)
+
+    def detail(v):
+        n = np.linalg.norm(v, axis=-1)
+        if n.ndim == 0:
+            return f": |{name}| = {n:.9g}"
+        k = np.unravel_index(np.argmax(np.abs(n - 1)), n.shape)  # the worst (NaN first)
+        return f": |{name}[{', '.join(map(str, k))}]| = {n[k]:.9g}"
+
+    what = "quaternion (w, x, y, z)" if quaternion else "vector"
+    return validate(x, bad, f"{name} must be a unit {what}", detail, hint=hint)
+
+
+def initial_vector(x: ArrayLike, n: int, name: str, dtype) -> Array:
+    """One finite `(n,)` vector of `dtype`, for integrators that take a single state (a batch
+    gets an error pointing to `jax.vmap`)."""
+    x = vector(x, n, name).astype(dtype)
+    if x.shape != (n,):
+        raise ValueError(f"{name} must have shape ({n},) (jax.vmap for batches), got {x.shape}")
+    return check_finite(x, name)
+
+
+def check_times(ts: Array) -> Array:
+    """`ts` as a 1-D strictly increasing array of at least two times (clear error otherwise)."""
+    if ts.ndim != 1 or ts.shape[0] < 2:
+        raise ValueError(f"ts must be a 1-D array of at least 2 times, got shape {tuple(ts.shape)}")
+
+    def detail(t):
+        k = int(np.flatnonzero(~(np.diff(t) > 0))[0])
+        return f": ts[{k + 1}] = {t[k + 1]} follows ts[{k}] = {t[k]}"
+
+    return validate(
+        ts, lambda xp, t: ~(xp.diff(t) > 0), "ts must be strictly increasing and finite", detail
+    )

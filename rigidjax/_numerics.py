@@ -1,0 +1,43 @@
+"""Numerical guards shared by the formulas: Taylor series at removable singularities with the
+double-`where` trick, so values AND gradients stay finite (jax#1052)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import jax.numpy as jnp
+from jaxtyping import Array
+
+
+def small_threshold(dtype) -> float:
+    """Below this value of θ² the truncated Taylor series is used instead of the closed form.
+
+    Four-term series are accurate to ~x⁴/9! there; the closed forms lose ~eps/x to cancellation
+    just above it, so the threshold depends on the precision.
+    """
+    return 1e-2 if jnp.finfo(dtype).eps < 1e-10 else 1e-1
+
+
+def guarded(x2: Array, exact: Callable[[Array], Array], series: Callable[[Array], Array]) -> Array:
+    """Evaluate f(x²) by `series` near 0 and `exact` elsewhere, with finite values AND gradients.
+
+    The double-`where` trick: the exact branch is fed a harmless value where it is not selected,
+    so its (discarded) derivative cannot be NaN (jax#1052).
+    """
+    small = x2 < small_threshold(x2.dtype)
+    x2_safe = jnp.where(small, jnp.ones_like(x2), x2)
+    return jnp.where(small, series(x2), exact(x2_safe))
+
+
+def poly(x: Array, coeffs: Sequence[float]) -> Array:
+    """Horner evaluation of Σ coeffs[k] x^k."""
+    out = jnp.full_like(x, coeffs[-1])
+    for c in reversed(coeffs[:-1]):
+        out = out * x + c
+    return out
+
+
+def safe_sqrt(x: Array) -> Array:
+    """`√max(x, 0)` with a finite (zero) gradient at and below 0 (double-`where`)."""
+    pos = x > 0
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, jnp.ones_like(x))), jnp.zeros_like(x))

@@ -1,0 +1,46 @@
+"""Closed-form solutions: Jacobi elliptic functions (`elliptic`), the free rigid body
+(`euler_poinsot`), the free symmetric top and rotation about a fixed axis
+(`regular_precession`)."""
+
+from . import elliptic, euler_poinsot, regular_precession
+from .elliptic import am, cn, dn, ellipj, ellipk, ellipkinc, ellipkm1, sn
+from .euler_poinsot import (
+    FreeBodyParameters,
+    flip_period,
+    free_rigid_body,
+    free_rigid_body_attitude,
+    free_rigid_body_parameters,
+    time_of_first_flip,
+)
+from .regular_precession import (
+    SymmetricTopPrecession,
+    fixed_axis_rotation,
+    symmetric_top,
+    symmetric_top_attitude,
+    symmetric_top_precession,
+)
+
+__all__ = [
+    "FreeBodyParameters",
+    "SymmetricTopPrecession",
+    "am",
+    "cn",
+    "dn",
+    "elliptic",
+    "ellipj",
+    "ellipk",
+    "ellipkinc",
+    "ellipkm1",
+    "euler_poinsot",
+    "regular_precession",
+    "fixed_axis_rotation",
+    "flip_period",
+    "free_rigid_body",
+    "free_rigid_body_attitude",
+    "free_rigid_body_parameters",
+    "sn",
+    "symmetric_top",
+    "symmetric_top_attitude",
+    "symmetric_top_precession",
+    "time_of_first_flip",
+]

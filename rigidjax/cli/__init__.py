@@ -1,0 +1,5 @@
+"""The `rigidjax` console command."""
+
+from .main import main
+
+__all__ = ["main"]

@@ -1,0 +1,128 @@
+"""The Darboux problem: the rotation P(t) from a given angular velocity (Zhilin 3.12–3.14)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Literal, Unpack
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
+
+from .._checks import as_float, check_times, matrix, norm_tolerance
+from .._integrate import SolveKwargs, SolveOptions, solve_saved
+from ..rotations import so3
+from ..solvers.rkmk import RKMK, LieTerm
+from .formulations import AbstractKinematics, check_omega, lookup
+
+Frame = Literal["space", "body"]
+OmegaLike = Callable[[Array], Array] | diffrax.AbstractPath | tuple[ArrayLike, ArrayLike]
+
+
+def omega_path(omega: OmegaLike) -> Callable[[Array], Array]:
+    """A callable `t -> (3,)` from a callable, a Diffrax path, or sampled data `(t_k, ω_k)`.
+
+    Samples (e.g. gyro readings) are interpolated by a C¹ cubic Hermite spline with backward
+    differences (`diffrax.backward_hermite_coefficients`), so the solver can step freely.
+    """
+    if isinstance(omega, diffrax.AbstractPath):
+        return omega.evaluate
+    if isinstance(omega, tuple):
+        if len(omega) != 2:
+            raise ValueError("sampled omega must be a pair (t_samples (N,), omega_samples (N, 3))")
+        t_s, w_s = as_float(omega[0], "omega t_samples"), as_float(omega[1], "omega samples")
+        if t_s.ndim != 1 or w_s.shape != (t_s.shape[0], 3) or t_s.shape[0] < 2:
+            raise ValueError(
+                f"sampled omega must be (t (N,), omega (N, 3)) with N ≥ 2, got shapes "
+                f"{tuple(t_s.shape)} and {tuple(w_s.shape)}"
+            )
+        coeffs = diffrax.backward_hermite_coefficients(t_s, w_s)
+        return diffrax.CubicInterpolation(t_s, coeffs).evaluate
+    if callable(omega):
+        return omega
+    raise TypeError(
+        f"omega must be a callable t -> (3,), a diffrax path or (t, omega), got {omega!r}"
+    )
+
+
+class _KinematicsField(eqx.Module):
+    """`(t, y) -> ẏ` of a kinematics formulation driven by `omega(t)` (a stable, hashable
+    callable, so repeated solves with the same `omega` reuse one compilation)."""
+
+    kin: AbstractKinematics
+    omega: Callable
+
+    def __call__(self, t, y, args):
+        return self.kin.vector_field(y, check_omega(self.omega(t)).astype(y.dtype))
+
+
+class _LieField(eqx.Module):
+    """`(t, (R, None)) -> (ω, None)` for the RKMK solver."""
+
+    omega: Callable
+
+    def __call__(self, t, y, args):
+        return check_omega(self.omega(t)).astype(y[0].dtype), None
+
+
+def darboux(
+    omega: OmegaLike,
+    ts: ArrayLike,
+    P0: ArrayLike | None = None,
+    frame: Frame = "space",
+    method: str | AbstractKinematics = "rotvec",
+    *,
+    seq: str = "ZXZ",
+    return_state: bool = False,
+    options: SolveOptions | None = None,
+    **solve_kwargs: Unpack[SolveKwargs],
+) -> Float[Array, "T 3 3"] | tuple[Float[Array, "T 3 3"], Array]:
+    """Solve `Ṗ = ω(t) × P` (`frame="space"`) or `Ṗ = P (Ω(t) × E)` (`frame="body"`) with
+    `P(ts[0]) = P0` and return P at `ts` (Zhilin 3.12; the solution is unique and a rotation).
+
+    `omega`: a callable `t -> (3,)`, a Diffrax path, or samples `(t_k, ω_k)` (gyro data; see
+    `omega_path`). `method`: `"rotvec"` (θ̇ = Z(θ) ω with shadow switching, Zhilin 3.14),
+    `"quat"`, `"matrix"` (Poisson equation, drifts off SO(3)), `"euler"` (sequence `seq`; errors at
+    gimbal lock), `"cayley_klein"`, `"geometric"` (RKMK Lie-group solver, exactly on SO(3)), or an
+    `AbstractKinematics` instance. Defaults: Tsit5 with unrolled stages (`ExplicitRK`;
+    RKMK-Dopri5 for `"geometric"`) with a PID controller at `rtol = atol = 1e-10` (1e-6 in
+    float32). Steps end at every output time and the values at `ts` are step-end states
+    (`solve_saved`). `return_state=True` also returns the native states at `ts` (normalised
+    quaternions, shadowed rotation vectors, ...).
+    """
+    options = SolveOptions.of(options, solve_kwargs)
+    ts = check_times(as_float(ts, "ts"))
+    P0 = jnp.eye(3, dtype=ts.dtype) if P0 is None else matrix(P0, "P0")
+    if P0.shape != (3, 3):
+        raise ValueError(f"P0 must have shape (3, 3) (vmap for batches), got {tuple(P0.shape)}")
+    P0 = so3.check_rotation(P0.astype(ts.dtype), norm_tolerance(ts.dtype), "P0")
+    w = omega_path(omega)
+
+    if method == "geometric":
+        solver = RKMK(frame=frame) if options.solver is None else RKMK(options.solver, frame)
+        term = LieTerm(_LieField(w))
+        y0 = (P0, None)
+        step_end = None
+
+        def to_matrix(y):
+            return y[0]
+
+    else:
+        kin = lookup(method, frame, seq=seq, name="method")
+        solver, step_end = None, kin.step_end
+        term = diffrax.ODETerm(_KinematicsField(kin, w))
+        y0 = kin.from_matrix(P0)
+        to_matrix = jax.vmap(kin.to_matrix)
+
+    ys, _ = solve_saved(
+        term,
+        ts,
+        y0,
+        options,
+        solver=solver,
+        step_end=step_end,
+    )
+    P = to_matrix(ys)
+    return (P, P if method == "geometric" else ys) if return_state else P

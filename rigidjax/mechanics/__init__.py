@@ -1,0 +1,38 @@
+"""Mechanics: rigid bodies and inertia tensors, Euler's equations (`simulate`), invariants,
+stability of stationary rotations, the heavy top, 6-DOF bodies, the Kepler problem and the
+gravity-gradient satellite."""
+
+from . import (
+    body,
+    dynamics,
+    heavy_top,
+    inertia,
+    invariants,
+    kepler,
+    satellite,
+    sixdof,
+    stability,
+)
+from .body import RigidBody
+from .dynamics import Trajectory, simulate
+from .heavy_top import HeavyTop, simulate_heavy_top
+from .invariants import angular_momentum, energy
+
+__all__ = [
+    "HeavyTop",
+    "RigidBody",
+    "Trajectory",
+    "angular_momentum",
+    "body",
+    "dynamics",
+    "energy",
+    "heavy_top",
+    "inertia",
+    "invariants",
+    "kepler",
+    "satellite",
+    "simulate",
+    "simulate_heavy_top",
+    "sixdof",
+    "stability",
+]

@@ -1,0 +1,78 @@
+"""The rigid body as a parameterised equinox Module."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
+
+from .._checks import as_float, check_positive
+from .inertia import as_tensor, check_inertia, principal_axes
+
+
+class RigidBody(eqx.Module):
+    """Inertia tensor in body axes (about the centre of mass or the fixed point) and mass.
+
+    `inertia`: principal moments `(..., 3)` or a symmetric tensor `(..., 3, 3)`; it must be
+    positive definite and satisfy the triangle inequality (each principal moment ≤ the sum of the
+    other two, Zegrya–Parshin 004), checked on construction with an error naming the violated
+    condition. Leading dimensions describe a batch of bodies.
+    """
+
+    inertia: Float[Array, "*batch 3 3"]
+    mass: Float[Array, "*batch"]
+    diagonal: bool = eqx.field(static=True)
+
+    def __init__(self, inertia: ArrayLike, mass: ArrayLike = 1.0, *, check: bool = True):
+        inertia = as_float(inertia, "inertia")
+        # principal moments given: the tensor is diagonal by construction (a static fact that
+        # lets the integrators use elementwise Euler equations)
+        self.diagonal = (
+            inertia.ndim >= 1
+            and inertia.shape[-1] == 3
+            and (inertia.ndim < 2 or inertia.shape[-2] != 3)
+        )
+        I = as_tensor(inertia)
+        m = as_float(mass, "mass").astype(I.dtype)
+        if check:
+            I = check_inertia(I, "inertia")
+            m = check_positive(m, "mass")
+        self.inertia = I
+        self.mass = m
+
+    @property
+    def principal_moments(self) -> Float[Array, "*batch 3"]:
+        """Principal moments, ascending."""
+        return principal_axes(self.inertia)[0]
+
+    @property
+    def principal_axes(self) -> Float[Array, "*batch 3 3"]:
+        """Principal axes as the columns of a rotation matrix (body components)."""
+        return principal_axes(self.inertia)[1]
+
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        return tuple(self.inertia.shape[:-2])
+
+    def operator(self) -> tuple[Array, Array]:
+        """`(I, I⁻¹)` for `euler_rhs`: the principal moments `(..., 3)` and their reciprocals for
+        a diagonal body, else the tensor and its inverse `(..., 3, 3)`."""
+        if self.diagonal:
+            m = jnp.diagonal(self.inertia, axis1=-2, axis2=-1)
+            return m, 1 / m
+        return self.inertia, jnp.linalg.inv(self.inertia)
+
+
+def _apply(A: Array, x: Array) -> Array:
+    """`A x` for a diagonal `A` given by its entries (same rank as x) or a full matrix, in
+    elementwise form (fuses well on CPU, unlike many tiny batched dot products)."""
+    if A.ndim == x.ndim:
+        return A * x
+    return jnp.sum(A * x[..., None, :], axis=-1)
+
+
+def euler_rhs(inertia: Array, inertia_inv: Array, omega: Array, torque: Array) -> Array:
+    """Euler's equations `I Ω̇ + Ω × IΩ = K` solved for Ω̇ (Zegrya–Parshin 004; in principal
+    axes `I1 Ω̇1 + (I3 − I2) Ω2 Ω3 = K1`, cyclic). `inertia`, `inertia_inv` as from
+    `RigidBody.operator()`: moments `(..., 3)` or tensors `(..., 3, 3)`."""
+    return _apply(inertia_inv, torque - jnp.cross(omega, _apply(inertia, omega)))

@@ -1,0 +1,401 @@
+"""Angle systems: Euler / Tait–Bryan angles, generalized (Davenport) angles, and their kinematics.
+
+Conventions (THEORY.md §1, §4): `P` maps body vectors to space. Sequence strings are SciPy's
+(`Rotation.from_euler`): three letters from `xyz`, all uppercase = intrinsic (rotating axes),
+all lowercase = extrinsic (fixed axes), no two consecutive letters equal. Intrinsic `"ABC"` with
+angles `(α, β, γ)` is `P = R_A(α) R_B(β) R_C(γ)`; extrinsic `"abc"` is `P = R_c(γ) R_b(β) R_a(α)`.
+The classical angles of Borisov–Mamaev (001) — precession ψ, nutation θ, spin φ — are `"ZXZ"`
+with angles `(ψ, θ, φ)`: `P = Rz(ψ) Rx(θ) Rz(φ)`.
+
+Angle → rotation conversions return the product of the half-angle quaternions (no sign choice).
+Rotation → angle conversions use the direct quaternion method of Bernardes & Viollet (2022,
+"Quaternion to Euler angles conversion: a direct, general and computationally efficient method",
+the algorithm of SciPy) and return SciPy's ranges and gimbal-lock choice: first and third angles
+in [−π, π], middle angle in [0, π] (proper Euler) or [−π/2, π/2] (Tait–Bryan); at gimbal lock
+(middle angle within `gimbal_tol(dtype)` of 0/π or ±π/2) the third angle is set to 0. Values and
+gradients stay finite there.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from .._checks import as_float, vector
+from . import quat
+from .so3 import Frame
+
+Vec = Float[Array, "*batch 3"]
+Quat = Float[Array, "*batch 4"]
+Mat = Float[Array, "*batch 3 3"]
+
+SEQUENCES: tuple[str, ...] = tuple(
+    s
+    for case in (str.upper, str.lower)
+    for s in map(
+        case,
+        ["XYZ", "XZY", "YXZ", "YZX", "ZXY", "ZYX", "XYX", "XZX", "YXY", "YZY", "ZXZ", "ZYZ"],
+    )
+)
+"""The 24 accepted sequences: 12 intrinsic (upper case) and 12 extrinsic (lower case)."""
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _parse_seq(seq) -> tuple[tuple[int, int, int], bool]:
+    """Axis indices and `intrinsic` flag of a sequence string; ValueError naming `seq` if bad."""
+    if not isinstance(seq, str) or seq not in SEQUENCES:
+        raise ValueError(
+            "seq must be 3 letters from 'xyz', all upper case (intrinsic, rotating axes) or all "
+            "lower case (extrinsic, fixed axes), with no two consecutive letters equal, "
+            f"e.g. 'ZXZ', 'ZYX', 'xyz'; got seq={seq!r}"
+        )
+    return tuple("xyz".index(c) for c in seq.lower()), seq.isupper()
+
+
+def _check_frame(frame) -> None:
+    if frame not in ("body", "space"):
+        raise ValueError(f"frame must be 'body' or 'space', got frame={frame!r}")
+
+
+def gimbal_tol(dtype) -> float:
+    """Gimbal-lock threshold on the middle angle (radians, distance to 0/π or ±π/2).
+
+    1e-7 in float64 (SciPy's value); 1e-5 in float32, where rounding of the quaternion alone
+    moves an exactly locked middle angle by ~1e-7.
+    """
+    return 1e-7 if jnp.finfo(dtype).eps < 1e-10 else 1e-5
+
+
+def _basis(k: int, dtype) -> Array:
+    return jnp.zeros(3, dtype).at[k].set(1)
+
+
+def _axis_quat(n: Array, t: Array) -> Quat:
+    """Quaternion `(cos(t/2), sin(t/2) n)` of the turn by t about the unit axis n."""
+    h = t / 2
+    v = jnp.sin(h)[..., None] * n
+    c = jnp.broadcast_to(jnp.cos(h)[..., None], v.shape[:-1] + (1,))
+    return jnp.concatenate([c, v], axis=-1)
+
+
+def _compose(angles: Array, n1: Array, n2: Array, n3: Array) -> Quat:
+    """`Q(α n1) Q(β n2) Q(γ n3)` as a quaternion (intrinsic order of the factors)."""
+    q1 = _axis_quat(n1, angles[..., 0])
+    q2 = _axis_quat(n2, angles[..., 1])
+    q3 = _axis_quat(n3, angles[..., 2])
+    return quat.mul(quat.mul(q1, q2), q3)
+
+
+def _safe_norm(x: Array, y: Array) -> Array:
+    """`hypot(x, y)` with gradient 0 (not NaN) at the origin."""
+    r2 = x * x + y * y
+    pos = r2 > 0
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, r2, jnp.ones_like(r2))), jnp.zeros_like(r2))
+
+
+def _wrap(x: Array) -> Array:
+    """Shift an angle in (−3π, 3π) into [−π, π] (SciPy's wrapping)."""
+    two_pi = 2 * jnp.pi
+    return jnp.where(x < -jnp.pi, x + two_pi, jnp.where(x > jnp.pi, x - two_pi, x))
+
+
+def _angles(q: Array, n1: Array, n2: Array, n3: Array, intrinsic: bool) -> Vec:
+    """Bernardes & Viollet (2022) for `q = Q(ψ3 n3) Q(ψ2 n2) Q(ψ1 n1)` (extrinsic order n1, n2, n3,
+    unit axes with n2 ⟂ n1, n3). Returns `(ψ1, ψ2, ψ3)`, or `(ψ3, ψ2, ψ1)` if `intrinsic`.
+
+    `λ` is the angle from n1 to n3 about n2; the rotation `Q(λ n2)` turns the problem into a
+    proper-Euler one, whose half sum/difference angles are `atan2(b, a)`, `atan2(d, c)`.
+    Double-`where` guards keep the gradients finite at gimbal lock.
+    """
+    n12 = jnp.cross(n1, n2)
+    lam = jnp.arctan2(jnp.sum(n3 * n12, -1), jnp.sum(n3 * n1, -1))
+    flip = lam < 0
+    n2 = jnp.where(flip[..., None], -n2, n2)
+    n12 = jnp.where(flip[..., None], -n12, n12)
+    lam = jnp.abs(lam)
+    qt = quat.mul(_axis_quat(n2, lam), q)
+    v = qt[..., 1:]
+    a = qt[..., 0]
+    b = jnp.sum(v * n1, -1)
+    c = jnp.sum(v * n2, -1)
+    d = jnp.sum(v * n12, -1)
+
+    mid = 2 * jnp.arctan2(_safe_norm(c, d), _safe_norm(a, b))
+    tol = gimbal_tol(q.dtype)
+    lock0 = mid <= tol
+    lockpi = mid >= jnp.pi - tol
+    lock = lock0 | lockpi
+    zero, one = jnp.zeros_like(a), jnp.ones_like(a)
+    half_sum = jnp.arctan2(jnp.where(lockpi, zero, b), jnp.where(lockpi, one, a))
+    half_diff = jnp.arctan2(jnp.where(lock0, zero, d), jnp.where(lock0, one, c))
+    if intrinsic:  # output order (ψ3, ψ2, ψ1): the output's third angle ψ1 is set to 0
+        single = jnp.where(lock0, 2 * half_sum, 2 * half_diff)
+        first = jnp.where(lock, zero, half_sum - half_diff)
+        third = jnp.where(lock, single, half_sum + half_diff)
+    else:
+        single = jnp.where(lock0, 2 * half_sum, -2 * half_diff)
+        first = jnp.where(lock, single, half_sum - half_diff)
+        third = jnp.where(lock, zero, half_sum + half_diff)
+    mid = mid - lam
+    mid = jnp.where(flip, -mid, mid)
+    out = (third, mid, first) if intrinsic else (first, mid, third)
+    return jnp.stack([_wrap(x) for x in out], axis=-1)
+
+
+# Hamilton product (a ∘ b)_r = Σ sign a_i b_j over the (sign, i, j) of row r
+_HAMILTON = (
+    ((1, 0, 0), (-1, 1, 1), (-1, 2, 2), (-1, 3, 3)),
+    ((1, 0, 1), (1, 1, 0), (1, 2, 3), (-1, 3, 2)),
+    ((1, 0, 2), (-1, 1, 3), (1, 2, 0), (1, 3, 1)),
+    ((1, 0, 3), (1, 1, 2), (-1, 2, 1), (1, 3, 0)),
+)
+
+
+def _mul_components(a: list, b: list) -> list:
+    """Hamilton product of quaternions given as four components, `None` for an exact zero (the
+    zero terms of basis-axis factors are skipped, not multiplied)."""
+    out = []
+    for row in _HAMILTON:
+        acc = None
+        for sign, i, j in row:
+            if a[i] is None or b[j] is None:
+                continue
+            t = a[i] * b[j]
+            acc = (t if sign > 0 else -t) if acc is None else (acc + t if sign > 0 else acc - t)
+        out.append(acc)
+    return out
+
+
+def _seq_axes(seq: str, dtype) -> tuple[tuple[Array, Array, Array], bool]:
+    (i, j, k), intrinsic = _parse_seq(seq)
+    return (_basis(i, dtype), _basis(j, dtype), _basis(k, dtype)), intrinsic
+
+
+# --------------------------------------------------------------------------- Euler angles
+
+
+def to_quat(angles: ArrayLike, seq: str = "ZXZ") -> Quat:
+    """Unit quaternion of Euler angles: the product of the half-angle quaternions in the order of
+    the matrix product (intrinsic `"ABC"`: `q_A(α) ∘ q_B(β) ∘ q_C(γ)`).
+
+    For `"ZXZ"`, `(ψ, θ, φ)` this is Borisov–Mamaev's (001; THEORY §3)
+    `λ0 = cos(θ/2) cos((ψ+φ)/2)`, `λ1 = sin(θ/2) cos((ψ−φ)/2)`, `λ2 = sin(θ/2) sin((ψ−φ)/2)`,
+    `λ3 = cos(θ/2) sin((ψ+φ)/2)`. No sign normalisation (λ0 may be negative).
+    """
+    angles = vector(angles, 3, "angles")
+    axes, intrinsic = _parse_seq(seq)
+    order = (0, 1, 2) if intrinsic else (2, 1, 0)  # extrinsic "abc": q_c(γ) ∘ q_b(β) ∘ q_a(α)
+    q = None
+    for m in order:  # basis-axis factors: only the non-zero products are formed
+        h = angles[..., m] / 2
+        factor = [jnp.cos(h), None, None, None]
+        factor[axes[m] + 1] = jnp.sin(h)
+        q = factor if q is None else _mul_components(q, factor)
+    return jnp.stack([jnp.zeros_like(angles[..., 0]) if c is None else c for c in q], axis=-1)
+
+
+def to_matrix(angles: ArrayLike, seq: str = "ZXZ") -> Mat:
+    """Rotation tensor of Euler angles, e.g. `"ZXZ"`: `P = Rz(ψ) Rx(θ) Rz(φ)` (THEORY §4;
+    `Pᵀ` is the direction-cosine matrix of Borisov–Mamaev 001, remark 2)."""
+    # the barrier keeps XLA from fusing the quaternion into each of the nine entries, which
+    # recomputed its sines and cosines (1.4× faster for 10⁶ angles; benchmarks/bench_rotations.py)
+    return quat.to_matrix(jax.lax.optimization_barrier(to_quat(angles, seq)))
+
+
+def from_quat(q: ArrayLike, seq: str = "ZXZ") -> Vec:
+    """Euler angles of a quaternion (any non-zero `q`, treated as `q/|q|`; `±q` give the same).
+
+    Bernardes & Viollet (2022), as SciPy's `Rotation.as_euler`: first/third angle in [−π, π],
+    middle in [0, π] (proper Euler) or [−π/2, π/2] (Tait–Bryan); at gimbal lock the third angle
+    is 0. Finite values and gradients everywhere.
+    """
+    q = quat.normalize(vector(q, 4, "q"))
+    (n1, n2, n3), intrinsic = _seq_axes(seq, q.dtype)
+    if intrinsic:  # P = R1 R2 R3 is the extrinsic sequence (3, 2, 1)
+        return _angles(q, n3, n2, n1, True)
+    return _angles(q, n1, n2, n3, False)
+
+
+def from_matrix(P: ArrayLike, seq: str = "ZXZ") -> Vec:
+    """Euler angles of a rotation matrix (via the largest-component `quat.from_matrix`), with the
+    ranges and gimbal-lock convention of `from_quat`."""
+    return from_quat(quat.from_matrix(P), seq)
+
+
+# --------------------------------------------------------------------------- Davenport angles
+
+
+def _davenport_axes(axes: ArrayLike, dtype) -> tuple[Array, Array, Array]:
+    """Unit axes (m, e, n) from `axes` of shape (..., 3, 3) = (m, e, n) or (..., 2, 3) = (m, n)."""
+    axes = as_float(axes, "axes")
+    if axes.ndim < 2 or axes.shape[-1] != 3 or axes.shape[-2] not in (2, 3):
+        raise ValueError(
+            "axes must have shape (..., 3, 3) with rows (m, e, n) or (..., 2, 3) with rows "
+            f"(m, n), got {tuple(axes.shape)}"
+        )
+    axes = axes.astype(dtype)
+    try:
+        concrete = np.asarray(axes, dtype=np.float64)
+    except (jax.errors.TracerArrayConversionError, jax.errors.ConcretizationTypeError):
+        concrete = None
+    if concrete is not None:
+        nrm = np.linalg.norm(concrete, axis=-1)
+        if not np.all(nrm > 0) or not np.all(np.isfinite(concrete)):
+            raise ValueError("axes must be finite, non-zero vectors")
+        u = concrete / nrm[..., None]
+        if axes.shape[-2] == 2:
+            if not np.all(np.linalg.norm(np.cross(u[..., 0, :], u[..., 1, :]), axis=-1) > 1e-6):
+                raise ValueError(
+                    "axes = (m, n) with m ∥ n leaves the middle axis undefined; "
+                    "pass axes = (m, e, n) with e ⟂ m (m = n gives classical Euler angles)"
+                )
+        else:
+            m_dot_e = np.abs(np.sum(u[..., 0, :] * u[..., 1, :], -1))
+            e_dot_n = np.abs(np.sum(u[..., 1, :] * u[..., 2, :], -1))
+            dots = np.maximum(m_dot_e, e_dot_n)
+            if not np.all(dots <= 1e-6):
+                raise ValueError(
+                    "the middle axis e of axes = (m, e, n) must be perpendicular to both m and n "
+                    "(representation theorem, THEORY §1)"
+                )
+    unit = axes / jnp.linalg.norm(axes, axis=-1, keepdims=True)
+    m, n = unit[..., 0, :], unit[..., -1, :]
+    if axes.shape[-2] == 2:
+        e = jnp.cross(m, n)
+        e = e / jnp.linalg.norm(e, axis=-1, keepdims=True)
+    else:
+        e = unit[..., 1, :]
+    if concrete is None:  # traced axes: runtime check (NaN from m ∥ n in the (m, n) form fails it)
+        ok = (jnp.abs(jnp.sum(m * e, -1)) <= 1e-6) & (jnp.abs(jnp.sum(e * n, -1)) <= 1e-6)
+        e = eqx.error_if(
+            e, ~ok, "axes: the middle axis e must be perpendicular to m and n (and m ∦ n)"
+        )
+    return m, e, n
+
+
+def davenport_to_quat(angles: ArrayLike, axes: ArrayLike) -> Quat:
+    """Quaternion of generalized (Davenport) angles `(ψ, ϑ, φ)`: `q = q(ψ m) ∘ q(ϑ e) ∘ q(φ n)`.
+
+    See `davenport_to_matrix` for `axes`."""
+    angles = vector(angles, 3, "angles")
+    m, e, n = _davenport_axes(axes, angles.dtype)
+    return _compose(angles, m, e, n)
+
+
+def davenport_to_matrix(angles: ArrayLike, axes: ArrayLike) -> Mat:
+    """Generalized Euler angles (representation theorem, article 003; THEORY §1):
+    `P = Q(ψ m) Q(ϑ e) Q(φ n)` with fixed axes given as `axes = (m, e, n)` (shape (..., 3, 3),
+    e ⟂ m and e ⟂ n) or `axes = (m, n)` (shape (..., 2, 3), then `e = m × n/|m × n|`).
+    Axes need not be unit. `m = n` (with e given) gives classical Euler angles.
+
+    Equals SciPy `Rotation.from_davenport([m, e, n], "intrinsic", (ψ, ϑ, φ))`. Unsuitable axes
+    raise a ValueError (a runtime error if the axes are traced).
+    """
+    return quat.to_matrix(davenport_to_quat(angles, axes))
+
+
+def davenport_from_quat(q: ArrayLike, axes: ArrayLike) -> Vec:
+    """Generalized angles `(ψ, ϑ, φ)` of a quaternion; see `davenport_from_matrix`."""
+    q = quat.normalize(vector(q, 4, "q"))
+    m, e, n = _davenport_axes(axes, q.dtype)
+    return _angles(q, n, e, m, True)
+
+
+def davenport_from_matrix(P: ArrayLike, axes: ArrayLike) -> Vec:
+    """Generalized angles `(ψ, ϑ, φ)` with `P = Q(ψ m) Q(ϑ e) Q(φ n)` (Bernardes & Viollet 2022).
+
+    As SciPy `Rotation.as_davenport([m, e, n], "intrinsic")`: ψ, φ ∈ [−π, π], ϑ ∈ [−λ, π − λ]
+    where λ is the angle from n to m about e; at gimbal lock (ϑ = −λ or π − λ, where m and
+    Q(ϑ e) n are parallel) φ = 0.
+    """
+    return davenport_from_quat(quat.from_matrix(P), axes)
+
+
+# --------------------------------------------------------------------------- kinematics
+
+
+def _rot_basis(k: int, t: Array, v: Array) -> Array:
+    """`R_k(t) v` for the elementary rotation about basis axis k."""
+    i, j = (k + 1) % 3, (k + 2) % 3
+    c, s = jnp.cos(t), jnp.sin(t)
+    comp = [None, None, None]
+    comp[k] = jnp.broadcast_to(v[..., k], c.shape)
+    comp[i] = c * v[..., i] - s * v[..., j]
+    comp[j] = s * v[..., i] + c * v[..., j]
+    return jnp.stack(comp, axis=-1)
+
+
+def jacobian(angles: ArrayLike, seq: str = "ZXZ", frame: Frame = "body") -> Mat:
+    """Matrix `J` (columns per angle) with `ω = J (α̇, β̇, γ̇)`: kinematic Euler formulas for any
+    sequence (Borisov–Mamaev 001; THEORY §4).
+
+    Intrinsic `P = R1(α) R2(β) R3(γ)`: body `Ω = R3ᵀR2ᵀ e1 α̇ + R3ᵀ e2 β̇ + e3 γ̇`, space
+    `ω = P Ω = e1 α̇ + R1 e2 β̇ + R1R2 e3 γ̇`; an extrinsic sequence is the reversed intrinsic one.
+    For `"ZXZ"` body: `Ω1 = ψ̇ sinθ sinφ + θ̇ cosφ`, `Ω2 = ψ̇ sinθ cosφ − θ̇ sinφ`,
+    `Ω3 = ψ̇ cosθ + φ̇`. `|det J| = |sin β|` (proper Euler) or `|cos β|` (Tait–Bryan).
+    """
+    angles = vector(angles, 3, "angles")
+    axes, intrinsic = _parse_seq(seq)
+    _check_frame(frame)
+    if not intrinsic:
+        axes, angles = axes[::-1], angles[..., ::-1]
+    (k1, k2, k3), t = axes, (angles[..., 0], angles[..., 1], angles[..., 2])
+    e = [jnp.broadcast_to(_basis(k, angles.dtype), angles.shape) for k in axes]
+    if frame == "body":
+        cols = [
+            _rot_basis(k3, -t[2], _rot_basis(k2, -t[1], e[0])),
+            _rot_basis(k3, -t[2], e[1]),
+            e[2],
+        ]
+    else:
+        cols = [e[0], _rot_basis(k1, t[0], e[1]), _rot_basis(k1, t[0], _rot_basis(k2, t[1], e[2]))]
+    if not intrinsic:
+        cols = cols[::-1]
+    return jnp.stack(cols, axis=-1)
+
+
+def rates_to_omega(
+    angles: ArrayLike, rates: ArrayLike, seq: str = "ZXZ", frame: Frame = "body"
+) -> Vec:
+    """Angular velocity from Euler-angle rates, `ω = J(angles) rates` (see `jacobian`):
+    body components Ω for `frame="body"`, space components ω = P Ω for `frame="space"`."""
+    rates = vector(rates, 3, "rates")
+    J = jacobian(angles, seq, frame)
+    return jnp.einsum("...ij,...j->...i", J, rates)
+
+
+def omega_to_rates(
+    angles: ArrayLike,
+    omega: ArrayLike,
+    seq: str = "ZXZ",
+    frame: Frame = "body",
+    check: bool = False,
+    tol: float = 1e-6,
+) -> Vec:
+    """Euler-angle rates from the angular velocity (body Ω or space ω): `rates = J⁻¹ ω`, with the
+    closed-form inverse `J⁻¹ = (c2×c3, c3×c1, c1×c2)ᵀ / det J` of the columns `c_i` of `jacobian`.
+
+    Singular at gimbal lock, `det J = ±sin β` (proper Euler) or `±cos β` (Tait–Bryan), where the
+    rates blow up as 1/det. With `check=True` a runtime error (`equinox.error_if`) is raised
+    where `|det J| < tol`. For aircraft angles (THEORY §4; 002 #148) use `seq="ZYX"` with
+    angles (yaw, pitch, roll) and body ω: it returns (yaw rate, pitch rate, roll rate).
+    """
+    omega = vector(omega, 3, "omega")
+    J = jacobian(angles, seq, frame)
+    c1, c2, c3 = J[..., 0], J[..., 1], J[..., 2]
+    adj = jnp.stack([jnp.cross(c2, c3), jnp.cross(c3, c1), jnp.cross(c1, c2)], axis=-2)
+    det = jnp.sum(c1 * adj[..., 0, :], -1)
+    if check:
+        det = eqx.error_if(
+            det,
+            ~(jnp.abs(det) >= tol),
+            f"gimbal lock: middle angle of seq={seq!r} within |det J| = |sin| or |cos| < {tol} "
+            "of its singular value (0/π for proper Euler, ±π/2 for Tait–Bryan); Euler-angle "
+            "rates are singular there: use quaternion/rotation-vector kinematics",
+        )
+    return jnp.einsum("...ij,...j->...i", adj, omega) / det[..., None]

@@ -1,0 +1,82 @@
+"""Gibbs (Rodrigues) finite-rotation vector `θ_G = 2 tan(χ/2) e` (Borisov–Mamaev (001); THEORY §3).
+
+`χ` is the rotation angle about the unit axis `e`. In quaternions `θ_G = 2 λ/λ0`, so `q` and `−q`
+give the same vector. It is infinite at `χ = π`: every function that would produce such a vector
+raises a runtime error instead (use quaternions or `rigidjax.mrp` there). Conventions as
+`rigidjax.quat`: `P` maps body to space, Hamilton product, `P(q1 ∘ q2) = P(q1) P(q2)`.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
+
+from .._checks import matrix, vector
+from . import quat
+from .so3 import hat
+
+Vec = Float[Array, "*batch 3"]
+Quat = Float[Array, "*batch 4"]
+Mat = Float[Array, "*batch 3 3"]
+
+
+def _finite(g: Array, what: str) -> Array:
+    return eqx.error_if(
+        g,
+        ~jnp.all(jnp.isfinite(g), axis=-1),
+        f"{what} is a rotation by χ = π (or not finite): its Gibbs vector 2 tan(χ/2) e is "
+        "infinite; use quaternions (rigidjax.quat) or MRPs (rigidjax.mrp) instead",
+    )
+
+
+def _ratio(q: Array) -> Array:
+    return 2 * q[..., 1:] / q[..., :1]
+
+
+def from_quat(q: ArrayLike) -> Vec:
+    """`θ_G = 2 λ/λ0` (`q` any non-zero quaternion). Raises for a 180° rotation (`λ0 = 0`)."""
+    return _finite(_ratio(vector(q, 4, "q")), "q")
+
+
+def to_quat(g: ArrayLike) -> Quat:
+    """Unit quaternion `(1, θ_G/2)/√(1 + θ_G²/4)` with λ0 > 0."""
+    g = vector(g, 3, "g")
+    h = g / 2
+    s = 1 / jnp.sqrt(1 + jnp.sum(h * h, axis=-1, keepdims=True))
+    return jnp.concatenate([s, s * h], axis=-1)
+
+
+def from_matrix(P: ArrayLike) -> Vec:
+    """Gibbs vector of a rotation matrix (through the largest-component quaternion; equals
+    `4 vee(P)/(1 + tr P)` but loses less accuracy near χ = π). Raises at χ = π."""
+    return _finite(_ratio(quat.from_matrix(matrix(P, "P"))), "P")
+
+
+def to_matrix(g: ArrayLike) -> Mat:
+    """`P = E + (R + ½ R²)/(1 + θ_G²/4)`, `R = θ_G × E` (the Cayley transform
+    `(E − R/2)⁻¹ (E + R/2)`)."""
+    g = vector(g, 3, "g")
+    R = hat(g)
+    c = 1 / (1 + jnp.sum(g * g, axis=-1) / 4)
+    return jnp.eye(3, dtype=g.dtype) + c[..., None, None] * (R + 0.5 * (R @ R))
+
+
+def rotate(g: ArrayLike, r: ArrayLike) -> Vec:
+    """`r' = r + θ_G × (r + ½ θ_G × r)/(1 + θ_G²/4)` (Borisov–Mamaev (001); THEORY §3)."""
+    g = vector(g, 3, "g")
+    r = vector(r, 3, "r")
+    g = jnp.broadcast_to(g, jnp.broadcast_shapes(g.shape, r.shape))
+    c = 1 / (1 + jnp.sum(g * g, axis=-1, keepdims=True) / 4)
+    return r + c * jnp.cross(g, r + 0.5 * jnp.cross(g, r))
+
+
+def compose(g1: ArrayLike, g2: ArrayLike) -> Vec:
+    """Gibbs vector of `P(g1) P(g2)`: `(g1 + g2 + ½ g1 × g2)/(1 − g1·g2/4)` (from the Hamilton
+    product divided by λ0(1) λ0(2)). Raises if the product is a 180° rotation."""
+    g1 = vector(g1, 3, "g1")
+    g2 = vector(g2, 3, "g2")
+    num = g1 + g2 + 0.5 * jnp.cross(g1, g2)
+    return _finite(
+        num / (1 - jnp.sum(g1 * g2, axis=-1, keepdims=True) / 4), "the product P(g1) P(g2)"
+    )

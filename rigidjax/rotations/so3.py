@@ -1,0 +1,197 @@
+"""Rotation tensor P ∈ SO(3) and rotation vector θ = θ m (Zhilin ch. 3.12–3.14; article 003).
+
+Conventions (THEORY.md): `P` maps a body vector to space, `a' = P a`; `hat(a) = a × E`;
+left (space) angular velocity `Ṗ = ω × P`, right (body) `Ṗ = P (Ω × E)`, `Ω = Pᵀ ω`.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
+
+from .._checks import matrix, validate, vector
+from . import _series, quat
+
+Vec = Float[Array, "*batch 3"]
+Mat = Float[Array, "*batch 3 3"]
+Frame = Literal["space", "body"]
+
+
+def hat(v: ArrayLike) -> Mat:
+    """Skew matrix `v × E`: `hat(v) @ a = v × a`."""
+    v = vector(v, 3, "v")
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    o = jnp.zeros_like(x)
+    return jnp.stack(
+        [jnp.stack([o, -z, y], -1), jnp.stack([z, o, -x], -1), jnp.stack([-y, x, o], -1)], -2
+    )
+
+
+def vee(A: ArrayLike) -> Vec:
+    """Inverse of `hat` on skew matrices: `−½ A_×` (Zhilin's vector invariant, `(a × E)_× = −2a`).
+
+    Uses only the skew part of `A`, so `vee(A) = vee((A − Aᵀ)/2)`.
+    """
+    A = matrix(A, "A")
+    return 0.5 * jnp.stack(
+        [A[..., 2, 1] - A[..., 1, 2], A[..., 0, 2] - A[..., 2, 0], A[..., 1, 0] - A[..., 0, 1]],
+        -1,
+    )
+
+
+def _sq(theta: Array) -> Array:
+    return jnp.sum(theta * theta, axis=-1)
+
+
+def _hat_sq(theta: Array, x2: Array) -> Mat:
+    """`(θ × E)² = θθ − θ² E`, elementwise (cheaper than a matrix product)."""
+    return theta[..., :, None] * theta[..., None, :] - x2[..., None, None] * jnp.eye(
+        3, dtype=theta.dtype
+    )
+
+
+def exp(theta: ArrayLike) -> Mat:
+    """`P(θ) = exp(θ × E) = E + (sin θ/θ) R + ((1 − cos θ)/θ²) R²`, `R = θ × E` (Zhilin; Euler's
+    theorem). Finite values and gradients at θ = 0."""
+    theta = vector(theta, 3, "theta")
+    x2 = _sq(theta)
+    R = hat(theta)
+    a = _series.sin_over(x2)[..., None, None]
+    b = _series.one_minus_cos_over(x2)[..., None, None]
+    return jnp.eye(3, dtype=theta.dtype) + a * R + b * _hat_sq(theta, x2)
+
+
+def log(P: ArrayLike) -> Vec:
+    """Rotation vector of `P` with |θ| ≤ π, through the largest-component quaternion
+    (exact at θ = π, no loss of accuracy near it, finite gradients at the identity)."""
+    return quat.to_rotvec(quat.from_matrix(matrix(P, "P")))
+
+
+def rotate(theta: ArrayLike, a: ArrayLike) -> Vec:
+    """`a' = a + (sin θ/θ) θ × a + ((1 − cos θ)/θ²) θ × (θ × a)` (Zhilin)."""
+    theta = vector(theta, 3, "theta")
+    a = vector(a, 3, "a")
+    x2 = _sq(theta)[..., None]
+    theta = jnp.broadcast_to(theta, jnp.broadcast_shapes(theta.shape, a.shape))
+    t = jnp.cross(theta, a)
+    return a + _series.sin_over(x2) * t + _series.one_minus_cos_over(x2) * jnp.cross(theta, t)
+
+
+def rotate_tensor(P: ArrayLike, T: ArrayLike) -> Mat:
+    """Second-order tensor carried by the rotation: `T' = P T Pᵀ` (article 003)."""
+    P = matrix(P, "P")
+    T = matrix(T, "T")
+    return P @ T @ jnp.swapaxes(P, -1, -2)
+
+
+def Z_inv(theta: ArrayLike) -> Mat:
+    """`Z⁻¹(θ) = E + ((1 − cos θ)/θ²) R + ((θ − sin θ)/θ³) R²`: `ω = Z⁻¹ θ̇` (Zhilin 3.14.13).
+
+    The left Jacobian of SO(3)."""
+    theta = vector(theta, 3, "theta")
+    x2 = _sq(theta)
+    R = hat(theta)
+    b = _series.one_minus_cos_over(x2)[..., None, None]
+    c = _series.theta_minus_sin_over(x2)[..., None, None]
+    return jnp.eye(3, dtype=theta.dtype) + b * R + c * _hat_sq(theta, x2)
+
+
+def Z(theta: ArrayLike) -> Mat:
+    """Integrator tensor `Z(θ) = E − ½ R + ((1 − g)/θ²) R²`, `g = θ sin θ/(2(1 − cos θ))`:
+    `θ̇ = Z ω` (Zhilin 3.14.15). `det Z = θ²/(2(1 − cos θ))`, singular at |θ| = 2π."""
+    theta = vector(theta, 3, "theta")
+    R = hat(theta)
+    x2 = _sq(theta)
+    d = _series.zhilin_d(x2)[..., None, None]
+    return jnp.eye(3, dtype=theta.dtype) - 0.5 * R + d * _hat_sq(theta, x2)
+
+
+def compose(phi: ArrayLike, psi: ArrayLike) -> Vec:
+    """Rotation vector (|θ| ≤ π) of `exp(phi) @ exp(psi)`, via the quaternion product."""
+    phi = vector(phi, 3, "phi")
+    psi = vector(psi, 3, "psi")
+    return quat.to_rotvec(quat.mul(quat.from_rotvec(phi), quat.from_rotvec(psi)))
+
+
+def shadow(theta: ArrayLike) -> Vec:
+    """The same rotation with |θ| ≤ π: `θ − 2πk θ/|θ|`, k = round(|θ|/2π) (Zhilin 3.14).
+
+    `P(θ) = P(θ − 2π θ/|θ|)`, so the shadow vector keeps an integration of θ̇ = Zω away from the
+    singularity of Z at |θ| = 2π.
+    """
+    theta = vector(theta, 3, "theta")
+    x2 = _sq(theta)
+    two_pi = 2 * jnp.pi
+    # k = 0 (|θ| < π) leaves θ untouched: no square root of a possibly zero x2 there.
+    far = x2 > jnp.pi**2
+    n = jnp.sqrt(jnp.where(far, x2, jnp.ones_like(x2)))
+    k = jnp.round(n / two_pi)
+    scale = jnp.where(far, 1 - two_pi * k / n, jnp.ones_like(n))
+    return scale[..., None] * theta
+
+
+def angular_velocity(P: ArrayLike, P_dot: ArrayLike, frame: Frame = "space") -> Vec:
+    """`ω = −½ (Ṗ Pᵀ)_× = vee(Ṗ Pᵀ)` (space, Zhilin 3.12) or `Ω = vee(Pᵀ Ṗ) = Pᵀ ω` (body)."""
+    P = matrix(P, "P")
+    P_dot = matrix(P_dot, "P_dot")
+    Pt = jnp.swapaxes(P, -1, -2)
+    if frame == "space":
+        return vee(P_dot @ Pt)
+    if frame == "body":
+        return vee(Pt @ P_dot)
+    raise ValueError(f"frame must be 'space' or 'body', got {frame!r}")
+
+
+def project(A: ArrayLike) -> Mat:
+    """Nearest rotation to a (nearly orthogonal) matrix in the Frobenius norm: `U diag(1,1,det) Vᵀ`
+    from the SVD `A = U S Vᵀ` (orthogonal Procrustes)."""
+    A = matrix(A, "A")
+    U, _, Vt = jnp.linalg.svd(A)
+    d = jnp.linalg.det(U @ Vt)
+    U = U.at[..., :, 2].multiply(d[..., None])
+    return U @ Vt
+
+
+def distance(P1: ArrayLike, P2: ArrayLike) -> Array:
+    """Geodesic distance `|log(P1ᵀ P2)|` ∈ [0, π] (the angle of the relative rotation)."""
+    q1 = quat.from_matrix(matrix(P1, "P1"))
+    q2 = quat.from_matrix(matrix(P2, "P2"))
+    return quat.angle(quat.mul(quat.conj(q1), q2))
+
+
+def orthogonality_error(P: ArrayLike) -> Array:
+    """`‖PᵀP − E‖_F`: how far a matrix is from orthogonal."""
+    P = matrix(P, "P")
+    return jnp.linalg.norm(jnp.swapaxes(P, -1, -2) @ P - jnp.eye(3, dtype=P.dtype), axis=(-2, -1))
+
+
+def check_rotation(P: ArrayLike, atol: float = 1e-6, name: str = "P") -> Mat:
+    """Return `P` unchanged if it is a rotation to within `atol` (`‖PᵀP − E‖_F` and `det P − 1`);
+    otherwise a ValueError stating the deviation (concrete input) or a runtime error (under
+    jit/vmap), with the fix."""
+    P = matrix(P, name)
+
+    def bad(xp, A):
+        err = xp.linalg.norm(xp.swapaxes(A, -1, -2) @ A - xp.eye(3), axis=(-2, -1))
+        return ~((err <= atol) & (xp.abs(xp.linalg.det(A) - 1) <= atol))
+
+    def detail(A):
+        err = np.linalg.norm(np.swapaxes(A, -1, -2) @ A - np.eye(3), axis=(-2, -1))
+        return f": ‖PᵀP − E‖ = {np.max(err):.3g}, det = {np.min(np.linalg.det(A)):.6g}"
+
+    return validate(
+        P,
+        bad,
+        f"{name} is not a rotation matrix",
+        detail,
+        hint=f" (tolerance {atol:g}); pass rigidjax.so3.project({name}) for the nearest rotation",
+    )
+
+
+def random(key: PRNGKeyArray, shape: tuple[int, ...] = (), dtype=None) -> Mat:
+    """Rotations uniformly distributed on SO(3) (Haar measure), from normalised Gaussian
+    quaternions."""
+    return quat.to_matrix(quat.random(key, shape, dtype))
