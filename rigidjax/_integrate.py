@@ -37,6 +37,7 @@ class SolveKwargs(TypedDict, total=False):
     max_steps: int
     adjoint: diffrax.AbstractAdjoint
     progress_meter: diffrax.AbstractProgressMeter
+    throw: bool
 
 
 class SolveOptions(eqx.Module):
@@ -53,6 +54,8 @@ class SolveOptions(eqx.Module):
     - `adjoint`: default `diffrax.RecursiveCheckpointAdjoint()`; `diffrax.ForwardMode()` for
       `jax.jacfwd`.
     - `progress_meter`: default none; e.g. `diffrax.TqdmProgressMeter()`.
+    - `throw`: raise when the solve fails (default); with `False` the trajectory comes back
+      with its `result` set to the failure (e.g. `diffrax.RESULTS.max_steps_reached`).
     """
 
     solver: diffrax.AbstractSolver | None = None
@@ -63,6 +66,7 @@ class SolveOptions(eqx.Module):
     max_steps: int = eqx.field(static=True, default=100_000)
     adjoint: diffrax.AbstractAdjoint | None = None
     progress_meter: diffrax.AbstractProgressMeter | None = None
+    throw: bool = eqx.field(static=True, default=True)
 
     def __check_init__(self):
         for name in ("rtol", "atol", "dt0"):
@@ -99,9 +103,10 @@ def solve_saved(
     step_end: Callable | None = None,
     norm: Callable | None = None,
     tight: bool = False,
-) -> tuple[PyTree, dict[str, Array]]:
+) -> tuple[PyTree, dict[str, Array], diffrax.RESULTS]:
     """Integrate `term` from `ts[0]` through every output time `ts[k]` with `options`; returns
-    `(ys (T, ...), stats)` (step counts summed over the intervals).
+    `(ys (T, ...), stats, result)`: step counts summed over the intervals and the first failure
+    (`diffrax.RESULTS.successful` if none; failures raise unless `options.throw` is False).
 
     One `diffrax.diffeqsolve` per output interval `[ts[k], ts[k+1]]`, all in one `lax.scan`:
     steps end exactly at the output times, so the saved values are step-end states (after
@@ -145,13 +150,23 @@ def solve_saved(
         raise ValueError("dt0 (the step size) is required with diffrax.ConstantStepSize")
     dt0 = None if dt0 is None else jnp.asarray(dt0, ts.dtype)  # traced: no recompiling per value
     return _solve_intervals(
-        term, solver, controller, ts, y0, args, dt0, options.max_steps, adjoint, meter
+        term,
+        solver,
+        controller,
+        ts,
+        y0,
+        args,
+        dt0,
+        options.max_steps,
+        adjoint,
+        meter,
+        options.throw,
     )
 
 
 @eqx.filter_jit  # one compilation per problem structure, as `diffrax.diffeqsolve` itself
 def _solve_intervals(
-    term, solver, stepsize_controller, ts, y0, args, dt0, max_steps, adjoint, meter
+    term, solver, stepsize_controller, ts, y0, args, dt0, max_steps, adjoint, meter, throw
 ):
     """The `lax.scan` over output intervals of `solve_saved`."""
     adaptive = isinstance(stepsize_controller, diffrax.AbstractAdaptiveStepSizeController)
@@ -164,7 +179,7 @@ def _solve_intervals(
     keys = ("num_steps", "num_accepted_steps", "num_rejected_steps")
 
     def interval(carry, t01):
-        y, h, meter_state = carry
+        y, h, meter_state, result = carry
         if not adaptive:  # the fewest equal steps of at most dt0 (to 1e-6, against rounding)
             width = t01[1] - t01[0]
             n = jnp.maximum(jnp.ceil(width / dt0 * (1 - 1e-6)), 1)
@@ -182,16 +197,20 @@ def _solve_intervals(
             stepsize_controller=stepsize_controller,
             max_steps=max_steps,
             adjoint=adjoint,
+            throw=throw,
         )
         y1 = jax.tree_util.tree_map(lambda a: a[-1], sol.ys)
         if adaptive:  # the next interval starts at this one's mean accepted step
             h = (t01[1] - t01[0]) / jnp.maximum(sol.stats["num_accepted_steps"], 1)
         meter_state = meter.step(meter_state, (t01[1] - ts[0]) / span)
-        return (y1, h, meter_state), (y1, jnp.stack([sol.stats[k] for k in keys]))
+        ok = result == diffrax.RESULTS.successful
+        result = diffrax.RESULTS.where(ok, sol.result, result)  # keep the first failure
+        return (y1, h, meter_state, result), (y1, jnp.stack([sol.stats[k] for k in keys]))
 
-    (_, _, meter_state), (ys, counts) = jax.lax.scan(
-        interval, (y0, dt0, meter.init()), jnp.stack([ts[:-1], ts[1:]], axis=1)
+    init = (y0, dt0, meter.init(), diffrax.RESULTS.successful)
+    (_, _, meter_state, result), (ys, counts) = jax.lax.scan(
+        interval, init, jnp.stack([ts[:-1], ts[1:]], axis=1)
     )
     meter.close(meter_state)
     ys = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), y0, ys)
-    return ys, dict(zip(keys, jnp.sum(counts, axis=0), strict=True))
+    return ys, dict(zip(keys, jnp.sum(counts, axis=0), strict=True)), result

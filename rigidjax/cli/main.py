@@ -8,6 +8,7 @@ rotation about the middle axis is unstable).
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import os
 import sys
 import tempfile
@@ -30,32 +31,19 @@ def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="rigidjax",
         description="Simulate a free (torque-free) rigid body and write trajectory.npz, "
-        "trajectory.csv and trajectory.png. Defaults: the tennis-racket flip.",
+        "trajectory.csv and trajectory.png (the plot needs matplotlib: pip install "
+        "'rigidjax[plot]'). Defaults: the tennis-racket flip.",
     )
-    p.add_argument(
-        "--inertia",
-        type=float,
-        nargs=3,
-        metavar=("I1", "I2", "I3"),
-        default=DEFAULTS["inertia"],
-        help="principal moments of inertia",
+    vectors = (
+        ("--inertia", ("I1", "I2", "I3"), "principal moments of inertia"),
+        ("--omega0", ("W1", "W2", "W3"), "initial body angular velocity [rad/s]"),
+        ("--q0", ("W", "X", "Y", "Z"), "initial attitude quaternion, scalar first"),
     )
-    p.add_argument(
-        "--omega0",
-        type=float,
-        nargs=3,
-        metavar=("W1", "W2", "W3"),
-        default=DEFAULTS["omega0"],
-        help="initial body angular velocity [rad/s]",
-    )
-    p.add_argument(
-        "--q0",
-        type=float,
-        nargs=4,
-        metavar=("W", "X", "Y", "Z"),
-        default=DEFAULTS["q0"],
-        help="initial attitude quaternion, scalar first",
-    )
+    for flag, names, text in vectors:
+        key = flag.removeprefix("--")
+        p.add_argument(
+            flag, type=float, nargs=len(names), metavar=names, default=DEFAULTS[key], help=text
+        )
     p.add_argument("--t-end", type=float, default=DEFAULTS["t_end"], help="time span [s]")
     p.add_argument("--num", type=int, default=DEFAULTS["num"], help="number of output times")
     p.add_argument(
@@ -162,7 +150,9 @@ def main(argv: list[str] | None = None) -> int:
 
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
-    paths = {k: out / f"trajectory.{k}" for k in ("npz", "csv", "png")}
+    can_plot = importlib.util.find_spec("matplotlib") is not None
+    kinds = ("npz", "csv", "png") if can_plot else ("npz", "csv")
+    paths = {k: out / f"trajectory.{k}" for k in kinds}
     table = np.column_stack([ts_np, omega, q, T, Mn])
     header = "t,omega1,omega2,omega3,q_w,q_x,q_y,q_z,energy,momentum_norm"
     _write_atomic(
@@ -182,9 +172,10 @@ def main(argv: list[str] | None = None) -> int:
     _write_atomic(
         paths["csv"], lambda f: np.savetxt(f, table, delimiter=",", header=header, comments="")
     )
-    _write_atomic(
-        paths["png"], lambda f: _plot(f, ts_np, omega, e_drift, m_drift, axis2, args.inertia)
-    )
+    if can_plot:
+        _write_atomic(
+            paths["png"], lambda f: _plot(f, ts_np, omega, e_drift, m_drift, axis2, args.inertia)
+        )
     print(
         f"simulated {args.t_end:g} s ({traj.stats['num_steps']} steps, {args.kinematics}, "
         f"{'float32' if args.float32 else 'float64'}) in {elapsed:.2f} s"
@@ -195,6 +186,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     for k, p in paths.items():
         print(f"wrote {k.upper()}: {p.resolve()}")
+    if not can_plot:
+        print("no plot: matplotlib is not installed (pip install 'rigidjax[plot]')")
     return 0
 
 

@@ -116,7 +116,7 @@ def darboux(
         y0 = kin.from_matrix(P0)
         to_matrix = jax.vmap(kin.to_matrix)
 
-    ys, _ = solve_saved(
+    ys, _, _ = solve_saved(
         term,
         ts,
         y0,

@@ -15,6 +15,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .._checks import as_float, check_finite, check_times, check_unit_norm, vector
 from .._integrate import SolveKwargs, SolveOptions, solve_saved
+from .._trajectory import AbstractTrajectory
 from ..kinematics.formulations import AbstractKinematics, Quaternion, lookup
 from ..rotations import quat
 from ..solvers.rkmk import RKMK, LieTerm
@@ -23,14 +24,15 @@ from .body import RigidBody, euler_rhs
 Torque = Callable[[Array, Array, Array], Array]
 
 
-class Trajectory(eqx.Module):
+class Trajectory(AbstractTrajectory):
     """Solution of `simulate`: times `ts (T,)`, body angular velocity `omega (..., T, 3)` and
     attitude `quat (..., T, 4)` (unit, λ0 ≥ 0; P maps body to space); `matrix (..., T, 3, 3)`."""
 
     ts: Float[Array, " T"]
     omega: Float[Array, "*batch T 3"]
     quat: Float[Array, "*batch T 4"]
-    stats: dict
+    stats: dict[str, Array]
+    result: diffrax.RESULTS = eqx.field(default_factory=lambda: diffrax.RESULTS.successful)
 
     @property
     def matrix(self) -> Float[Array, "*batch T 3 3"]:
@@ -239,7 +241,7 @@ def simulate(
             att, omega = (jnp.moveaxis(a, -1, 1) for a in ys)
             return omega, jax.vmap(jax.vmap(kin.to_quat))(att)
 
-    ys, stats = solve_saved(
+    ys, stats, result = solve_saved(
         term,
         ts,
         y0,
@@ -257,4 +259,5 @@ def simulate(
         omega=jnp.moveaxis(omega, 0, 1).reshape(*batch, T, 3),
         quat=jnp.moveaxis(q, 0, 1).reshape(*batch, T, 4),
         stats=stats,
+        result=result,
     )

@@ -59,6 +59,8 @@ from .._checks import (
     vector,
 )
 from .._integrate import SolveKwargs, SolveOptions, solve_saved
+from .._trajectory import AbstractTrajectory
+from ..kinematics.formulations import Quaternion
 from ..rotations import quat
 from .body import RigidBody, euler_rhs
 
@@ -276,7 +278,7 @@ def sleeping_top_critical_spin(top: HeavyTop, *, check: bool = True) -> Scalar:
 # --------------------------------------------------------------------------- integration
 
 
-class HeavyTopTrajectory(eqx.Module):
+class HeavyTopTrajectory(AbstractTrajectory):
     """Solution of `simulate_heavy_top`: times `ts (T,)`, body angular velocity `omega (T, 3)`,
     the integrated vertical `gamma (T, 3)` and, when the attitude was integrated, the unit
     quaternion `quat (T, 4)` (λ0 ≥ 0; P body → space), else None."""
@@ -285,7 +287,8 @@ class HeavyTopTrajectory(eqx.Module):
     omega: Float[Array, "T 3"]
     gamma: Float[Array, "T 3"]
     quat: Float[Array, "T 4"] | None
-    stats: dict
+    stats: dict[str, Array]
+    result: diffrax.RESULTS = eqx.field(default_factory=lambda: diffrax.RESULTS.successful)
 
     @property
     def gamma_from_quat(self) -> Float[Array, "T 3"]:
@@ -301,6 +304,9 @@ class HeavyTopTrajectory(eqx.Module):
         return quat.to_matrix(self.quat)
 
 
+_QUATERNION = Quaternion(frame="body")  # q̇ = ½ q ∘ (0, Ω) and its step-end normalisation
+
+
 class _Field(eqx.Module):
     """`(t, y, top) -> ẏ`, `y = (Ω, γ)` or `(Ω, γ, q)`."""
 
@@ -308,15 +314,14 @@ class _Field(eqx.Module):
         domega, dgamma = euler_poisson_rhs(top, y[0], y[1])
         if len(y) == 2:
             return domega, dgamma
-        q = y[2]
-        pure = jnp.concatenate([jnp.zeros_like(y[0][:1]), y[0]])
-        return domega, dgamma, 0.5 * quat.mul(q, pure)
+        return domega, dgamma, _QUATERNION.vector_field(y[2], y[0])
 
 
 def _normalize_quat(y):
     """Step-end map: renormalise the quaternion (Ω, γ untouched: |γ| = 1 stays a check)."""
     om, ga, q = y
-    return (om, ga, q * jax.lax.rsqrt(jnp.sum(q * q))), jnp.array(False)
+    q, jumped = _QUATERNION.step_end(q)
+    return (om, ga, q), jumped
 
 
 def _unit(x: Array, name: str, hint: str = "") -> Array:
@@ -383,7 +388,7 @@ def simulate_heavy_top(
         "; normalise it (the space vertical e_Z in body axes, gamma = P^T e_Z)",
     )
 
-    ys, stats = solve_saved(
+    ys, stats, result = solve_saved(
         diffrax.ODETerm(_Field()),
         ts,
         (omega0, gamma0) if q0 is None else (omega0, gamma0, q0),
@@ -392,7 +397,7 @@ def simulate_heavy_top(
         step_end=None if q0 is None else _normalize_quat,
     )
     q = None if q0 is None else quat.canonical(ys[2])  # step-end states: already unit
-    return HeavyTopTrajectory(ts=ts, omega=ys[0], gamma=ys[1], quat=q, stats=stats)
+    return HeavyTopTrajectory(ts=ts, omega=ys[0], gamma=ys[1], quat=q, stats=stats, result=result)
 
 
 def drift(top: HeavyTop, traj: HeavyTopTrajectory) -> dict[str, Array]:

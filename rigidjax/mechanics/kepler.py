@@ -38,6 +38,7 @@ from .._checks import (
     vector,
 )
 from .._integrate import SolveKwargs, SolveOptions, solve_saved
+from .._trajectory import AbstractTrajectory
 
 Vec = Float[Array, "*batch 3"]
 Scalar = Float[Array, "*batch"]
@@ -278,17 +279,18 @@ class _TwoBodyField(eqx.Module):
         return v1, F1 / m1, v2, -F1 / m2
 
 
-class CentralTrajectory(eqx.Module):
+class CentralTrajectory(AbstractTrajectory):
     """Solution of `simulate_central`: times `ts (T,)`, positions `r (T, 3)` and velocities
     `v (T, 3)` relative to the centre of the field."""
 
     ts: Float[Array, " T"]
     r: Float[Array, "T 3"]
     v: Float[Array, "T 3"]
-    stats: dict
+    stats: dict[str, Array]
+    result: diffrax.RESULTS = eqx.field(default_factory=lambda: diffrax.RESULTS.successful)
 
 
-class TwoBodyTrajectory(eqx.Module):
+class TwoBodyTrajectory(AbstractTrajectory):
     """Solution of `simulate_two_body`: `r1, v1, r2, v2 (T, 3)` in the inertial frame."""
 
     ts: Float[Array, " T"]
@@ -296,7 +298,8 @@ class TwoBodyTrajectory(eqx.Module):
     v1: Float[Array, "T 3"]
     r2: Float[Array, "T 3"]
     v2: Float[Array, "T 3"]
-    stats: dict
+    stats: dict[str, Array]
+    result: diffrax.RESULTS = eqx.field(default_factory=lambda: diffrax.RESULTS.successful)
 
     @property
     def relative(self) -> tuple[Array, Array]:
@@ -352,7 +355,7 @@ def simulate_central(
     if m.shape != ():
         raise ValueError(f"mass must be a scalar (vmap for batches), got shape {m.shape}")
     alpha = _field_args(alpha, potential, dtype)
-    (r, v), stats = solve_saved(
+    (r, v), stats, result = solve_saved(
         diffrax.ODETerm(_CentralField(potential)),
         ts,
         (r0, v0),
@@ -360,7 +363,7 @@ def simulate_central(
         args=(m, alpha),
         tight=True,
     )
-    return CentralTrajectory(ts=ts, r=r, v=v, stats=stats)
+    return CentralTrajectory(ts=ts, r=r, v=v, stats=stats, result=result)
 
 
 def simulate_two_body(
@@ -391,7 +394,7 @@ def simulate_two_body(
     m1 = check_positive(as_float(m1, "m1").astype(dtype), "m1")
     m2 = check_positive(as_float(m2, "m2").astype(dtype), "m2")
     alpha = _field_args(alpha, potential, dtype)
-    ys, stats = solve_saved(
+    ys, stats, result = solve_saved(
         diffrax.ODETerm(_TwoBodyField(potential)),
         ts,
         y0,
@@ -399,4 +402,4 @@ def simulate_two_body(
         args=(m1, m2, alpha),
         tight=True,
     )
-    return TwoBodyTrajectory(ts, *ys, stats=stats)
+    return TwoBodyTrajectory(ts, *ys, stats=stats, result=result)

@@ -28,12 +28,13 @@ from typing import Literal, Unpack
 
 import diffrax
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
 from .._checks import as_float, check_times, check_unit_norm, initial_vector, vector
 from .._integrate import SolveKwargs, SolveOptions, solve_saved
+from .._trajectory import AbstractTrajectory
+from ..kinematics.formulations import Quaternion
 from ..rotations import quat
 from .body import RigidBody, euler_rhs
 
@@ -175,38 +176,41 @@ def _as_wrench(w, dtype) -> Wrench:
     return Wrench(F, K)
 
 
+_QUATERNION = Quaternion(frame="body")  # q̇ = ½ q ∘ (0, Ω) and its step-end normalisation
+
+
 class _SixDofField(eqx.Module):
     wrench: WrenchFn | None
 
     def __call__(self, t, y: RigidState, args):
         I, I_inv, m = args
-        q = y.q * jax.lax.rsqrt(jnp.sum(y.q * y.q))
+        q, _ = _QUATERNION.step_end(y.q)  # the load sees a unit quaternion
         if self.wrench is None:
             F = K = jnp.zeros_like(y.V)
         else:
             w = _as_wrench(self.wrench(t, RigidState(y.R, y.V, q, y.omega)), y.V.dtype)
             F, K = w.force, w.torque
-        pure = jnp.concatenate([jnp.zeros_like(y.omega[:1]), y.omega])
         return RigidState(
             R=y.V,
             V=F / m,
-            q=0.5 * quat.mul(y.q, pure),
+            q=_QUATERNION.vector_field(y.q, y.omega),
             omega=euler_rhs(I, I_inv, y.omega, K),
         )
 
 
 def _renormalise(y: RigidState):
-    q = y.q * jax.lax.rsqrt(jnp.sum(y.q * y.q, axis=-1, keepdims=True))
-    return RigidState(y.R, y.V, q, y.omega), jnp.array(False)
+    q, jumped = _QUATERNION.step_end(y.q)
+    return RigidState(y.R, y.V, q, y.omega), jumped
 
 
-class SixDofTrajectory(eqx.Module):
+class SixDofTrajectory(AbstractTrajectory):
     """Solution of `simulate_6dof`: times `ts (T,)` and `state`, a `RigidState` whose leaves have
     a leading time axis (`R, V, omega (T, 3)`, `q (T, 4)` unit with λ0 ≥ 0)."""
 
     ts: Float[Array, " T"]
     state: RigidState
-    stats: dict
+    stats: dict[str, Array]
+    result: diffrax.RESULTS = eqx.field(default_factory=lambda: diffrax.RESULTS.successful)
 
     @property
     def R(self) -> Float[Array, "T 3"]:
@@ -272,7 +276,7 @@ def simulate_6dof(
     q0 = quat.identity(dtype=dtype) if q0 is None else initial_vector(q0, 4, "q0", dtype)
     q0 = check_unit_norm(q0, "q0")
     I, I_inv = (a.astype(dtype) for a in body.operator())
-    ys, stats = solve_saved(
+    ys, stats, result = solve_saved(
         diffrax.ODETerm(_SixDofField(wrench)),
         ts,
         RigidState(R0, V0, q0, omega0),
@@ -281,4 +285,6 @@ def simulate_6dof(
         step_end=_renormalise,
     )
     q = quat.canonical(ys.q)  # saved values are step-end states: already normalised
-    return SixDofTrajectory(ts=ts, state=RigidState(ys.R, ys.V, q, ys.omega), stats=stats)
+    return SixDofTrajectory(
+        ts=ts, state=RigidState(ys.R, ys.V, q, ys.omega), stats=stats, result=result
+    )
