@@ -21,6 +21,7 @@ import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .._checks import as_float, check_times, vector
+from .._integrate import SolveOptions
 from ..mechanics.body import RigidBody
 from ..mechanics.dynamics import simulate
 from ..mechanics.inertia import as_tensor, principal_axes
@@ -164,55 +165,42 @@ def identify_inertia(
     else:
         q_ref = quat.identity(dtype=dtype)
 
-    return _fit(
-        ts,
-        omega_obs,
-        quat_obs,
-        params_from_inertia(I_guess, trace),
-        w_guess,
-        q_ref,
-        torque=torque,
-        torque_frame=torque_frame,
-        trace=trace,
-        scale=scale,
-        sigma_omega=sigma_omega,
-        sigma_angle=sigma_angle,
-        rtol=rtol,
-        atol=atol,
-        solver_rtol=solver_rtol,
-        solver_atol=solver_atol,
-        max_steps=max_steps,
-        sim_max_steps=sim_max_steps,
-    )
+    model = _Model(torque, torque_frame, trace, scale, sigma_omega, sigma_angle)
+    # forward mode: the Jacobian of the residuals is what Levenberg–Marquardt needs
+    sim = SolveOptions(rtol=rtol, atol=atol, max_steps=sim_max_steps, adjoint=diffrax.ForwardMode())
+    lm = optx.LevenbergMarquardt(rtol=solver_rtol, atol=solver_atol)
+    start = (params_from_inertia(I_guess, trace), w_guess, q_ref)
+    return _fit(ts, omega_obs, quat_obs, start, model, sim, lm, max_steps)
+
+
+class _Model(eqx.Module):
+    """What the fit assumes besides the data: the known torque, the gauge and the noise levels."""
+
+    torque: Callable | None
+    torque_frame: str = eqx.field(static=True)
+    trace: float | None = eqx.field(static=True)
+    scale: str = eqx.field(static=True)
+    sigma_omega: float
+    sigma_angle: float
 
 
 @eqx.filter_jit
 def _fit(
-    ts,
-    omega_obs,
-    quat_obs,
-    inertia_params0,
-    w_guess,
-    q_ref,
-    *,
-    torque,
-    torque_frame,
-    trace,
-    scale,
-    sigma_omega,
-    sigma_angle,
-    rtol,
-    atol,
-    solver_rtol,
-    solver_atol,
-    max_steps,
-    sim_max_steps,
+    ts: Array,
+    omega_obs: Array | None,
+    quat_obs: Array | None,
+    start: tuple[Array, Array, Array],
+    model: _Model,
+    sim: SolveOptions,
+    lm: optx.LevenbergMarquardt,
+    max_steps: int,
 ) -> InertiaEstimate:
     """The least-squares fit, compiled as one program (repeated calls with the same shapes and
     settings reuse it)."""
     dtype = ts.dtype
     fit_q0 = quat_obs is not None
-    k = 6
+    trace, k = model.trace, 6
+    inertia_params0, w_guess, q_ref = start
 
     def unpack(p):
         I = inertia_from_params(p[:k], trace)
@@ -226,24 +214,21 @@ def _fit(
             w0,
             q0,
             ts,
-            torque=torque,
-            torque_frame=torque_frame,
-            rtol=rtol,
-            atol=atol,
-            max_steps=sim_max_steps,
-            adjoint=diffrax.ForwardMode(),
+            torque=model.torque,
+            torque_frame=model.torque_frame,
+            options=sim,
         )
         out = []
         if omega_obs is not None:
-            out.append(((traj.omega - omega_obs) / sigma_omega).reshape(-1))
+            out.append(((traj.omega - omega_obs) / model.sigma_omega).reshape(-1))
         if use_attitude:
-            out.append((quat.local(quat_obs, traj.quat) / sigma_angle).reshape(-1))
+            out.append((quat.local(quat_obs, traj.quat) / model.sigma_angle).reshape(-1))
         return jnp.concatenate(out)
 
     def fit(p0, use_attitude):
         return optx.least_squares(
             residuals,
-            optx.LevenbergMarquardt(rtol=solver_rtol, atol=solver_atol),
+            lm,
             p0,
             args=use_attitude,
             max_steps=max_steps,
@@ -276,5 +261,5 @@ def _fit(
         inertia_std=I_std,
         converged=(sol.result == optx.RESULTS.successful) & jnp.isfinite(cost),
         num_steps=sol.stats["num_steps"],
-        scale=scale,
+        scale=model.scale,
     )

@@ -204,29 +204,21 @@ def _renormalise(y: RigidState):
 
 
 class SixDofTrajectory(AbstractTrajectory):
-    """Solution of `simulate_6dof`: times `ts (T,)` and `state`, a `RigidState` whose leaves have
-    a leading time axis (`R, V, omega (T, 3)`, `q (T, 4)` unit with λ0 ≥ 0)."""
+    """Solution of `simulate_6dof`: times `ts (T,)`, centre-of-mass position `R (T, 3)` and
+    velocity `V (T, 3)` (space axes), attitude `quat (T, 4)` (unit, λ0 ≥ 0) and body angular
+    velocity `omega (T, 3)`; `state` bundles them as a `RigidState` with a leading time axis."""
 
     ts: Float[Array, " T"]
-    state: RigidState
+    R: Float[Array, "T 3"]
+    V: Float[Array, "T 3"]
+    quat: Float[Array, "T 4"]
+    omega: Float[Array, "T 3"]
     stats: dict[str, Array]
     result: diffrax.RESULTS = eqx.field(default_factory=lambda: diffrax.RESULTS.successful)
 
     @property
-    def R(self) -> Float[Array, "T 3"]:
-        return self.state.R
-
-    @property
-    def V(self) -> Float[Array, "T 3"]:
-        return self.state.V
-
-    @property
-    def quat(self) -> Float[Array, "T 4"]:
-        return self.state.q
-
-    @property
-    def omega(self) -> Float[Array, "T 3"]:
-        return self.state.omega
+    def state(self) -> RigidState:
+        return RigidState(self.R, self.V, self.quat, self.omega)
 
     @property
     def matrix(self) -> Float[Array, "T 3 3"]:
@@ -285,6 +277,4 @@ def simulate_6dof(
         step_end=_renormalise,
     )
     q = quat.canonical(ys.q)  # saved values are step-end states: already normalised
-    return SixDofTrajectory(
-        ts=ts, state=RigidState(ys.R, ys.V, q, ys.omega), stats=stats, result=result
-    )
+    return SixDofTrajectory(ts, ys.R, ys.V, q, ys.omega, stats=stats, result=result)
