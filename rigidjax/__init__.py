@@ -48,23 +48,26 @@ from .solvers import RK4, RKMK, ExplicitRK, LieTerm, StepEndMap
 
 # The modules' flat names of rigidjax 0.1 (`import rigidjax.quat`, `rigidjax.heavy_top`, ...)
 # keep working: they are the same module objects as in the layered packages.
-for _name, _module in {
-    "andoyer": andoyer,
-    "euler": euler,
-    "gibbs": gibbs,
-    "heavy_top": heavy_top,
-    "inertia": inertia,
-    "invariants": invariants,
-    "kepler": kepler,
-    "mrp": mrp,
-    "quat": quat,
-    "satellite": satellite,
-    "sixdof": sixdof,
-    "so3": so3,
-    "stability": stability,
-}.items():
-    _sys.modules.setdefault(f"{__name__}.{_name}", _module)
-del _name, _module
+_sys.modules.update(
+    {
+        f"{__name__}.{_m.__name__.rpartition('.')[2]}": _m
+        for _m in (
+            andoyer,
+            euler,
+            gibbs,
+            heavy_top,
+            inertia,
+            invariants,
+            kepler,
+            mrp,
+            quat,
+            satellite,
+            sixdof,
+            so3,
+            stability,
+        )
+    }
+)
 
 __all__ = [
     "RK4",

@@ -6,15 +6,17 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from typing import TypedDict
+from typing import TypedDict, cast
 
 import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import optimistix as optx
 from jaxtyping import Array, PyTree
 
 from .solvers.explicit_rk import unrolled
+from .solvers.rkmk import RKMK, Frame
 from .solvers.step_end_map import StepEndMap
 
 
@@ -76,6 +78,13 @@ class SolveOptions(eqx.Module):
         if not (isinstance(self.max_steps, int) and self.max_steps > 0):
             raise ValueError(f"max_steps must be a positive integer, got {self.max_steps!r}")
 
+    def rkmk(self, frame: Frame) -> RKMK:
+        """The geometric solver: RKMK on SO(3) in `frame` with `solver`'s tableau (default
+        Dormand–Prince 5(4)); a solver that is not explicit Runge–Kutta is a clear error."""
+        if self.solver is None:
+            return RKMK(frame=frame)
+        return RKMK(cast(diffrax.AbstractRungeKutta, self.solver), frame)
+
     @classmethod
     def of(cls, options: SolveOptions | None, kwargs: SolveKwargs) -> SolveOptions:
         """`options` (default `SolveOptions()`) with the keyword shorthand `kwargs` applied; an
@@ -136,7 +145,7 @@ def solve_saved(
         controller = diffrax.PIDController(
             rtol=d_rtol if options.rtol is None else options.rtol,
             atol=d_atol if options.atol is None else options.atol,
-            **({} if norm is None else {"norm": norm}),
+            norm=optx.rms_norm if norm is None else norm,  # Diffrax's default norm
         )
     adaptive = isinstance(controller, diffrax.AbstractAdaptiveStepSizeController)
     if not adaptive and not isinstance(controller, diffrax.ConstantStepSize):
@@ -213,4 +222,5 @@ def _solve_intervals(
     )
     meter.close(meter_state)
     ys = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), y0, ys)
-    return ys, dict(zip(keys, jnp.sum(counts, axis=0), strict=True)), result
+    stats: dict[str, Array] = dict(zip(keys, jnp.sum(counts, axis=0), strict=True))
+    return ys, stats, result

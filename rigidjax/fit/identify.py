@@ -12,6 +12,7 @@ boundary; only a rank-one Σ (a rod, `I3 = 0`) is singular.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Literal
 
 import diffrax
 import equinox as eqx
@@ -89,7 +90,7 @@ def identify_inertia(
     quat_obs: ArrayLike | None = None,
     torque: Callable | None = None,
     *,
-    torque_frame: str = "body",
+    torque_frame: Literal["body", "space"] = "body",
     inertia_guess: ArrayLike | None = None,
     omega0_guess: ArrayLike | None = None,
     q0_guess: ArrayLike | None = None,
@@ -157,6 +158,7 @@ def identify_inertia(
     elif omega_obs is not None:
         w_guess = omega_obs[0]
     else:  # attitude only: finite-difference the first two samples
+        assert quat_obs is not None
         w_guess = quat.local(quat_obs[0], quat_obs[1]) / (ts[1] - ts[0])
     if q0_guess is not None:
         q_ref = quat.normalize(vector(q0_guess, 4, "q0_guess").astype(dtype))
@@ -177,7 +179,7 @@ class _Model(eqx.Module):
     """What the fit assumes besides the data: the known torque, the gauge and the noise levels."""
 
     torque: Callable | None
-    torque_frame: str = eqx.field(static=True)
+    torque_frame: Literal["body", "space"] = eqx.field(static=True)
     trace: float | None = eqx.field(static=True)
     scale: str = eqx.field(static=True)
     sigma_omega: float
@@ -222,6 +224,7 @@ def _fit(
         if omega_obs is not None:
             out.append(((traj.omega - omega_obs) / model.sigma_omega).reshape(-1))
         if use_attitude:
+            assert quat_obs is not None
             out.append((quat.local(quat_obs, traj.quat) / model.sigma_angle).reshape(-1))
         return jnp.concatenate(out)
 

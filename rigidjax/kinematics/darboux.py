@@ -14,7 +14,7 @@ from jaxtyping import Array, ArrayLike, Float
 from .._checks import as_float, check_times, matrix, norm_tolerance
 from .._integrate import SolveKwargs, SolveOptions, solve_saved
 from ..rotations import so3
-from ..solvers.rkmk import RKMK, LieTerm
+from ..solvers.rkmk import LieTerm
 from .formulations import AbstractKinematics, check_omega, lookup
 
 Frame = Literal["space", "body"]
@@ -101,7 +101,7 @@ def darboux(
     w = omega_path(omega)
 
     if method == "geometric":
-        solver = RKMK(frame=frame) if options.solver is None else RKMK(options.solver, frame)
+        solver = options.rkmk(frame)
         term = LieTerm(_LieField(w))
         y0 = (P0, None)
         step_end = None

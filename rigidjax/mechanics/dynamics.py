@@ -18,7 +18,7 @@ from .._integrate import SolveKwargs, SolveOptions, solve_saved
 from .._trajectory import AbstractTrajectory
 from ..kinematics.formulations import AbstractKinematics, Quaternion, lookup
 from ..rotations import quat
-from ..solvers.rkmk import RKMK, LieTerm
+from ..solvers.rkmk import LieTerm
 from .body import RigidBody, euler_rhs
 
 Torque = Callable[[Array, Array, Array], Array]
@@ -146,6 +146,26 @@ def _normalize_components(y):
     return (w, tuple(a * r for a in q)), jnp.array(False)
 
 
+def _stack_components(ys) -> tuple[Array, Array]:
+    """`(Ω (T, B, 3), q (T, B, 4))` from the saved component state."""
+    return jnp.stack(ys[0], axis=-1), jnp.stack(ys[1], axis=-1)
+
+
+def _from_lie(ys) -> tuple[Array, Array]:
+    """`(Ω, q)` from the saved RKMK state `(R, Ω)`."""
+    return ys[1], quat.from_matrix(ys[0])
+
+
+class _BatchFinish(eqx.Module):
+    """`(Ω (T, B, 3), q (T, B, 4))` from the saved batch-last state `(att, Ω)`."""
+
+    kin: AbstractKinematics
+
+    def __call__(self, ys) -> tuple[Array, Array]:
+        att, omega = (jnp.moveaxis(a, -1, 1) for a in ys)  # (T, ..., B) -> (T, B, ...)
+        return omega, jax.vmap(jax.vmap(self.kin.to_quat))(att)
+
+
 def _component_args(I: Array) -> tuple:
     """`(c, J)` of `_QuaternionComponents` from principal moments `I (..., 3)`."""
     I1, I2, I3 = (I[..., i] for i in range(3))
@@ -214,19 +234,15 @@ def simulate(
         # streaming (B,) copies through every stage
         I = body.operator()[0].astype(dtype)
         args = _component_args(I if body.batch_shape == () else args[0])
-
-        def finish(ys):
-            return jnp.stack(ys[0], axis=-1), jnp.stack(ys[1], axis=-1)
+        finish = _stack_components
 
     elif kinematics == "geometric":
-        solver = RKMK(frame="body") if options.solver is None else RKMK(options.solver, "body")
+        solver = options.rkmk("body")
         axis = 0  # RKMK takes the batch on leading axes
         term = LieTerm(_BatchField(_Dynamics(None, torque, torque_frame), axis))
         y0 = (quat.to_matrix(q0), omega0)
         step_end = None
-
-        def finish(ys):
-            return ys[1], quat.from_matrix(ys[0])
+        finish = _from_lie
 
     else:
         kin = lookup(kinematics, "body", strict_frame=True)  # simulate's Ω is the body one
@@ -236,10 +252,7 @@ def simulate(
         term = diffrax.ODETerm(_BatchField(_Dynamics(kin, torque, torque_frame), axis))
         y0 = (jax.vmap(kin.from_matrix, out_axes=axis)(quat.to_matrix(q0)), omega0.T)
         args = tuple(jnp.moveaxis(a, 0, -1) for a in args)
-
-        def finish(ys):  # (T, ..., B) -> (T, B, ...)
-            att, omega = (jnp.moveaxis(a, -1, 1) for a in ys)
-            return omega, jax.vmap(jax.vmap(kin.to_quat))(att)
+        finish = _BatchFinish(kin)
 
     ys, stats, result = solve_saved(
         term,

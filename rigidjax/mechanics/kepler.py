@@ -255,6 +255,7 @@ def _force(r: Array, alpha: Array | None, potential: Potential | None) -> Array:
     """`−∂U/∂r` for `U = −α/r` (closed form) or a user `U(|r|)` (by autodiff)."""
     rn = jnp.sqrt(jnp.sum(r * r, axis=-1, keepdims=True))
     if potential is None:
+        assert alpha is not None  # `_field_args` gives exactly one of the two
         return -alpha * r / rn**3
     dU = jax.grad(lambda s: jnp.asarray(potential(s), r.dtype).reshape(()))(rn[..., 0])
     return -dU * r / rn
@@ -402,4 +403,6 @@ def simulate_two_body(
         args=(m1, m2, alpha),
         tight=True,
     )
-    return TwoBodyTrajectory(ts, *ys, stats=stats, result=result)
+    return TwoBodyTrajectory(
+        ts=ts, r1=ys[0], v1=ys[1], r2=ys[2], v2=ys[3], stats=stats, result=result
+    )

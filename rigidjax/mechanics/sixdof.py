@@ -277,4 +277,6 @@ def simulate_6dof(
         step_end=_renormalise,
     )
     q = quat.canonical(ys.q)  # saved values are step-end states: already normalised
-    return SixDofTrajectory(ts, ys.R, ys.V, q, ys.omega, stats=stats, result=result)
+    return SixDofTrajectory(
+        ts=ts, R=ys.R, V=ys.V, quat=q, omega=ys.omega, stats=stats, result=result
+    )
