@@ -3,14 +3,10 @@
 import jax
 import jax.numpy as jnp
 import numpy as np
+from helpers import scalar_first as sp
 from scipy.spatial.transform import Rotation
 
 from rigidjax import mrp
-
-
-def sp(r: Rotation) -> np.ndarray:
-    x = r.as_quat()
-    return np.concatenate([x[..., 3:], x[..., :3]], axis=-1)
 
 
 def rotations():

@@ -4,14 +4,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import rigid_body_dop853
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
-from reference import rigid_body_dop853
+from rigidjax.inertia import check_inertia
 from scipy.spatial.transform import Rotation
 
 from rigidjax import identify_inertia
 from rigidjax.fit.identify import inertia_from_params, params_from_inertia
-from rigidjax.inertia import check_inertia
 
 TS = np.linspace(0.0, 8.0, 81)
 R = Rotation.from_rotvec([0.3, -0.5, 0.2]).as_matrix()

@@ -6,7 +6,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-
 import rigidjax.kepler as kepler
 
 # a generic, tilted ellipse (not in a coordinate plane)

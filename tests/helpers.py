@@ -1,7 +1,14 @@
-"""Independent NumPy/SciPy references shared by the tests (no rigidjax code)."""
+"""Independent NumPy/SciPy references and helpers shared by the tests (no rigidjax code)."""
 
 import numpy as np
 from scipy.integrate import solve_ivp
+from scipy.spatial.transform import Rotation
+
+
+def scalar_first(r: Rotation) -> np.ndarray:
+    """A SciPy rotation as a scalar-first quaternion (independent of rigidjax's `from_xyzw`)."""
+    x = r.as_quat()
+    return np.concatenate([x[..., 3:], x[..., :3]], axis=-1)
 
 
 def rigid_body_dop853(I, w0, q0, ts, torque_body=None):

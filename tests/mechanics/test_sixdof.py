@@ -6,10 +6,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import rigidjax.sixdof as sixdof
 from scipy.integrate import solve_ivp
 from scipy.spatial.transform import Rotation
 
-import rigidjax.sixdof as sixdof
 from rigidjax import RigidBody, simulate
 
 MASS = 2.5

@@ -3,10 +3,10 @@ frequency measured from the simulation, roll/yaw against the linearised equation
 
 import numpy as np
 import pytest
+import rigidjax.satellite as sat
 from scipy.linalg import expm
 from scipy.spatial.transform import Rotation
 
-import rigidjax.satellite as sat
 from rigidjax import RigidBody
 
 MU, RADIUS = 1.0, 1.0

@@ -4,6 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import scalar_first as sp
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation, Slerp
@@ -15,12 +16,6 @@ AXES = np.array(
     [[1, 0, 0], [0, 1, 0], [0, 0, 1], [SQ3, SQ3, SQ3], [0.6, 0, -0.8], [2, -3, 6]], float
 )
 AXES /= np.linalg.norm(AXES, axis=-1, keepdims=True)
-
-
-def sp(r: Rotation) -> np.ndarray:
-    """SciPy rotation as a scalar-first quaternion (independent of quat.from_xyzw)."""
-    x = r.as_quat()
-    return np.concatenate([x[..., 3:], x[..., :3]], axis=-1)
 
 
 def assert_same_rotation(q1, q2, atol=1e-12):

@@ -5,10 +5,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import rigidjax.heavy_top as ht
 from scipy.integrate import solve_ivp
 from scipy.spatial.transform import Rotation
 
-import rigidjax.heavy_top as ht
 from rigidjax import quat
 
 # one time grid, one tolerance and always the attitude: all long runs share one compilation

@@ -4,9 +4,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import rigidjax.stability as st
 from scipy.spatial.transform import Rotation
 
-import rigidjax.stability as st
 from rigidjax import RigidBody, simulate
 
 I123 = np.array([1.0, 2.0, 3.0])
