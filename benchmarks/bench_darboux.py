@@ -61,12 +61,12 @@ import diffrax  # noqa: E402
 import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-from _machine import load_average, machine_info, write_json  # noqa: E402
+from _harness import aot_compile, block, load_average, machine_info, repeat, timed, write_json  # noqa: E402
 
 from rigidjax import darboux, euler, so3  # noqa: E402
-from rigidjax.solvers.explicit_rk import unrolled  # noqa: E402
 from rigidjax.kinematics import METHODS as KINEMATICS  # noqa: E402
 from rigidjax.kinematics import AbstractKinematics, check_omega  # noqa: E402
+from rigidjax.solvers.explicit_rk import unrolled  # noqa: E402
 from rigidjax.solvers.rkmk import RKMK, LieTerm  # noqa: E402
 from rigidjax.solvers.step_end_map import StepEndMap  # noqa: E402
 
@@ -156,7 +156,7 @@ def _maybe_count(w, t, count: bool):
 
 
 class _Field(eqx.Module):
-    """`(t, y) -> ẏ` for a kinematics formulation (as `rigidjax.kinematics.darboux._KinematicsField`)."""
+    """`(t, y) -> ẏ` for a kinematics formulation (as rigidjax's `_KinematicsField`)."""
 
     kin: AbstractKinematics
     omega: Callable
@@ -264,27 +264,6 @@ def control_solver(t_end: float, dt: float, n_steps: int, ts_save):
     return f
 
 
-def compile_timed(fn, *args):
-    t0 = time.perf_counter()
-    compiled = fn.lower(*args).compile()
-    return compiled, time.perf_counter() - t0
-
-
-def block(x):
-    return jax.tree_util.tree_map(lambda a: a.block_until_ready(), x)
-
-
-def time_calls(fn, args, repeats: int, min_total: float = 0.2, max_calls: int = 200):
-    """Times of repeated calls (at least `repeats`, and until `min_total` seconds are spent)."""
-    block(fn(*args))  # warm-up
-    times = []
-    while len(times) < repeats or (sum(times) < min_total and len(times) < max_calls):
-        t0 = time.perf_counter()
-        block(fn(*args))
-        times.append(time.perf_counter() - t0)
-    return times
-
-
 def max_abs(P, Q) -> float:
     return float(np.max(np.abs(np.asarray(P) - np.asarray(Q))))
 
@@ -304,8 +283,8 @@ def work_precision(cfg, repeats: int, log) -> dict:
     P0 = jnp.asarray(P_ex[0])
     out = {}
     for method in METHODS:
-        timed, c_time = compile_timed(adaptive_solver(method, ts, False), jnp.asarray(1e-8), P0)
-        counted, c_count = compile_timed(adaptive_solver(method, ts, True), jnp.asarray(1e-8), P0)
+        fast, c_fast = aot_compile(adaptive_solver(method, ts, False), jnp.asarray(1e-8), P0)
+        counted, c_counted = aot_compile(adaptive_solver(method, ts, True), jnp.asarray(1e-8), P0)
         rows = []
         for tol in cfg["tols"]:
             tol_a = jnp.asarray(tol)
@@ -314,8 +293,8 @@ def work_precision(cfg, repeats: int, log) -> dict:
             P, stats = block(counted(tol_a, P0))
             jax.effects_barrier()
             n_eval = _COUNT[0]
-            P_t, stats_t = block(timed(tol_a, P0))
-            times = time_calls(timed, (tol_a, P0), repeats)
+            P_t, stats_t = block(fast(tol_a, P0))
+            times = repeat(fast, tol_a, P0, repeats=repeats, warmup=True, min_total=0.2)
             P_d = darboux(OMEGA, ts, P0=P0, method=method, seq=EULER_SEQ, rtol=tol_a, atol=tol_a)
             stats = {k: int(v) for k, v in stats.items()}
             steps = stats["num_steps"]
@@ -340,6 +319,7 @@ def work_precision(cfg, repeats: int, log) -> dict:
                 f"(rej {stats['num_rejected_steps']:3d}) err={row['err_max_abs']:.2e} "
                 f"wall={1e3 * row['wall_s_median']:.2f} ms"
             )
+        c_time, c_count = c_fast["total_s"], c_counted["total_s"]
         out[method] = dict(compile_s=c_time, compile_counting_s=c_count, rows=rows)
     return out
 
@@ -357,10 +337,9 @@ def drift(cfg, log) -> dict:
     out = {}
     for name, method, base in variants:
         fn = jax.jit(fixed_solver(method, t_end, dt, n_steps, ts, base))
-        compiled, c = compile_timed(fn, P0)
-        t0 = time.perf_counter()
-        P, stats = block(compiled(P0))
-        run_s = time.perf_counter() - t0
+        compiled, compiled_s = aot_compile(fn, P0)
+        c = compiled_s["total_s"]
+        (P, stats), run_s, _ = timed(compiled, P0)
         orth = np.asarray(so3.orthogonality_error(P))
         err = np.max(np.abs(np.asarray(P) - P_ex), axis=(-2, -1))
         out[name] = dict(
@@ -405,9 +384,10 @@ def throughput(cfg, repeats: int, log) -> dict:
             fn = jax.jit(jax.vmap(control_solver(t_end, dt, n, ts)))
         else:
             fn = jax.jit(jax.vmap(fixed_solver(method, t_end, dt, n, ts)))
-        compiled, c = compile_timed(fn, P0s)
+        compiled, compiled_s = aot_compile(fn, P0s)
+        c = compiled_s["total_s"]
         P, stats = block(compiled(P0s))
-        times = time_calls(compiled, (P0s,), repeats, min_total=0.0)
+        times = repeat(compiled, P0s, repeats=repeats, warmup=True)
         steps = np.asarray(stats["num_steps"])
         best = min(times)
         out[method] = dict(

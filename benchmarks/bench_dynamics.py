@@ -89,7 +89,15 @@ jax.config.update("jax_enable_x64", True)  # the benchmark's choice; rigidjax ne
 import diffrax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-from _machine import load_average, machine_info, write_json  # noqa: E402
+from _harness import (  # noqa: E402
+    aot_compile,
+    block,
+    load_average,
+    machine_info,
+    repeat,
+    timed,
+    write_json,
+)
 
 from rigidjax import RK4, RigidBody, simulate  # noqa: E402
 from rigidjax.solvers.explicit_rk import ExplicitRK  # noqa: E402
@@ -362,44 +370,34 @@ def norm_drift(q) -> float:
 # --------------------------------------------------------------------------- timing
 
 
-def block(x):
-    return jax.block_until_ready(x)
-
-
 def time_jax(cfg: dict, w0, q0, repeats: int, log) -> tuple[dict, dict]:
     """Compile every JAX contender ahead of time, warm up, then time interleaved rounds."""
     B, N = cfg["B"], cfg["N"]
     wj, qj = jnp.asarray(w0), jnp.asarray(q0)
     compiled, results, outputs = {}, {}, {}
     for name, (group, fn) in jax_contenders(N, cfg["dt"]).items():
-        t0 = time.perf_counter()
-        lowered = jax.jit(fn).lower(wj, qj)
-        t1 = time.perf_counter()
-        comp = lowered.compile()
-        t2 = time.perf_counter()
-        out = block(comp(wj, qj))
-        t3 = time.perf_counter()
+        comp, c = aot_compile(fn, wj, qj)
+        out, warm, _ = timed(comp, wj, qj)
         compiled[name] = comp
         outputs[name] = (np.asarray(out[0]), np.asarray(out[1]))
         results[name] = dict(
             group=group,
             description=DESCRIPTIONS[name],
-            trace_lower_s_in_process=t1 - t0,
-            compile_s_in_process=t2 - t1,
-            warmup_run_s=t3 - t2,
+            trace_lower_s_in_process=c["trace_lower_s"],
+            compile_s_in_process=c["compile_s"],
+            warmup_run_s=warm,
             all_seconds=[],
             all_cpu_seconds=[],
         )
         log(
-            f"  compiled {name:<28} trace+lower {t1 - t0:5.2f} s  compile {t2 - t1:5.2f} s  "
-            f"warm-up run {t3 - t2:6.2f} s"
+            f"  compiled {name:<28} trace+lower {c['trace_lower_s']:5.2f} s  "
+            f"compile {c['compile_s']:5.2f} s  warm-up run {warm:6.2f} s"
         )
     for r in range(repeats):
         for name, comp in compiled.items():
-            c0, t0 = time.process_time(), time.perf_counter()
-            block(comp(wj, qj))
-            results[name]["all_seconds"].append(time.perf_counter() - t0)
-            results[name]["all_cpu_seconds"].append(time.process_time() - c0)
+            _, wall, cpu = timed(comp, wj, qj)
+            results[name]["all_seconds"].append(wall)
+            results[name]["all_cpu_seconds"].append(cpu)
         LOAD_ROUNDS.append(load_average())
         log(f"  round {r + 1}/{repeats} done (load {LOAD_ROUNDS[-1]})")
     for res in results.values():
@@ -418,21 +416,16 @@ def compile_probe(name: str, B: int, N: int, dt: float, seed: int) -> dict:
     wj, qj = jnp.asarray(w0), jnp.asarray(q0)
     block((wj, qj))
     fn = jax_contenders(N, dt)[name][1]
-    t0 = time.perf_counter()
-    lowered = jax.jit(fn).lower(wj, qj)
-    t1 = time.perf_counter()
-    comp = lowered.compile()
-    t2 = time.perf_counter()
-    block(comp(wj, qj))
-    t3 = time.perf_counter()
+    comp, c = aot_compile(fn, wj, qj)
+    _, first_run, _ = timed(comp, wj, qj)
     return dict(
         name=name,
         import_s=_T_IMPORTED - _T_PROCESS_START,
-        trace_lower_s=t1 - t0,
-        compile_s=t2 - t1,
-        trace_lower_compile_s=t2 - t0,
-        first_run_s=t3 - t2,
-        first_call_s=t3 - t0,
+        trace_lower_s=c["trace_lower_s"],
+        compile_s=c["compile_s"],
+        trace_lower_compile_s=c["total_s"],
+        first_run_s=first_run,
+        first_call_s=c["total_s"] + first_run,
     )
 
 
@@ -468,10 +461,9 @@ def time_numpy(cfg, w0, q0, repeats: int, log) -> tuple[dict, tuple]:
     B, N = cfg["B"], cfg["N"]
     times, cpu, out = [], [], None
     for _ in range(repeats):
-        c0, t0 = time.process_time(), time.perf_counter()
-        out = numpy_rk4(w0, q0, N, cfg["dt"])
-        times.append(time.perf_counter() - t0)
-        cpu.append(time.process_time() - c0)
+        out, wall, cpu_s = timed(numpy_rk4, w0, q0, N, cfg["dt"])
+        times.append(wall)
+        cpu.append(cpu_s)
     log(f"  numpy_rk4: best {min(times):.2f} s")
     res = dict(
         group="numpy",
@@ -495,9 +487,7 @@ def scipy_part(cfg, w0, q0, w_ref, q_ref, target_err: float, repeats: int, log) 
     for method in ("RK45", "DOP853"):
         sweep, chosen = [], None
         for tol in SCIPY_TOLS:
-            t0 = time.perf_counter()
-            w, q, nfev = scipy_solve(ws, qs, T, method, tol, tol)
-            el = time.perf_counter() - t0
+            (w, q, nfev), el, _ = timed(scipy_solve, ws, qs, T, method, tol, tol)
             err = errors(w, q, w_ref, q_ref)
             sweep.append(
                 dict(
@@ -515,11 +505,8 @@ def scipy_part(cfg, w0, q0, w_ref, q_ref, target_err: float, repeats: int, log) 
         if not reached:
             chosen = len(sweep) - 1
         tol = sweep[chosen]["rtol"]
-        times = []
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            w, q, nfev = scipy_solve(ws, qs, T, method, tol, tol)
-            times.append(time.perf_counter() - t0)
+        (w, q, nfev), _, _ = timed(scipy_solve, ws, qs, T, method, tol, tol)
+        times = repeat(scipy_solve, ws, qs, T, method, tol, tol, repeats=repeats)
         out[f"scipy_{method.lower()}"] = dict(
             group="scipy",
             description=f"scipy.integrate.solve_ivp {method} per trajectory, rtol = atol = {tol:g}",
@@ -563,23 +550,18 @@ def dopri8_part(cfg, wj, qj, w_ref, q_ref, target_err: float, repeats: int, log)
             )
             return tr.omega[:, -1], tr.quat[:, -1], tr.stats["num_steps"]
 
-        t0 = time.perf_counter()
-        comp = jax.jit(solve).lower(wj, qj).compile()
-        t1 = time.perf_counter()
+        comp, c = aot_compile(solve, wj, qj)
         w, q, steps = block(comp(wj, qj))
         err = errors(np.asarray(w[:S]), np.asarray(q[:S]), w_ref, q_ref)
-        sweep.append(dict(dt=h, steps=int(steps), error=err, compile_s=t1 - t0))
+        sweep.append(dict(dt=h, steps=int(steps), error=err, compile_s=c["total_s"]))
         if err["max"] <= target_err:
             chosen = len(sweep) - 1
             break
     reached = chosen is not None
     if not reached:
         chosen = len(sweep) - 1
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        w, q, steps = block(comp(wj, qj))
-        times.append(time.perf_counter() - t0)
+    w, q, steps = block(comp(wj, qj))
+    times = repeat(comp, wj, qj, repeats=repeats)
     B, pick = wj.shape[0], sweep[chosen]
     log(
         f"  rigidjax Dopri8: dt {pick['dt']:g} ({pick['steps']} steps, equal accuracy reached: "
@@ -613,15 +595,9 @@ def adaptive_part(cfg, wj, qj, w_ref, q_ref, repeats: int, log) -> dict:
         tr = simulate(RigidBody(moments), w, q, jnp.array([0.0, T]))
         return tr.omega[:, -1], tr.quat[:, -1], tr.stats["num_steps"]
 
-    t0 = time.perf_counter()
-    comp = jax.jit(solve).lower(wj, qj).compile()
-    t1 = time.perf_counter()
-    block(comp(wj, qj))
-    times = []
-    for _ in range(repeats):
-        t2 = time.perf_counter()
-        w, q, steps = block(comp(wj, qj))
-        times.append(time.perf_counter() - t2)
+    comp, c = aot_compile(solve, wj, qj)
+    w, q, steps = block(comp(wj, qj))
+    times = repeat(comp, wj, qj, repeats=repeats)
     B = wj.shape[0]
     log(f"  rigidjax defaults: {int(steps)} steps, {min(times) / B * 1e6:.2f} us / trajectory")
     return dict(
@@ -629,7 +605,7 @@ def adaptive_part(cfg, wj, qj, w_ref, q_ref, repeats: int, log) -> dict:
         description="simulate with its defaults: Tsit5 (unrolled), PID at rtol = atol = 1e-10 "
         "controlled by the worst member (timed after the interleaved rounds)",
         steps=int(steps),
-        trace_lower_compile_s=t1 - t0,
+        trace_lower_compile_s=c["total_s"],
         all_seconds=times,
         seconds=min(times),
         seconds_median=statistics.median(times),

@@ -51,7 +51,7 @@ import sys
 import time
 from pathlib import Path
 
-from _machine import load_average, machine_info, write_json  # noqa: E402
+from _harness import aot_compile, load_average, machine_info, timed, write_json  # noqa: E402
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "identify.json"
 ROTVEC = (0.3, -0.5, 0.2)
@@ -117,7 +117,7 @@ def gyro_data(T: int, w0, rng):
 
 def identify_worker(T: int, repeats: int, seed: int) -> dict:
     t_proc = time.perf_counter()
-    jax = _setup_jax()
+    _setup_jax()
     import numpy as np
 
     from rigidjax import identify_inertia
@@ -132,10 +132,7 @@ def identify_worker(T: int, repeats: int, seed: int) -> dict:
 
     calls = []
     for ts, w in datasets:
-        t0, c0 = time.perf_counter(), time.process_time()
-        est = identify_inertia(ts, omega_obs=w)
-        jax.block_until_ready(est)
-        dt, dc = time.perf_counter() - t0, time.process_time() - c0
+        est, dt, dc = timed(identify_inertia, ts, w)
         calls.append(
             dict(
                 seconds=round(dt, 4),
@@ -266,15 +263,8 @@ def grad_worker(N: int, configs: list[str], repeats: int) -> dict:
     compiled = {}
     for cfg in configs:
         loss = make_loss(N, cfg)
-        t0 = time.perf_counter()
-        fl = jax.jit(loss).lower(I, w0)
-        t1 = time.perf_counter()
-        f = fl.compile()
-        t2 = time.perf_counter()
-        gl = jax.jit(jax.grad(loss, argnums=(0, 1))).lower(I, w0)
-        t3 = time.perf_counter()
-        g = gl.compile()
-        t4 = time.perf_counter()
+        f, cf = aot_compile(loss, I, w0)
+        g, cg = aot_compile(jax.grad(loss, argnums=(0, 1)), I, w0)
         compiled[cfg] = (f, g)
         ms = {"default": SIM_DEFAULT_MAX_STEPS, "tight": N, "store_all": N}.get(cfg)
         out[cfg] = dict(
@@ -284,10 +274,10 @@ def grad_worker(N: int, configs: list[str], repeats: int) -> dict:
                 if cfg in ("store_all", "lean_scan", "lean_scan_remat")
                 else default_checkpoints(ms)
             ),
-            forward_trace_lower_s=round(t1 - t0, 3),
-            forward_compile_s=round(t2 - t1, 3),
-            grad_trace_lower_s=round(t3 - t2, 3),
-            grad_compile_s=round(t4 - t3, 3),
+            forward_trace_lower_s=round(cf["trace_lower_s"], 3),
+            forward_compile_s=round(cf["compile_s"], 3),
+            grad_trace_lower_s=round(cg["trace_lower_s"], 3),
+            grad_compile_s=round(cg["compile_s"], 3),
             forward_memory=_mem(f),
             grad_memory=_mem(g),
         )
@@ -301,10 +291,9 @@ def grad_worker(N: int, configs: list[str], repeats: int) -> dict:
     for _ in range(repeats):  # interleaved rounds
         for cfg in configs:
             for name, fn in zip(("forward", "grad"), compiled[cfg], strict=True):
-                t0, c0 = time.perf_counter(), time.process_time()
-                jax.block_until_ready(fn(I, w0))
-                times[cfg][name].append(time.perf_counter() - t0)
-                times[cfg][name + "_cpu"].append(time.process_time() - c0)
+                _, wall, cpu = timed(fn, I, w0)
+                times[cfg][name].append(wall)
+                times[cfg][name + "_cpu"].append(cpu)
     rss["after_timing"] = _maxrss_mib()
     for cfg in configs:
         f, g = compiled[cfg]

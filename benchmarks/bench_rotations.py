@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import statistics
 import sys
 import time
 import warnings
@@ -44,7 +43,7 @@ jax.config.update("jax_enable_x64", True)  # the benchmark's choice; rigidjax ne
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-from _machine import load_average, machine_info, write_json  # noqa: E402
+from _harness import aot_compile, block, load_average, machine_info, repeat, summary, write_json  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
 from rigidjax import euler, quat, so3  # noqa: E402
@@ -180,22 +179,7 @@ def make_inputs(n: int, seed: int) -> dict[str, np.ndarray]:
 
 
 def _summary(times: list[float], n: int) -> dict:
-    best = min(times)
-    return {
-        "seconds": best,
-        "seconds_median": statistics.median(times),
-        "rotations_per_s": n / best,
-        "all_seconds": times,
-    }
-
-
-def _repeat(call: Callable[[], object], repeats: int) -> list[float]:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        call()
-        times.append(time.perf_counter() - t0)
-    return times
+    return {**summary(times), "rotations_per_s": n / min(times)}
 
 
 def time_scipy(fn: Callable, x: np.ndarray, repeats: int) -> tuple[dict, np.ndarray]:
@@ -203,20 +187,18 @@ def time_scipy(fn: Callable, x: np.ndarray, repeats: int) -> tuple[dict, np.ndar
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # SciPy warns on gimbal lock in as_euler
         out = fn(x)
-        times = _repeat(lambda: fn(x), repeats)
+        times = repeat(fn, x, repeats=repeats)
     return _summary(times, len(x)), out
 
 
 def time_jax(fn: Callable, x: np.ndarray, dtype, repeats: int) -> tuple[dict, np.ndarray]:
     """AOT-compile `fn` for `x` cast to `dtype`, warm up once, then time `repeats` calls."""
     xd = jax.device_put(jnp.asarray(x, dtype=dtype))
-    t0 = time.perf_counter()
-    compiled = jax.jit(fn).lower(xd).compile()
-    compile_s = time.perf_counter() - t0
-    out = compiled(xd).block_until_ready()
-    times = _repeat(lambda: compiled(xd).block_until_ready(), repeats)
+    compiled, c = aot_compile(fn, xd)
+    out = block(compiled(xd))
+    times = repeat(compiled, xd, repeats=repeats)
     summary = _summary(times, len(x))
-    summary["compile_s"] = compile_s
+    summary["compile_s"] = c["total_s"]
     summary["output_dtype"] = str(out.dtype)
     return summary, np.asarray(out, dtype=np.float64)
 
