@@ -1,6 +1,13 @@
-"""The benchmark harness shared by every bench script: ahead-of-time compilation with its timing,
-timed calls (wall and CPU time, results blocked until ready), repeats and their summary, the
-machine and version facts recorded in every JSON, and the atomic JSON writer."""
+"""The benchmark harness shared by every bench script.
+
+Timing: `measure` compiles a callable ahead of time (`aot_compile`, trace + lower and XLA compile
+timed separately), warms it up with one timed first call, then times repeated calls; every call
+ends in `jax.block_until_ready` and records wall and process-CPU seconds (`timed`). It returns a
+`Timing`: `best`, `median`, `times`, `cpu_times`, the compile and first-call times and the latest
+output. `interleaved` times several `Timing`s in rounds (each round calls each once, so a change
+in machine load hits them alike); `fresh_process` runs a worker in a new interpreter, for
+first-call times. Machine record: `machine_info`, `load_average`. Output: the
+atomic JSON writer `write_json`."""
 
 from __future__ import annotations
 
@@ -12,8 +19,9 @@ import statistics
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import Any
 
 PACKAGES = ("jax", "jaxlib", "diffrax", "equinox", "optimistix", "numpy", "scipy", "rigidjax")
 
@@ -102,36 +110,137 @@ def aot_compile(fn: Callable, *args) -> tuple[Callable, dict[str, float]]:
     return compiled, {"trace_lower_s": t1 - t0, "compile_s": t2 - t1, "total_s": t2 - t0}
 
 
-def timed(fn: Callable, *args) -> tuple[object, float, float]:
-    """Run `fn(*args)` once to completion; returns `(result, wall seconds, CPU seconds)`."""
+def timed(fn: Callable, *args, **kwargs) -> tuple[Any, float, float]:
+    """Run `fn(*args, **kwargs)` once to completion (`block_until_ready`); returns
+    `(result, wall seconds, process CPU seconds)`."""
     c0, t0 = time.process_time(), time.perf_counter()
-    out = block(fn(*args))
+    out = block(fn(*args, **kwargs))
     return out, time.perf_counter() - t0, time.process_time() - c0
 
 
-def repeat(
+class Timing:
+    """One callable under measurement, with its fixed arguments: optionally compiled ahead of
+    time (`aot=True`: `trace_lower_s`, `compile_s`), warmed up (`warm_up`: `first_run_s`), then
+    timed (`run`: wall `times` and CPU `cpu_times`). `output` is the result of the latest call;
+    `fn` the (compiled) callable."""
+
+    def __init__(self, fn: Callable, *args, aot: bool = True):
+        self.args = args
+        self.trace_lower_s: float | None = None
+        self.compile_s: float | None = None
+        if aot:
+            fn, c = aot_compile(fn, *args)
+            self.trace_lower_s, self.compile_s = c["trace_lower_s"], c["compile_s"]
+        self.fn = fn
+        self.first_run_s: float | None = None
+        self.output: Any = None
+        self.times: list[float] = []
+        self.cpu_times: list[float] = []
+
+    def warm_up(self) -> Any:
+        """One call, timed as `first_run_s` but not counted among `times`; returns its output."""
+        self.output, self.first_run_s, _ = timed(self.fn, *self.args)
+        return self.output
+
+    def run(self, repeats: int = 1, min_total: float = 0.0, max_calls: int = 200) -> Timing:
+        """Timed calls: at least `repeats`, and more until `min_total` seconds of timed calls are
+        spent in all (at most `max_calls`)."""
+        n = 0
+        while n < repeats or (sum(self.times) < min_total and len(self.times) < max_calls):
+            self.output, wall, cpu = timed(self.fn, *self.args)
+            self.times.append(wall)
+            self.cpu_times.append(cpu)
+            n += 1
+        return self
+
+    @property
+    def trace_lower_compile_s(self) -> float | None:
+        """Trace + lower + XLA compile (None without `aot`)."""
+        if self.trace_lower_s is None or self.compile_s is None:
+            return None
+        return self.trace_lower_s + self.compile_s
+
+    @property
+    def first_call_s(self) -> float | None:
+        """Trace + lower + compile + first run: what a first call costs."""
+        if self.trace_lower_compile_s is None or self.first_run_s is None:
+            return None
+        return self.trace_lower_compile_s + self.first_run_s
+
+    @property
+    def repeats(self) -> int:
+        return len(self.times)
+
+    @property
+    def best(self) -> float:
+        """The minimum wall time: the run least disturbed by other processes."""
+        return min(self.times)
+
+    @property
+    def median(self) -> float:
+        return statistics.median(self.times)
+
+    @property
+    def cpu_best(self) -> float:
+        return min(self.cpu_times)
+
+    def summary(self, cpu: bool = False) -> dict:
+        """`{"seconds": best, "seconds_median", "all_seconds"}`, with `cpu`: also
+        `"cpu_seconds"` (best) and `"all_cpu_seconds"`."""
+        out = {"seconds": self.best, "seconds_median": self.median, "all_seconds": list(self.times)}
+        if cpu:
+            out.update(cpu_seconds=self.cpu_best, all_cpu_seconds=list(self.cpu_times))
+        return out
+
+
+def measure(
     fn: Callable,
     *args,
     repeats: int,
-    warmup: bool = False,
+    aot: bool = True,
+    warmup: bool = True,
     min_total: float = 0.0,
-    max_calls: int = 200,
-) -> list[float]:
-    """Wall times of repeated calls `fn(*args)` (after one untimed call if `warmup`): at least
-    `repeats`, and more until `min_total` seconds are spent (at most `max_calls`)."""
+) -> Timing:
+    """Compile `fn` ahead of time for `args` (unless `aot=False`: a NumPy / SciPy callable or one
+    compiled already), call it once as warm-up (unless `warmup=False`), then time `repeats` calls
+    (more until `min_total` seconds, see `Timing.run`)."""
+    t = Timing(fn, *args, aot=aot)
     if warmup:
-        block(fn(*args))
-    times: list[float] = []
-    while len(times) < repeats or (sum(times) < min_total and len(times) < max_calls):
-        times.append(timed(fn, *args)[1])
-    return times
+        t.warm_up()
+    return t.run(repeats, min_total=min_total)
 
 
-def summary(times: list[float]) -> dict:
-    """`{"seconds": best, "seconds_median", "all_seconds"}` of a list of wall times (the best is
-    the least disturbed by other processes; the median shows the spread)."""
-    return {
-        "seconds": min(times),
-        "seconds_median": statistics.median(times),
-        "all_seconds": list(times),
-    }
+def interleaved(
+    timings: Iterable[Timing], repeats: int, after_round: Callable[[int], None] | None = None
+) -> None:
+    """`repeats` rounds, each calling every timing once in order (`Timing.run(1)`), so a change
+    in machine load hits all of them alike; `after_round(r)` runs after round r (0-based)."""
+    timings = list(timings)
+    for r in range(repeats):
+        for t in timings:
+            t.run(1)
+        if after_round is not None:
+            after_round(r)
+
+
+def fresh_process(
+    script: str | Path, *args: str, env: dict | None = None
+) -> tuple[dict | None, float, subprocess.CompletedProcess]:
+    """Run `python script *args` in a fresh interpreter (first-call costs: nothing compiled or
+    imported yet); returns the JSON object on the last line of its stdout (None if it failed),
+    the process's wall seconds and the completed process (for `stderr`, `returncode`)."""
+    cmd = [sys.executable, str(Path(script).resolve()), *args]
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, check=False)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        return None, wall, proc
+    return json.loads(proc.stdout.strip().splitlines()[-1]), wall, proc
+
+
+def load_report(out: dict) -> str:
+    """The closing line of a run: load averages at start and end, and the total wall time."""
+    return (
+        f"load average start {out['load_average_start']}, end {out['load_average_end']}; "
+        f"total {out['total_wall_s']:.0f} s"
+    )

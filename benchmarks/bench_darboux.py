@@ -48,7 +48,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import statistics
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -61,7 +60,7 @@ import diffrax  # noqa: E402
 import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-from _harness import aot_compile, block, load_average, machine_info, repeat, timed, write_json  # noqa: E402
+from _harness import Timing, aot_compile, block, load_average, machine_info, measure, write_json  # noqa: E402
 
 from rigidjax import darboux, euler, so3  # noqa: E402
 from rigidjax.kinematics import METHODS as KINEMATICS  # noqa: E402
@@ -293,8 +292,8 @@ def work_precision(cfg, repeats: int, log) -> dict:
             P, stats = block(counted(tol_a, P0))
             jax.effects_barrier()
             n_eval = _COUNT[0]
-            P_t, stats_t = block(fast(tol_a, P0))
-            times = repeat(fast, tol_a, P0, repeats=repeats, warmup=True, min_total=0.2)
+            t = measure(fast, tol_a, P0, repeats=repeats, aot=False, min_total=0.2)
+            P_t, stats_t = t.output
             P_d = darboux(OMEGA, ts, P0=P0, method=method, seq=EULER_SEQ, rtol=tol_a, atol=tol_a)
             stats = {k: int(v) for k, v in stats.items()}
             steps = stats["num_steps"]
@@ -306,9 +305,9 @@ def work_precision(cfg, repeats: int, log) -> dict:
                 err_max_abs=max_abs(P_t, P_ex),
                 err_geodesic=float(jnp.max(so3.distance(P_t, jnp.asarray(P_ex)))),
                 orthogonality_max=float(jnp.max(so3.orthogonality_error(P_t))),
-                wall_s_median=statistics.median(times),
-                wall_s_min=min(times),
-                n_timed=len(times),
+                wall_s_median=t.median,
+                wall_s_min=t.best,
+                n_timed=t.repeats,
                 max_abs_diff_counted_vs_timed=max_abs(P, P_t),
                 steps_timed_equal=all(int(stats_t[k]) == stats[k] for k in stats),
                 max_abs_diff_vs_darboux=max_abs(P_d, P_t),
@@ -337,9 +336,9 @@ def drift(cfg, log) -> dict:
     out = {}
     for name, method, base in variants:
         fn = jax.jit(fixed_solver(method, t_end, dt, n_steps, ts, base))
-        compiled, compiled_s = aot_compile(fn, P0)
-        c = compiled_s["total_s"]
-        (P, stats), run_s, _ = timed(compiled, P0)
+        t = Timing(fn, P0)  # compiled ahead of time, then one timed (first) run
+        P, stats = t.warm_up()
+        c, run_s = t.trace_lower_compile_s, t.first_run_s
         orth = np.asarray(so3.orthogonality_error(P))
         err = np.max(np.abs(np.asarray(P) - P_ex), axis=(-2, -1))
         out[name] = dict(
@@ -384,16 +383,14 @@ def throughput(cfg, repeats: int, log) -> dict:
             fn = jax.jit(jax.vmap(control_solver(t_end, dt, n, ts)))
         else:
             fn = jax.jit(jax.vmap(fixed_solver(method, t_end, dt, n, ts)))
-        compiled, compiled_s = aot_compile(fn, P0s)
-        c = compiled_s["total_s"]
-        P, stats = block(compiled(P0s))
-        times = repeat(compiled, P0s, repeats=repeats, warmup=True)
+        t = measure(fn, P0s, repeats=repeats)
+        P, stats = t.output
+        c, best = t.trace_lower_compile_s, t.best
         steps = np.asarray(stats["num_steps"])
-        best = min(times)
         out[method] = dict(
             compile_s=c,
             run_s_min=best,
-            run_s_median=statistics.median(times),
+            run_s_median=t.median,
             steps_per_trajectory=int(steps.max()),
             steps_all_equal=bool(np.all(steps == steps[0])),
             traj_steps_per_s=B * int(steps.max()) / best,

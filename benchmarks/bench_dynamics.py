@@ -76,9 +76,6 @@ import argparse  # noqa: E402
 import datetime  # noqa: E402
 import json  # noqa: E402
 import os  # noqa: E402
-import statistics  # noqa: E402
-import subprocess  # noqa: E402
-import sys  # noqa: E402
 from collections.abc import Callable  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -90,18 +87,19 @@ import diffrax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 from _harness import (  # noqa: E402
-    aot_compile,
+    Timing,
     block,
+    fresh_process,
+    interleaved,
     load_average,
+    load_report,
     machine_info,
-    repeat,
+    measure,
     timed,
     write_json,
 )
 
-from rigidjax import RK4, RigidBody, simulate  # noqa: E402
-from rigidjax.solvers.explicit_rk import ExplicitRK  # noqa: E402
-from rigidjax.solvers.step_end_map import StepEndMap  # noqa: E402
+from rigidjax import RK4, ExplicitRK, RigidBody, StepEndMap, simulate  # noqa: E402
 
 _T_IMPORTED = time.perf_counter()
 
@@ -374,39 +372,32 @@ def time_jax(cfg: dict, w0, q0, repeats: int, log) -> tuple[dict, dict]:
     """Compile every JAX contender ahead of time, warm up, then time interleaved rounds."""
     B, N = cfg["B"], cfg["N"]
     wj, qj = jnp.asarray(w0), jnp.asarray(q0)
-    compiled, results, outputs = {}, {}, {}
+    timings, results, outputs = {}, {}, {}
     for name, (group, fn) in jax_contenders(N, cfg["dt"]).items():
-        comp, c = aot_compile(fn, wj, qj)
-        out, warm, _ = timed(comp, wj, qj)
-        compiled[name] = comp
+        t = timings[name] = Timing(fn, wj, qj)
+        out = t.warm_up()
         outputs[name] = (np.asarray(out[0]), np.asarray(out[1]))
         results[name] = dict(
             group=group,
             description=DESCRIPTIONS[name],
-            trace_lower_s_in_process=c["trace_lower_s"],
-            compile_s_in_process=c["compile_s"],
-            warmup_run_s=warm,
-            all_seconds=[],
-            all_cpu_seconds=[],
+            trace_lower_s_in_process=t.trace_lower_s,
+            compile_s_in_process=t.compile_s,
+            warmup_run_s=t.first_run_s,
         )
         log(
-            f"  compiled {name:<28} trace+lower {c['trace_lower_s']:5.2f} s  "
-            f"compile {c['compile_s']:5.2f} s  warm-up run {warm:6.2f} s"
+            f"  compiled {name:<28} trace+lower {t.trace_lower_s:5.2f} s  "
+            f"compile {t.compile_s:5.2f} s  warm-up run {t.first_run_s:6.2f} s"
         )
-    for r in range(repeats):
-        for name, comp in compiled.items():
-            _, wall, cpu = timed(comp, wj, qj)
-            results[name]["all_seconds"].append(wall)
-            results[name]["all_cpu_seconds"].append(cpu)
+
+    def after_round(r: int) -> None:
         LOAD_ROUNDS.append(load_average())
         log(f"  round {r + 1}/{repeats} done (load {LOAD_ROUNDS[-1]})")
-    for res in results.values():
-        s = res["all_seconds"]
-        res["seconds"] = min(s)
-        res["seconds_median"] = statistics.median(s)
-        res["body_steps_per_s"] = B * N / min(s)
-        res["seconds_per_trajectory"] = min(s) / B
-        res["cpu_seconds"] = min(res["all_cpu_seconds"])
+
+    interleaved(timings.values(), repeats, after_round)
+    for name, t in timings.items():
+        results[name].update(
+            t.summary(cpu=True), body_steps_per_s=B * N / t.best, seconds_per_trajectory=t.best / B
+        )
     return results, outputs
 
 
@@ -415,41 +406,26 @@ def compile_probe(name: str, B: int, N: int, dt: float, seed: int) -> dict:
     w0, q0 = make_inputs(B, seed)
     wj, qj = jnp.asarray(w0), jnp.asarray(q0)
     block((wj, qj))
-    fn = jax_contenders(N, dt)[name][1]
-    comp, c = aot_compile(fn, wj, qj)
-    _, first_run, _ = timed(comp, wj, qj)
+    t = Timing(jax_contenders(N, dt)[name][1], wj, qj)
+    t.warm_up()
     return dict(
         name=name,
         import_s=_T_IMPORTED - _T_PROCESS_START,
-        trace_lower_s=c["trace_lower_s"],
-        compile_s=c["compile_s"],
-        trace_lower_compile_s=c["total_s"],
-        first_run_s=first_run,
-        first_call_s=c["total_s"] + first_run,
+        trace_lower_s=t.trace_lower_s,
+        compile_s=t.compile_s,
+        trace_lower_compile_s=t.trace_lower_compile_s,
+        first_run_s=t.first_run_s,
+        first_call_s=t.first_call_s,
     )
 
 
 def fresh_process_probe(name: str, cfg: dict, seed: int) -> dict:
     env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_COMPILATION_CACHE")}
     env["JAX_ENABLE_COMPILATION_CACHE"] = "false"
-    cmd = [
-        sys.executable,
-        str(Path(__file__).resolve()),
-        "--_probe",
-        name,
-        "--seed",
-        str(seed),
-        "--_B",
-        str(cfg["B"]),
-        "--_N",
-        str(cfg["N"]),
-    ]
-    t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, check=False)
-    wall = time.perf_counter() - t0
-    if proc.returncode != 0:
+    args = ["--_probe", name, "--seed", str(seed), "--_B", str(cfg["B"]), "--_N", str(cfg["N"])]
+    res, wall, proc = fresh_process(__file__, *args, env=env)
+    if res is None:
         return dict(name=name, error=proc.stderr[-2000:])
-    res = json.loads(proc.stdout.strip().splitlines()[-1])
     res["process_wall_s"] = wall
     return res
 
@@ -459,24 +435,16 @@ def fresh_process_probe(name: str, cfg: dict, seed: int) -> dict:
 
 def time_numpy(cfg, w0, q0, repeats: int, log) -> tuple[dict, tuple]:
     B, N = cfg["B"], cfg["N"]
-    times, cpu, out = [], [], None
-    for _ in range(repeats):
-        out, wall, cpu_s = timed(numpy_rk4, w0, q0, N, cfg["dt"])
-        times.append(wall)
-        cpu.append(cpu_s)
-    log(f"  numpy_rk4: best {min(times):.2f} s")
+    t = measure(numpy_rk4, w0, q0, N, cfg["dt"], repeats=repeats, aot=False, warmup=False)
+    log(f"  numpy_rk4: best {t.best:.2f} s")
     res = dict(
         group="numpy",
         description=DESCRIPTIONS["numpy_rk4"],
-        all_seconds=times,
-        all_cpu_seconds=cpu,
-        cpu_seconds=min(cpu),
-        seconds=min(times),
-        seconds_median=statistics.median(times),
-        body_steps_per_s=B * N / min(times),
-        seconds_per_trajectory=min(times) / B,
+        **t.summary(cpu=True),
+        body_steps_per_s=B * N / t.best,
+        seconds_per_trajectory=t.best / B,
     )
-    return res, out
+    return res, t.output
 
 
 def scipy_part(cfg, w0, q0, w_ref, q_ref, target_err: float, repeats: int, log) -> dict:
@@ -505,8 +473,10 @@ def scipy_part(cfg, w0, q0, w_ref, q_ref, target_err: float, repeats: int, log) 
         if not reached:
             chosen = len(sweep) - 1
         tol = sweep[chosen]["rtol"]
-        (w, q, nfev), _, _ = timed(scipy_solve, ws, qs, T, method, tol, tol)
-        times = repeat(scipy_solve, ws, qs, T, method, tol, tol, repeats=repeats)
+        t = measure(
+            scipy_solve, ws, qs, T, method, tol, tol, repeats=repeats, aot=False, warmup=False
+        )
+        w, q, nfev = t.output
         out[f"scipy_{method.lower()}"] = dict(
             group="scipy",
             description=f"scipy.integrate.solve_ivp {method} per trajectory, rtol = atol = {tol:g}",
@@ -516,15 +486,15 @@ def scipy_part(cfg, w0, q0, w_ref, q_ref, target_err: float, repeats: int, log) 
             reached_equal_accuracy=reached,
             tolerance_sweep=sweep,
             nfev_per_trajectory=nfev / S,
-            all_seconds=times,
-            seconds=min(times),
-            seconds_per_trajectory=min(times) / S,
+            all_seconds=t.times,
+            seconds=t.best,
+            seconds_per_trajectory=t.best / S,
             error_vs_reference=errors(w, q, w_ref, q_ref),
             quat_norm_drift=norm_drift(q),
         )
         log(
             f"  scipy {method}: rtol {tol:g} (equal accuracy reached: {reached}), "
-            f"{min(times) / S * 1e3:.3f} ms / trajectory, nfev {nfev / S:.0f}"
+            f"{t.best / S * 1e3:.3f} ms / trajectory, nfev {nfev / S:.0f}"
         )
     return out
 
@@ -535,7 +505,7 @@ def dopri8_part(cfg, wj, qj, w_ref, q_ref, target_err: float, repeats: int, log)
     constant step of ``DOPRI8_STEPS`` whose error is ≤ the target, on the whole batch."""
     S, T = cfg["scipy_subset"], cfg["N"] * cfg["dt"]
     moments = jnp.array(MOMENTS)
-    sweep, comp, chosen = [], None, None
+    sweep, t, chosen = [], None, None
     for h in DOPRI8_STEPS:
 
         def solve(w, q, h=h):
@@ -550,22 +520,21 @@ def dopri8_part(cfg, wj, qj, w_ref, q_ref, target_err: float, repeats: int, log)
             )
             return tr.omega[:, -1], tr.quat[:, -1], tr.stats["num_steps"]
 
-        comp, c = aot_compile(solve, wj, qj)
-        w, q, steps = block(comp(wj, qj))
+        t = Timing(solve, wj, qj)
+        w, q, steps = t.warm_up()  # the sweep's run is the chosen step's warm-up
         err = errors(np.asarray(w[:S]), np.asarray(q[:S]), w_ref, q_ref)
-        sweep.append(dict(dt=h, steps=int(steps), error=err, compile_s=c["total_s"]))
+        sweep.append(dict(dt=h, steps=int(steps), error=err, compile_s=t.trace_lower_compile_s))
         if err["max"] <= target_err:
             chosen = len(sweep) - 1
             break
     reached = chosen is not None
     if not reached:
         chosen = len(sweep) - 1
-    w, q, steps = block(comp(wj, qj))
-    times = repeat(comp, wj, qj, repeats=repeats)
+    w, q, steps = t.run(repeats).output  # t: the last step compiled, the chosen one
     B, pick = wj.shape[0], sweep[chosen]
     log(
         f"  rigidjax Dopri8: dt {pick['dt']:g} ({pick['steps']} steps, equal accuracy reached: "
-        f"{reached}), {min(times) / B * 1e6:.2f} us / trajectory"
+        f"{reached}), {t.best / B * 1e6:.2f} us / trajectory"
     )
     return dict(
         group="rigidjax",
@@ -576,10 +545,8 @@ def dopri8_part(cfg, wj, qj, w_ref, q_ref, target_err: float, repeats: int, log)
         steps=pick["steps"],
         reached_equal_accuracy=reached,
         step_sweep=sweep,
-        all_seconds=times,
-        seconds=min(times),
-        seconds_median=statistics.median(times),
-        seconds_per_trajectory=min(times) / B,
+        **t.summary(),
+        seconds_per_trajectory=t.best / B,
         error_vs_reference=errors(np.asarray(w[:S]), np.asarray(q[:S]), w_ref, q_ref),
         quat_norm_drift=norm_drift(q),
     )
@@ -595,21 +562,18 @@ def adaptive_part(cfg, wj, qj, w_ref, q_ref, repeats: int, log) -> dict:
         tr = simulate(RigidBody(moments), w, q, jnp.array([0.0, T]))
         return tr.omega[:, -1], tr.quat[:, -1], tr.stats["num_steps"]
 
-    comp, c = aot_compile(solve, wj, qj)
-    w, q, steps = block(comp(wj, qj))
-    times = repeat(comp, wj, qj, repeats=repeats)
+    t = measure(solve, wj, qj, repeats=repeats)
+    w, q, steps = t.output
     B = wj.shape[0]
-    log(f"  rigidjax defaults: {int(steps)} steps, {min(times) / B * 1e6:.2f} us / trajectory")
+    log(f"  rigidjax defaults: {int(steps)} steps, {t.best / B * 1e6:.2f} us / trajectory")
     return dict(
         group="rigidjax",
         description="simulate with its defaults: Tsit5 (unrolled), PID at rtol = atol = 1e-10 "
         "controlled by the worst member (timed after the interleaved rounds)",
         steps=int(steps),
-        trace_lower_compile_s=c["total_s"],
-        all_seconds=times,
-        seconds=min(times),
-        seconds_median=statistics.median(times),
-        seconds_per_trajectory=min(times) / B,
+        trace_lower_compile_s=t.trace_lower_compile_s,
+        **t.summary(),
+        seconds_per_trajectory=t.best / B,
         error_vs_reference=errors(np.asarray(w[:S]), np.asarray(q[:S]), w_ref, q_ref),
         quat_norm_drift=norm_drift(q),
     )
@@ -831,10 +795,7 @@ def print_table(out: dict) -> None:
             f"target {k}: {t['value']} (target {t['target']}) -> "
             f"{'PASS' if t['passed'] else 'FAIL'}"
         )
-    print(
-        f"load average start {out['load_average_start']}, end {out['load_average_end']}; "
-        f"total {out['total_wall_s']:.0f} s"
-    )
+    print(load_report(out))
 
 
 def parse_args(argv=None) -> argparse.Namespace:

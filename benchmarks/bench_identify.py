@@ -46,12 +46,21 @@ import datetime
 import json
 import math
 import resource
-import subprocess
+import statistics
 import sys
 import time
 from pathlib import Path
 
-from _harness import aot_compile, load_average, machine_info, timed, write_json  # noqa: E402
+from _harness import (  # noqa: E402
+    Timing,
+    fresh_process,
+    interleaved,
+    load_average,
+    load_report,
+    machine_info,
+    timed,
+    write_json,
+)
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "identify.json"
 ROTVEC = (0.3, -0.5, 0.2)
@@ -132,7 +141,7 @@ def identify_worker(T: int, repeats: int, seed: int) -> dict:
 
     calls = []
     for ts, w in datasets:
-        est, dt, dc = timed(identify_inertia, ts, w)
+        est, dt, dc = timed(identify_inertia, ts, omega_obs=w)
         calls.append(
             dict(
                 seconds=round(dt, 4),
@@ -151,7 +160,7 @@ def identify_worker(T: int, repeats: int, seed: int) -> dict:
         import_s=round(import_s, 3),
         first_call_s=calls[0]["seconds"],
         repeat_call_s_min=min(rep) if rep else None,
-        repeat_call_s_median=sorted(rep)[len(rep) // 2] if rep else None,
+        repeat_call_s_median=statistics.median_high(rep) if rep else None,
         first_call_cpu_s=calls[0]["cpu_seconds"],
         repeat_call_cpu_s_min=min(rep_cpu) if rep else None,
         calls=calls,
@@ -260,12 +269,10 @@ def grad_worker(N: int, configs: list[str], repeats: int) -> dict:
     I = jnp.asarray(true_inertia())
     w0 = jnp.asarray(W0)
     out = {}
-    compiled = {}
+    timings = {}  # config -> (forward, gradient), compiled ahead of time
     for cfg in configs:
         loss = make_loss(N, cfg)
-        f, cf = aot_compile(loss, I, w0)
-        g, cg = aot_compile(jax.grad(loss, argnums=(0, 1)), I, w0)
-        compiled[cfg] = (f, g)
+        f, g = timings[cfg] = Timing(loss, I, w0), Timing(jax.grad(loss, argnums=(0, 1)), I, w0)
         ms = {"default": SIM_DEFAULT_MAX_STEPS, "tight": N, "store_all": N}.get(cfg)
         out[cfg] = dict(
             max_steps=ms,
@@ -274,44 +281,35 @@ def grad_worker(N: int, configs: list[str], repeats: int) -> dict:
                 if cfg in ("store_all", "lean_scan", "lean_scan_remat")
                 else default_checkpoints(ms)
             ),
-            forward_trace_lower_s=round(cf["trace_lower_s"], 3),
-            forward_compile_s=round(cf["compile_s"], 3),
-            grad_trace_lower_s=round(cg["trace_lower_s"], 3),
-            grad_compile_s=round(cg["compile_s"], 3),
-            forward_memory=_mem(f),
-            grad_memory=_mem(g),
+            forward_trace_lower_s=round(f.trace_lower_s, 3),
+            forward_compile_s=round(f.compile_s, 3),
+            grad_trace_lower_s=round(g.trace_lower_s, 3),
+            grad_compile_s=round(g.compile_s, 3),
+            forward_memory=_mem(f.fn),
+            grad_memory=_mem(g.fn),
         )
     rss["after_compile"] = _maxrss_mib()
-    for cfg in configs:  # warm-up
-        f, g = compiled[cfg]
-        jax.block_until_ready(f(I, w0))
-        jax.block_until_ready(g(I, w0))
+    for f, g in timings.values():
+        f.warm_up()
+        g.warm_up()
     rss["after_first_runs"] = _maxrss_mib()
-    times = {cfg: dict(forward=[], grad=[], forward_cpu=[], grad_cpu=[]) for cfg in configs}
-    for _ in range(repeats):  # interleaved rounds
-        for cfg in configs:
-            for name, fn in zip(("forward", "grad"), compiled[cfg], strict=True):
-                _, wall, cpu = timed(fn, I, w0)
-                times[cfg][name].append(wall)
-                times[cfg][name + "_cpu"].append(cpu)
+    interleaved([t for pair in timings.values() for t in pair], repeats)
     rss["after_timing"] = _maxrss_mib()
-    for cfg in configs:
-        f, g = compiled[cfg]
-        tf, tg = times[cfg]["forward"], times[cfg]["grad"]
+    for cfg, (f, g) in timings.items():
         out[cfg].update(
-            forward_s=min(tf),
-            forward_s_median=float(np.median(tf)),
-            grad_s=min(tg),
-            grad_s_median=float(np.median(tg)),
-            grad_over_forward=min(tg) / min(tf),
-            grad_over_forward_median=float(np.median(tg) / np.median(tf)),
-            forward_cpu_s=min(times[cfg]["forward_cpu"]),
-            grad_cpu_s=min(times[cfg]["grad_cpu"]),
-            grad_over_forward_cpu=min(times[cfg]["grad_cpu"]) / min(times[cfg]["forward_cpu"]),
-            forward_us_per_step=min(tf) / N * 1e6,
+            forward_s=f.best,
+            forward_s_median=f.median,
+            grad_s=g.best,
+            grad_s_median=g.median,
+            grad_over_forward=g.best / f.best,
+            grad_over_forward_median=g.median / f.median,
+            forward_cpu_s=f.cpu_best,
+            grad_cpu_s=g.cpu_best,
+            grad_over_forward_cpu=g.cpu_best / f.cpu_best,
+            forward_us_per_step=f.best / N * 1e6,
         )
     # gradient check: central finite differences of the forward program (default config)
-    f, g = compiled[configs[0]]
+    f, g = (t.fn for t in timings[configs[0]])
     gI, gw = g(I, w0)
     h = 1e-6
     fd_w = np.array([(f(I, w0.at[i].add(h)) - f(I, w0.at[i].add(-h))) / (2 * h) for i in range(3)])
@@ -334,7 +332,7 @@ def grad_worker(N: int, configs: list[str], repeats: int) -> dict:
         grad_consistency_across_configs=float(
             max(
                 np.abs(
-                    np.concatenate([np.asarray(x).ravel() for x in compiled[c][1](I, w0)]) - ad
+                    np.concatenate([np.asarray(x).ravel() for x in timings[c][1].fn(I, w0)]) - ad
                 ).max()
                 for c in configs
             )
@@ -347,13 +345,10 @@ def grad_worker(N: int, configs: list[str], repeats: int) -> dict:
 
 
 def run_worker(args: list[str]) -> dict:
-    cmd = [sys.executable, str(Path(__file__).resolve()), *args]
-    t0 = time.perf_counter()
-    p = subprocess.run(cmd, capture_output=True, text=True, check=False)
-    if p.returncode != 0:
+    res, wall, p = fresh_process(__file__, *args)
+    if res is None:
         return dict(error=p.stderr[-4000:], returncode=p.returncode)
-    res = json.loads(p.stdout.strip().splitlines()[-1])
-    res["process_wall_s"] = round(time.perf_counter() - t0, 2)
+    res["process_wall_s"] = round(wall, 2)
     return res
 
 
@@ -489,10 +484,7 @@ def print_table(out: dict) -> None:
             )
         fd = r["grad_check_max_abs_diff_vs_central_fd_rel"]
         print(f"{'':>6} peak RSS MiB {r['maxrss_mib']}; grad vs central FD (rel) {fd:.1e}")
-    print(
-        f"load average start {out['load_average_start']}, end {out['load_average_end']}; "
-        f"total {out['total_wall_s']:.0f} s"
-    )
+    print(load_report(out))
 
 
 def parse_args(argv=None) -> argparse.Namespace:

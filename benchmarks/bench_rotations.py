@@ -43,7 +43,7 @@ jax.config.update("jax_enable_x64", True)  # the benchmark's choice; rigidjax ne
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-from _harness import aot_compile, block, load_average, machine_info, repeat, summary, write_json  # noqa: E402
+from _harness import Timing, load_average, machine_info, measure, write_json  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
 from rigidjax import euler, quat, so3  # noqa: E402
@@ -178,29 +178,26 @@ def make_inputs(n: int, seed: int) -> dict[str, np.ndarray]:
 # --------------------------------------------------------------------------- timing
 
 
-def _summary(times: list[float], n: int) -> dict:
-    return {**summary(times), "rotations_per_s": n / min(times)}
+def _rates(t: Timing, n: int) -> dict:
+    return {**t.summary(), "rotations_per_s": n / t.best}
 
 
 def time_scipy(fn: Callable, x: np.ndarray, repeats: int) -> tuple[dict, np.ndarray]:
-    """Time a NumPy → NumPy SciPy call; returns the summary and the (warm-up) result."""
+    """Time a NumPy → NumPy SciPy call after one warm-up call; returns the summary and result."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # SciPy warns on gimbal lock in as_euler
-        out = fn(x)
-        times = repeat(fn, x, repeats=repeats)
-    return _summary(times, len(x)), out
+        t = measure(fn, x, repeats=repeats, aot=False)
+    return _rates(t, len(x)), t.output
 
 
 def time_jax(fn: Callable, x: np.ndarray, dtype, repeats: int) -> tuple[dict, np.ndarray]:
     """AOT-compile `fn` for `x` cast to `dtype`, warm up once, then time `repeats` calls."""
     xd = jax.device_put(jnp.asarray(x, dtype=dtype))
-    compiled, c = aot_compile(fn, xd)
-    out = block(compiled(xd))
-    times = repeat(compiled, xd, repeats=repeats)
-    summary = _summary(times, len(x))
-    summary["compile_s"] = c["total_s"]
-    summary["output_dtype"] = str(out.dtype)
-    return summary, np.asarray(out, dtype=np.float64)
+    t = measure(fn, xd, repeats=repeats)
+    summary = _rates(t, len(x))
+    summary["compile_s"] = t.trace_lower_compile_s
+    summary["output_dtype"] = str(t.output.dtype)
+    return summary, np.asarray(t.output, dtype=np.float64)
 
 
 # --------------------------------------------------------------------------- accuracy
