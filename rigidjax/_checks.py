@@ -4,15 +4,19 @@ ValueError on concrete input and an `equinox.error_if` under tracing, with the s
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import equinox as eqx
 import jax
+import jax.core
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike
+from jaxtyping import Array, DTypeLike, Float
+
+from ._custom_types import Mat33, RealLike
 
 
-def as_float(x: ArrayLike, name: str = "x") -> Array:
+def as_float(x: RealLike, name: str = "x") -> Float[Array, "..."]:
     """`x` as a floating JAX array (integers are promoted to the default float dtype)."""
     try:
         x = jnp.asarray(x)
@@ -25,7 +29,7 @@ def as_float(x: ArrayLike, name: str = "x") -> Array:
     return x
 
 
-def floats(*args: tuple[ArrayLike, str]) -> list[Array]:
+def floats(*args: tuple[RealLike, str]) -> list[Float[Array, "..."]]:
     """`(x, name)` pairs as float arrays of one common (promoted) dtype, shapes untouched."""
     xs = [as_float(x, name) for x, name in args]
     dtype = jnp.result_type(*xs)
@@ -40,28 +44,28 @@ def check_shape(x: Array, trailing: Sequence[int], name: str) -> None:
         raise ValueError(f"{name} must have shape {want}, got {tuple(x.shape)}")
 
 
-def vector(x: ArrayLike, n: int, name: str) -> Array:
+def vector(x: RealLike, n: int, name: str) -> Float[Array, "*batch _"]:
     """Float array with trailing dimension `n`, checked."""
     x = as_float(x, name)
     check_shape(x, (n,), name)
     return x
 
 
-def matrix(x: ArrayLike, name: str) -> Array:
+def matrix(x: RealLike, name: str) -> Mat33:
     """Float array with trailing shape (3, 3), checked."""
     x = as_float(x, name)
     check_shape(x, (3, 3), name)
     return x
 
 
-def is_concrete(x) -> bool:
+def is_concrete(x: object) -> bool:
     """True unless `x` is a tracer (inside jit/vmap/grad): its values can be checked now."""
     return not isinstance(x, jax.core.Tracer)
 
 
 def validate(
     x: Array,
-    bad: Callable,
+    bad: Callable[[Any, Any], Any],
     message: str,
     detail: Callable[[np.ndarray], str] | None = None,
     *,
@@ -101,7 +105,7 @@ def check_positive(x: Array, name: str) -> Array:
     )
 
 
-def norm_tolerance(dtype) -> float:
+def norm_tolerance(dtype: DTypeLike) -> float:
     """Tolerance of the checks of unit quaternions and vectors and of rotation matrices: 1e-6 in
     float64, 1e-4 in lower precision."""
     return 1e-6 if dtype == jnp.float64 else 1e-4
@@ -117,10 +121,10 @@ def check_unit_norm(x: Array, name: str, hint: str = "") -> Array:
     if not hint:
         hint = "; normalise it with rigidjax.quat.normalize" if quaternion else "; normalise it"
 
-    def bad(xp, v):
+    def bad(xp: Any, v: Any) -> Any:
         return ~(xp.abs(xp.sqrt(xp.sum(v * v, axis=-1)) - 1) <= tol)
 
-    def detail(v):
+    def detail(v: np.ndarray) -> str:
         n = np.linalg.norm(v, axis=-1)
         if n.ndim == 0:
             return f": |{name}| = {n:.9g}"
@@ -131,7 +135,7 @@ def check_unit_norm(x: Array, name: str, hint: str = "") -> Array:
     return validate(x, bad, f"{name} must be a unit {what}", detail, hint=hint)
 
 
-def initial_vector(x: ArrayLike, n: int, name: str, dtype) -> Array:
+def initial_vector(x: RealLike, n: int, name: str, dtype: DTypeLike) -> Float[Array, " n"]:
     """One finite `(n,)` vector of `dtype`, for integrators that take a single state (a batch
     gets an error pointing to `jax.vmap`)."""
     x = vector(x, n, name).astype(dtype)
@@ -140,12 +144,12 @@ def initial_vector(x: ArrayLike, n: int, name: str, dtype) -> Array:
     return check_finite(x, name)
 
 
-def check_times(ts: Array) -> Array:
+def check_times(ts: Array) -> Float[Array, " T"]:
     """`ts` as a 1-D strictly increasing array of at least two times (clear error otherwise)."""
     if ts.ndim != 1 or ts.shape[0] < 2:
         raise ValueError(f"ts must be a 1-D array of at least 2 times, got shape {tuple(ts.shape)}")
 
-    def detail(t):
+    def detail(t: np.ndarray) -> str:
         k = int(np.flatnonzero(~(np.diff(t) > 0))[0])
         return f": ts[{k + 1}] = {t[k + 1]} follows ts[{k}] = {t[k]}"
 

@@ -6,10 +6,10 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 
 import jax.numpy as jnp
-from jaxtyping import Array
+from jaxtyping import Array, DTypeLike, Float
 
 
-def small_threshold(dtype) -> float:
+def small_threshold(dtype: DTypeLike) -> float:
     """Below this value of θ² the truncated Taylor series is used instead of the closed form.
 
     Four-term series are accurate to ~x⁴/9! there; the closed forms lose ~eps/x to cancellation
@@ -18,7 +18,11 @@ def small_threshold(dtype) -> float:
     return 1e-2 if jnp.finfo(dtype).eps < 1e-10 else 1e-1
 
 
-def guarded(x2: Array, exact: Callable[[Array], Array], series: Callable[[Array], Array]) -> Array:
+def guarded(
+    x2: Float[Array, "*shape"],
+    exact: Callable[[Array], Array],
+    series: Callable[[Array], Array],
+) -> Float[Array, "*shape"]:
     """Evaluate f(x²) by `series` near 0 and `exact` elsewhere, with finite values AND gradients.
 
     The double-`where` trick: the exact branch is fed a harmless value where it is not selected,
@@ -29,7 +33,7 @@ def guarded(x2: Array, exact: Callable[[Array], Array], series: Callable[[Array]
     return jnp.where(small, series(x2), exact(x2_safe))
 
 
-def poly(x: Array, coeffs: Sequence[float]) -> Array:
+def poly(x: Float[Array, "*shape"], coeffs: Sequence[float]) -> Float[Array, "*shape"]:
     """Horner evaluation of Σ coeffs[k] x^k."""
     out = jnp.full_like(x, coeffs[-1])
     for c in reversed(coeffs[:-1]):
@@ -37,7 +41,7 @@ def poly(x: Array, coeffs: Sequence[float]) -> Array:
     return out
 
 
-def safe_sqrt(x: Array) -> Array:
+def safe_sqrt(x: Float[Array, "*shape"]) -> Float[Array, "*shape"]:
     """`√max(x, 0)` with a finite (zero) gradient at and below 0 (double-`where`)."""
     pos = x > 0
     return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, jnp.ones_like(x))), jnp.zeros_like(x))

@@ -14,9 +14,10 @@ import math
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike
+from jaxtyping import Array
 
 from .._checks import as_float, floats
+from .._custom_types import Scalar, ScalarLike
 
 # Arithmetic–geometric mean steps. From b0 = √(1 − m) the ratio b/a first grows like 2√(b/a) per
 # step, then c/a falls quadratically: 14 steps reach c/a < 1e-20 for any 1 − m ≥ 1e-300 (13 are
@@ -106,7 +107,7 @@ def _split_m(m: Array) -> tuple[Array, Array, Array, Array]:
 
 
 @jax.jit
-def ellipj(u: ArrayLike, m: ArrayLike) -> tuple[Array, Array, Array, Array]:
+def ellipj(u: ScalarLike, m: ScalarLike) -> tuple[Scalar, Scalar, Scalar, Scalar]:
     """Jacobi elliptic functions `(sn, cn, dn, am)(u|m)`, like `scipy.special.ellipj`.
 
     Parameter convention of A&S 16.1 (and SciPy): `m = k²`, 0 ≤ m ≤ 1;
@@ -122,34 +123,35 @@ def ellipj(u: ArrayLike, m: ArrayLike) -> tuple[Array, Array, Array, Array]:
     th, se = jnp.tanh(u), _sech(u)
     gd = 2 * jnp.arctan(jnp.tanh(0.5 * u))
     nan = jnp.asarray(jnp.nan, s.dtype)
-    out = []
-    for x, x1 in ((s, th), (c, se), (d, se), (ph, gd)):
-        out.append(jnp.where(bad, nan, jnp.where(one, x1, x)))
-    return tuple(out)
+
+    def pick(x: Array, x1: Array) -> Array:
+        return jnp.where(bad, nan, jnp.where(one, x1, x))
+
+    return pick(s, th), pick(c, se), pick(d, se), pick(ph, gd)
 
 
-def sn(u: ArrayLike, m: ArrayLike) -> Array:
+def sn(u: ScalarLike, m: ScalarLike) -> Scalar:
     """Jacobi `sn(u|m)` (see `ellipj`)."""
     return ellipj(u, m)[0]
 
 
-def cn(u: ArrayLike, m: ArrayLike) -> Array:
+def cn(u: ScalarLike, m: ScalarLike) -> Scalar:
     """Jacobi `cn(u|m)` (see `ellipj`)."""
     return ellipj(u, m)[1]
 
 
-def dn(u: ArrayLike, m: ArrayLike) -> Array:
+def dn(u: ScalarLike, m: ScalarLike) -> Scalar:
     """Jacobi `dn(u|m)` (see `ellipj`)."""
     return ellipj(u, m)[2]
 
 
-def am(u: ArrayLike, m: ArrayLike) -> Array:
+def am(u: ScalarLike, m: ScalarLike) -> Scalar:
     """Jacobi amplitude `am(u|m)`, the inverse of `ellipkinc` in φ (see `ellipj`)."""
     return ellipj(u, m)[3]
 
 
 @jax.jit
-def ellipk(m: ArrayLike) -> Array:
+def ellipk(m: ScalarLike) -> Scalar:
     """Complete elliptic integral of the first kind `K(m) = ∫₀^{π/2} dθ/√(1 − m sin²θ)`
     `= π / (2 AGM(1, √(1 − m)))` (A&S 17.6), like `scipy.special.ellipk`; `K(1) = ∞`, NaN for
     m > 1 or m < 0 (SciPy extends to m < 0; this does not)."""
@@ -160,7 +162,7 @@ def ellipk(m: ArrayLike) -> Array:
 
 
 @jax.jit
-def ellipkm1(p: ArrayLike) -> Array:
+def ellipkm1(p: ScalarLike) -> Scalar:
     """`K(1 − p)` accurate for small `p` (the complementary parameter), like
     `scipy.special.ellipkm1`: the AGM starts from `√p` directly. `p` in (0, 1]; ∞ at p = 0."""
     p = as_float(p, "p")
@@ -172,7 +174,7 @@ def ellipkm1(p: ArrayLike) -> Array:
 
 
 @jax.jit
-def ellipkinc(phi: ArrayLike, m: ArrayLike) -> Array:
+def ellipkinc(phi: ScalarLike, m: ScalarLike) -> Scalar:
     """Incomplete elliptic integral of the first kind `F(φ|m) = ∫₀^φ dθ/√(1 − m sin²θ)`, like
     `scipy.special.ellipkinc`, for any real φ (`F(φ + π) = F(φ) + 2K`) and 0 ≤ m ≤ 1
     (`F(φ|1) = asinh(tan φ)` for |φ| < π/2, ±∞ beyond). Ascending Landen transformation (the

@@ -20,9 +20,10 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, Float, Int
 
 from .._checks import as_float, floats, vector
+from .._custom_types import Quat, QuatLike, RealScalarLike, Scalar, TimesLike, Vec3, Vec3Like
 from .._numerics import safe_sqrt
 from ..rotations import quat
 from .elliptic import _ellipf, _ellipj, _ellipk, _sech
@@ -63,15 +64,14 @@ from .elliptic import _ellipf, _ellipj, _ellipk, _sech
 class FreeBodyParameters(NamedTuple):
     """Constants of the Euler–Poinsot motion (see `free_rigid_body_parameters`)."""
 
-    k2: Array  # elliptic parameter m = k²  (1 on the separatrix, 0 for a symmetric top / sphere)
-    lam: Array  # |λ|: τ = u0 ± λ t  (0 for a sphere or Ω = 0)
-    K: Array  # K(k²) (∞ on the separatrix)
-    period: Array  # 4K/|λ|, the period of Ω(t) (∞ on the separatrix, for a sphere or Ω = 0)
-    regime: (
-        Array  # +1 around the largest axis (M² > 2E I_mid), −1 around the smallest, 0 separatrix
-    )
-    energy: Array  # kinetic energy T = ½ Ω·IΩ
-    momentum: Array  # |M| = |IΩ|
+    k2: Scalar  # elliptic parameter m = k²  (1 on the separatrix, 0 for a symmetric top / sphere)
+    lam: Scalar  # |λ|: τ = u0 ± λ t  (0 for a sphere or Ω = 0)
+    K: Scalar  # K(k²) (∞ on the separatrix)
+    period: Scalar  # 4K/|λ|, the period of Ω(t) (∞ on the separatrix, for a sphere or Ω = 0)
+    # +1 around the largest axis (M² > 2E I_mid), −1 around the smallest, 0 separatrix
+    regime: Int[Array, "*#batch"]
+    energy: Scalar  # kinetic energy T = ½ Ω·IΩ
+    momentum: Scalar  # |M| = |IΩ|
 
 
 _DUMMY_I = (1.0, 2.0, 3.0)
@@ -229,7 +229,9 @@ def _omega(p: _Plan, t: Array, per: Array | None = None) -> Array:
     return jnp.where(p.trivial, jnp.broadcast_to(p.w_orig, out.shape), out)
 
 
-def _body_inputs(inertia, omega0, ts=None):
+def _body_inputs(
+    inertia: Vec3Like, omega0: Vec3Like, ts: TimesLike | None = None
+) -> list[Float[Array, "..."]]:
     names = ("inertia", "omega0") + (() if ts is None else ("ts",))
     args = (inertia, omega0) + (() if ts is None else (ts,))
     out = floats(*zip(args, names, strict=True))
@@ -239,8 +241,8 @@ def _body_inputs(inertia, omega0, ts=None):
 
 
 def free_rigid_body(
-    inertia: ArrayLike, omega0: ArrayLike, ts: ArrayLike, t0: ArrayLike = 0.0
-) -> Float[Array, "... T 3"]:
+    inertia: Vec3Like, omega0: Vec3Like, ts: TimesLike, t0: RealScalarLike = 0.0
+) -> Float[Array, "*#batch T 3"] | Vec3:
     """Closed-form body angular velocity of the torque-free rigid body (Euler–Poinsot).
 
     `inertia`: principal moments `(..., 3)` in any order (positive; equal moments allowed);
@@ -280,7 +282,7 @@ def _free_rigid_body_jit(inertia, omega0, ts, t0):
     return jnp.vectorize(one, signature="(3),(3),(t)->(t,3)")(inertia, omega0, ts)
 
 
-def free_rigid_body_parameters(inertia: ArrayLike, omega0: ArrayLike) -> FreeBodyParameters:
+def free_rigid_body_parameters(inertia: Vec3Like, omega0: Vec3Like) -> FreeBodyParameters:
     """`FreeBodyParameters(k2, lam, K, period, regime, energy, momentum)` of the Euler–Poinsot
     motion started at `omega0` (see `free_rigid_body` for the formulas); batch dims broadcast.
 
@@ -307,14 +309,14 @@ def free_rigid_body_parameters(inertia: ArrayLike, omega0: ArrayLike) -> FreeBod
     return FreeBodyParameters(*out)
 
 
-def flip_period(inertia: ArrayLike, omega0: ArrayLike) -> Array:
+def flip_period(inertia: Vec3Like, omega0: Vec3Like) -> Scalar:
     """Period of the body angular velocity, `4K(k²)/|λ|` (see `free_rigid_body`); the time
     between two successive flips (sign changes of the middle-axis component) is half of it.
     ∞ on the separatrix, for a spherical top and for Ω = 0."""
     return free_rigid_body_parameters(inertia, omega0).period
 
 
-def time_of_first_flip(inertia: ArrayLike, omega0: ArrayLike) -> Array:
+def time_of_first_flip(inertia: Vec3Like, omega0: Vec3Like) -> Scalar:
     """First time t > 0 at which the middle-axis component of Ω changes sign (the first flip of
     the tennis-racket effect), in closed form; ∞ if it never does (steady rotations, the
     separatrix after its single crossing, spheres, Ω = 0). A zero at t = 0 itself is not counted.
@@ -442,12 +444,12 @@ def _attitude(p: _Plan, q0: Array, t: Array) -> Array:
 
 
 def free_rigid_body_attitude(
-    inertia: ArrayLike,
-    omega0: ArrayLike,
-    q0: ArrayLike | None,
-    ts: ArrayLike,
-    t0: ArrayLike = 0.0,
-) -> Float[Array, "... T 4"]:
+    inertia: Vec3Like,
+    omega0: Vec3Like,
+    q0: QuatLike | None,
+    ts: TimesLike,
+    t0: RealScalarLike = 0.0,
+) -> Float[Array, "*#batch T 4"] | Quat:
     """Attitude quaternions `(..., T, 4)` (scalar-first, λ0 ≥ 0, P maps body → space) of the
     torque-free rigid body with principal moments `inertia`, body angular velocity `omega0` and
     attitude `q0` (identity if None) at time `t0`.

@@ -11,9 +11,20 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, Float
 
 from .._checks import as_float, floats, vector
+from .._custom_types import (
+    Quat,
+    QuatLike,
+    RealLike,
+    RealScalarLike,
+    Scalar,
+    ScalarLike,
+    TimesLike,
+    Vec3,
+    Vec3Like,
+)
 from .._numerics import safe_sqrt
 from ..rotations import quat
 
@@ -25,13 +36,15 @@ from ..rotations import quat
 class SymmetricTopPrecession(NamedTuple):
     """Regular precession of a free symmetric top (see `symmetric_top_precession`)."""
 
-    precession_rate: Array  # |M|/I1: rate of the symmetry axis (and of P) about the fixed M
-    spin: Array  # Ω3, constant component of Ω along the symmetry axis, = (|M|/I3) cos θ
-    body_rate: Array  # ω = Ω3 (I3 − I1)/I1: rate of (Ω1, Ω2) about the symmetry axis in the body
-    nutation: Array  # θ ∈ [0, π]: constant angle between the symmetry axis and M
+    precession_rate: Scalar  # |M|/I1: rate of the symmetry axis (and of P) about the fixed M
+    spin: Scalar  # Ω3, constant component of Ω along the symmetry axis, = (|M|/I3) cos θ
+    body_rate: Scalar  # ω = Ω3 (I3 − I1)/I1: rate of (Ω1, Ω2) about the symmetry axis in the body
+    nutation: Scalar  # θ ∈ [0, π]: constant angle between the symmetry axis and M
 
 
-def _top_inputs(I1, I3, omega0, *more):
+def _top_inputs(
+    I1: ScalarLike, I3: ScalarLike, omega0: Vec3Like, *more: RealLike
+) -> list[Float[Array, "..."]]:
     names = ("I1", "I3", "omega0", "ts", "q0")[: 3 + len(more)]
     out = floats(*zip((I1, I3, omega0, *more), names, strict=True))
     vector(out[2], 3, "omega0")
@@ -40,7 +53,7 @@ def _top_inputs(I1, I3, omega0, *more):
 
 @jax.jit
 def symmetric_top_precession(
-    I1: ArrayLike, I3: ArrayLike, omega0: ArrayLike
+    I1: ScalarLike, I3: ScalarLike, omega0: Vec3Like
 ) -> SymmetricTopPrecession:
     """Regular precession of the free symmetric top `I1 = I2 ≠ I3` (symmetry axis = body z):
     precession rate `|M|/I1`, spin `Ω3 = (|M|/I3) cos θ`, body rate `ω = Ω3 (I3 − I1)/I1` and the
@@ -60,8 +73,8 @@ def symmetric_top_precession(
 
 @jax.jit
 def symmetric_top(
-    I1: ArrayLike, I3: ArrayLike, omega0: ArrayLike, ts: ArrayLike, t0: ArrayLike = 0.0
-) -> Float[Array, "... T 3"]:
+    I1: ScalarLike, I3: ScalarLike, omega0: Vec3Like, ts: TimesLike, t0: RealScalarLike = 0.0
+) -> Float[Array, "*#batch T 3"] | Vec3:
     """Body angular velocity `(..., T, 3)` of the free symmetric top `I1 = I2`, `I3` (symmetry
     axis = body z): `Ω3 = const`, `Ω1 + iΩ2 = (Ω1(t0) + iΩ2(t0)) e^{iω(t − t0)}`,
     `ω = Ω3 (I3 − I1)/I1` (from `I1 Ω̇1 = (I1 − I3) Ω2 Ω3`, `I1 Ω̇2 = (I3 − I1) Ω3 Ω1`; the sign
@@ -77,13 +90,13 @@ def symmetric_top(
 
 @jax.jit
 def symmetric_top_attitude(
-    I1: ArrayLike,
-    I3: ArrayLike,
-    omega0: ArrayLike,
-    q0: ArrayLike | None,
-    ts: ArrayLike,
-    t0: ArrayLike = 0.0,
-) -> Float[Array, "... T 4"]:
+    I1: ScalarLike,
+    I3: ScalarLike,
+    omega0: Vec3Like,
+    q0: QuatLike | None,
+    ts: TimesLike,
+    t0: RealScalarLike = 0.0,
+) -> Float[Array, "*#batch T 4"] | Quat:
     """Attitude `(..., T, 4)` of the free symmetric top (symmetry axis = body z): regular
     precession about the fixed angular momentum,
         `P(t) = R(M̂, (|M|/I1)(t − t0)) P0 R(e_z, −ω(t − t0))`,
@@ -106,11 +119,11 @@ def symmetric_top_attitude(
 
 
 def fixed_axis_rotation(
-    axis: ArrayLike,
-    angle: ArrayLike | Callable[[Array], Array],
-    ts: ArrayLike,
-    q0: ArrayLike | None = None,
-) -> Float[Array, "... T 4"]:
+    axis: Vec3Like,
+    angle: ScalarLike | Callable[[Array], Array],
+    ts: TimesLike,
+    q0: QuatLike | None = None,
+) -> Float[Array, "*#batch T 4"]:
     """Rotation about a space-fixed axis (Zhilin 3.13): `ω = θ̇(t) n`, `P(t) = exp(θ(t) n × E) P0`
     with `θ(t) = ∫₀ᵗ ω`. `angle`: a callable `θ(t)` (vectorised over `ts`, θ(0) = 0 expected) or a
     constant rate ω (then θ = ω t). `axis` `(..., 3)` is normalised. Returns quaternions

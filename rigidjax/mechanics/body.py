@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array
 
 from .._checks import as_float, check_positive
+from .._custom_types import InertiaLike, Mat33, Scalar, ScalarLike, Vec3
 from .inertia import as_tensor, check_inertia, principal_axes
 
 
@@ -19,11 +20,11 @@ class RigidBody(eqx.Module):
     condition. Leading dimensions describe a batch of bodies.
     """
 
-    inertia: Float[Array, "*batch 3 3"]
-    mass: Float[Array, "*batch"]
+    inertia: Mat33
+    mass: Scalar
     diagonal: bool = eqx.field(static=True)
 
-    def __init__(self, inertia: ArrayLike, mass: ArrayLike = 1.0, *, check: bool = True):
+    def __init__(self, inertia: InertiaLike, mass: ScalarLike = 1.0, *, check: bool = True):
         inertia = as_float(inertia, "inertia")
         # principal moments given: the tensor is diagonal by construction (a static fact that
         # lets the integrators use elementwise Euler equations)
@@ -41,12 +42,12 @@ class RigidBody(eqx.Module):
         self.mass = m
 
     @property
-    def principal_moments(self) -> Float[Array, "*batch 3"]:
+    def principal_moments(self) -> Vec3:
         """Principal moments, ascending."""
         return principal_axes(self.inertia)[0]
 
     @property
-    def principal_axes(self) -> Float[Array, "*batch 3 3"]:
+    def principal_axes(self) -> Mat33:
         """Principal axes as the columns of a rotation matrix (body components)."""
         return principal_axes(self.inertia)[1]
 
@@ -54,7 +55,7 @@ class RigidBody(eqx.Module):
     def batch_shape(self) -> tuple[int, ...]:
         return tuple(self.inertia.shape[:-2])
 
-    def operator(self) -> tuple[Array, Array]:
+    def operator(self) -> tuple[Mat33 | Vec3, Mat33 | Vec3]:
         """`(I, I⁻¹)` for `euler_rhs`: the principal moments `(..., 3)` and their reciprocals for
         a diagonal body, else the tensor and its inverse `(..., 3, 3)`."""
         if self.diagonal:
@@ -71,7 +72,7 @@ def _apply(A: Array, x: Array) -> Array:
     return jnp.sum(A * x[..., None, :], axis=-1)
 
 
-def euler_rhs(inertia: Array, inertia_inv: Array, omega: Array, torque: Array) -> Array:
+def euler_rhs(inertia: Mat33 | Vec3, inertia_inv: Mat33 | Vec3, omega: Vec3, torque: Vec3) -> Vec3:
     """Euler's equations `I Ω̇ + Ω × IΩ = K` solved for Ω̇ (Zegrya–Parshin 004; in principal
     axes `I1 Ω̇1 + (I3 − I2) Ω2 Ω3 = K1`, cyclic). `inertia`, `inertia_inv` as from
     `RigidBody.operator()`: moments `(..., 3)` or tensors `(..., 3, 3)`."""

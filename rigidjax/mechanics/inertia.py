@@ -14,18 +14,24 @@ Primitives are given about their centre of mass in their symmetry axes (symmetry
 from __future__ import annotations
 
 import math
+from typing import Annotated, Any
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Bool, DTypeLike
 
-from .._checks import as_float, check_shape, floats, matrix, vector
-
-Scalar = Float[Array, "*batch"]
-Vec = Float[Array, "*batch 3"]
-Mat = Float[Array, "*batch 3 3"]
+from .._checks import as_float, check_shape, floats, is_concrete, matrix, vector
+from .._custom_types import (
+    InertiaLike,
+    Mat33,
+    Mat33Like,
+    RealLike,
+    Scalar,
+    ScalarLike,
+    Vec3,
+    Vec3Like,
+)
 
 __all__ = [
     "as_tensor",
@@ -47,7 +53,7 @@ __all__ = [
 ]
 
 
-def _diag(a: Array, b: Array, c: Array) -> Mat:
+def _diag(a: Scalar, b: Scalar, c: Scalar) -> Mat33:
     """Diagonal tensor diag(a, b, c) with the broadcast batch shape of a, b, c."""
     a, b, c = jnp.broadcast_arrays(a, b, c)
     z = jnp.zeros_like(a)
@@ -56,7 +62,7 @@ def _diag(a: Array, b: Array, c: Array) -> Mat:
     )
 
 
-def _sym(a: Array) -> Mat:
+def _sym(a: Vec3) -> Mat33:
     """The tensor `a² E − a a` (the point-mass tensor of unit mass at `a`)."""
     eye = jnp.eye(3, dtype=a.dtype)
     a2 = jnp.sum(a * a, axis=-1)[..., None, None]
@@ -66,7 +72,9 @@ def _sym(a: Array) -> Mat:
 # --------------------------------------------------------------------------- point masses
 
 
-def point_masses(masses: ArrayLike, positions: ArrayLike) -> Mat:
+def point_masses(
+    masses: Annotated[RealLike, "*#batch N"], positions: Annotated[RealLike, "*#batch N 3"]
+) -> Mat33:
     """Inertia tensor of point masses about the origin (Zegrya–Parshin (004)):
     `I_ik = Σ m (x_l² δ_ik − x_i x_k)`.
 
@@ -87,7 +95,9 @@ def point_masses(masses: ArrayLike, positions: ArrayLike) -> Mat:
     )
 
 
-def center_of_mass(masses: ArrayLike, positions: ArrayLike) -> Vec:
+def center_of_mass(
+    masses: Annotated[RealLike, "*#batch N"], positions: Annotated[RealLike, "*#batch N 3"]
+) -> Vec3:
     """`R = Σ m x / Σ m` for `masses` (..., N), `positions` (..., N, 3)."""
     m, x = floats((masses, "masses"), (positions, "positions"))
     check_shape(x, (3,), "positions")
@@ -102,21 +112,21 @@ def center_of_mass(masses: ArrayLike, positions: ArrayLike) -> Vec:
 # --------------------------------------------------------------------------- primitives
 
 
-def solid_sphere(mass: ArrayLike, radius: ArrayLike) -> Mat:
+def solid_sphere(mass: ScalarLike, radius: ScalarLike) -> Mat33:
     """Homogeneous ball about its centre: `I = 2/5 m r² E`."""
     m, r = floats((mass, "mass"), (radius, "radius"))
     i = 0.4 * m * r**2
     return _diag(i, i, i)
 
 
-def spherical_shell(mass: ArrayLike, radius: ArrayLike) -> Mat:
+def spherical_shell(mass: ScalarLike, radius: ScalarLike) -> Mat33:
     """Thin spherical shell about its centre: `I = 2/3 m r² E`."""
     m, r = floats((mass, "mass"), (radius, "radius"))
     i = (2.0 / 3.0) * m * r**2
     return _diag(i, i, i)
 
 
-def box(mass: ArrayLike, size: ArrayLike) -> Mat:
+def box(mass: ScalarLike, size: Vec3Like) -> Mat33:
     """Homogeneous rectangular box with full edge lengths `size = (a, b, c)` (..., 3) along
     x, y, z, about its centre: `diag(b² + c², a² + c², a² + b²) m/12`."""
     m, s = floats((mass, "mass"), (size, "size"))
@@ -126,7 +136,7 @@ def box(mass: ArrayLike, size: ArrayLike) -> Mat:
     return _diag(k * (b2 + c2), k * (a2 + c2), k * (a2 + b2))
 
 
-def solid_cylinder(mass: ArrayLike, radius: ArrayLike, height: ArrayLike) -> Mat:
+def solid_cylinder(mass: ScalarLike, radius: ScalarLike, height: ScalarLike) -> Mat33:
     """Homogeneous solid cylinder, axis z, about its centre:
     `I_zz = ½ m r²`, `I_xx = I_yy = m (3 r² + h²)/12`."""
     m, r, h = floats((mass, "mass"), (radius, "radius"), (height, "height"))
@@ -134,7 +144,7 @@ def solid_cylinder(mass: ArrayLike, radius: ArrayLike, height: ArrayLike) -> Mat
     return _diag(i, i, 0.5 * m * r**2)
 
 
-def rod(mass: ArrayLike, length: ArrayLike) -> Mat:
+def rod(mass: ScalarLike, length: ScalarLike) -> Mat33:
     """Thin rod along z about its centre: `I_xx = I_yy = m L²/12`, `I_zz = 0` — the "rotator"
     of Zegrya–Parshin (004). Singular: not accepted by `check_inertia` (no inverse)."""
     m, L = floats((mass, "mass"), (length, "length"))
@@ -142,7 +152,7 @@ def rod(mass: ArrayLike, length: ArrayLike) -> Mat:
     return _diag(i, i, jnp.zeros_like(i))
 
 
-def ellipsoid(mass: ArrayLike, semi_axes: ArrayLike) -> Mat:
+def ellipsoid(mass: ScalarLike, semi_axes: Vec3Like) -> Mat33:
     """Homogeneous solid ellipsoid with semi-axes `(a, b, c)` (..., 3) along x, y, z:
     `diag(b² + c², a² + c², a² + b²) m/5`."""
     m, s = floats((mass, "mass"), (semi_axes, "semi_axes"))
@@ -152,7 +162,7 @@ def ellipsoid(mass: ArrayLike, semi_axes: ArrayLike) -> Mat:
     return _diag(k * (b2 + c2), k * (a2 + c2), k * (a2 + b2))
 
 
-def solid_cone(mass: ArrayLike, radius: ArrayLike, height: ArrayLike) -> Mat:
+def solid_cone(mass: ScalarLike, radius: ScalarLike, height: ScalarLike) -> Mat33:
     """Homogeneous solid right circular cone, axis z, about its centre of mass (which lies on
     the axis at h/4 from the base: base at z = −h/4, apex at z = +3h/4):
     `I_zz = 3/10 m r²`, `I_xx = I_yy = 3/20 m r² + 3/80 m h²`."""
@@ -165,8 +175,8 @@ def solid_cone(mass: ArrayLike, radius: ArrayLike, height: ArrayLike) -> Mat:
 
 
 def parallel_axis(
-    I_com: ArrayLike, mass: ArrayLike, offset: ArrayLike, *, to_com: bool = False
-) -> Mat:
+    I_com: Mat33Like, mass: ScalarLike, offset: Vec3Like, *, to_com: bool = False
+) -> Mat33:
     """Steiner's (Huygens–Steiner) theorem, Zegrya–Parshin (004) (11.33):
     `Ĩ_ik = I_ik + m (a² δ_ik − a_i a_k)`.
 
@@ -181,7 +191,11 @@ def parallel_axis(
     return I - shift if to_com else I + shift
 
 
-def combine(inertias: ArrayLike, masses: ArrayLike, coms: ArrayLike) -> tuple[Mat, Scalar, Vec]:
+def combine(
+    inertias: Annotated[RealLike, "*#batch K 3 3"],
+    masses: Annotated[RealLike, "*#batch K"],
+    coms: Annotated[RealLike, "*#batch K 3"],
+) -> tuple[Mat33, Scalar, Vec3]:
     """Compound body from K parts (inertia tensors are additive, 004).
 
     `inertias` (..., K, 3, 3) each about its part's own centre of mass (in common axes),
@@ -211,14 +225,14 @@ def combine(inertias: ArrayLike, masses: ArrayLike, coms: ArrayLike) -> tuple[Ma
 # --------------------------------------------------------------------------- principal axes
 
 
-def principal_moments(I: ArrayLike) -> Vec:
+def principal_moments(I: Mat33Like) -> Vec3:
     """Principal moments (eigenvalues of the symmetric part of `I`), ascending, (..., 3).
     Gradients are finite also for repeated moments (symmetric / spherical tops)."""
     I = matrix(I, "I")
     return jnp.linalg.eigvalsh(I)
 
 
-def principal_axes(I: ArrayLike) -> tuple[Vec, Mat]:
+def principal_axes(I: Mat33Like) -> tuple[Vec3, Mat33]:
     """`(moments, axes)`: principal moments ascending (..., 3) and the principal axes as the
     COLUMNS of `axes` (..., 3, 3), right-handed (det = +1), so `I = axes diag(moments) axesᵀ`.
 
@@ -235,7 +249,7 @@ def principal_axes(I: ArrayLike) -> tuple[Vec, Mat]:
     return w, v
 
 
-def from_moments_and_axes(moments: ArrayLike, axes: ArrayLike | None = None) -> Mat:
+def from_moments_and_axes(moments: Vec3Like, axes: Mat33Like | None = None) -> Mat33:
     """`I = axes diag(moments) axesᵀ` (principal axes as columns of `axes`); `diag(moments)`
     when `axes` is None. Inverse of `principal_axes`."""
     w = vector(moments, 3, "moments")
@@ -247,7 +261,7 @@ def from_moments_and_axes(moments: ArrayLike, axes: ArrayLike | None = None) -> 
     return (A * w[..., None, :]) @ jnp.swapaxes(A, -1, -2)
 
 
-def as_tensor(inertia: ArrayLike) -> Mat:
+def as_tensor(inertia: InertiaLike) -> Mat33:
     """Inertia tensor from principal moments (..., 3) → diag, or a tensor (..., 3, 3) as is.
 
     Shapes ending in (3, 3) are read as tensors, so a batch of three moment vectors (3, 3) is
@@ -267,11 +281,11 @@ def as_tensor(inertia: ArrayLike) -> Mat:
 # --------------------------------------------------------------------------- validation
 
 
-def _default_rtol(dtype) -> float:
+def _default_rtol(dtype: DTypeLike) -> float:
     return max(1e-9, 1e3 * float(jnp.finfo(dtype).eps))
 
 
-def _violations(I, rtol: float, xp):
+def _violations(I: Any, rtol: float, xp: Any) -> tuple[Any, ...]:
     """Per-matrix diagnostics with the array module `xp` (numpy on concrete input, else jnp)."""
     asym = xp.max(xp.abs(I - xp.swapaxes(I, -1, -2)), axis=(-2, -1))
     size = xp.max(xp.abs(I), axis=(-2, -1))
@@ -286,7 +300,7 @@ def _violations(I, rtol: float, xp):
     return finite, asym, size, w, excess, bad_sym, bad_pd, bad_tri
 
 
-def check_inertia(I: ArrayLike, name: str = "inertia", rtol: float | None = None) -> Mat:
+def check_inertia(I: Mat33Like, name: str = "inertia", rtol: float | None = None) -> Mat33:
     """Return `I` (..., 3, 3) unchanged after checking it is a valid inertia tensor for dynamics:
 
     1. finite and symmetric: `max|I − Iᵀ| ≤ rtol · max|I|`;
@@ -301,7 +315,7 @@ def check_inertia(I: ArrayLike, name: str = "inertia", rtol: float | None = None
     """
     I = matrix(I, name)
     tol = _default_rtol(I.dtype) if rtol is None else float(rtol)
-    if isinstance(I, jax.core.Tracer):
+    if not is_concrete(I):
         _, _, _, _, _, bad_sym, bad_pd, bad_tri = _violations(I, tol, jnp)
         I = eqx.error_if(
             I,
@@ -328,7 +342,7 @@ def check_inertia(I: ArrayLike, name: str = "inertia", rtol: float | None = None
     batch = I.shape[:-2]
     problems = []
 
-    def first(mask) -> tuple[tuple[int, ...], str]:
+    def first(mask: Bool[np.ndarray, "*batch"] | np.bool_) -> tuple[tuple[int, ...], str]:
         """Index of the first offending matrix and, for a batch, how many offend."""
         idx = tuple(int(i) for i in np.argwhere(mask)[0]) if batch else ()
         at = f" ({int(mask.sum())} of {math.prod(batch)} in the batch; first at {idx})"

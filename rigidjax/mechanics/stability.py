@@ -49,9 +49,19 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Complex, Float, Int
+from jaxtyping import Array, Complex, Float, Int
 
-from .._checks import as_float, check_shape, matrix
+from .._checks import as_float, check_shape, is_concrete, matrix
+from .._custom_types import (
+    AxisLike,
+    InertiaLike,
+    Mat33,
+    Mat33Like,
+    Scalar,
+    ScalarLike,
+    Vec3,
+    Vec3Like,
+)
 from .body import euler_rhs
 from .inertia import as_tensor, check_inertia, principal_axes
 
@@ -70,11 +80,6 @@ __all__ = [
     "stationary_rotation",
 ]
 
-Scalar = Float[Array, "*batch"]
-Vec = Float[Array, "*batch 3"]
-Mat = Float[Array, "*batch 3 3"]
-AxisLike = int | Int[ArrayLike, "*batch"]
-
 STABLE, NEUTRAL, UNSTABLE = 1, 0, -1
 _NAMES = {STABLE: "stable", NEUTRAL: "neutral", UNSTABLE: "unstable"}
 
@@ -82,7 +87,7 @@ _NAMES = {STABLE: "stable", NEUTRAL: "neutral", UNSTABLE: "unstable"}
 # --------------------------------------------------------------------------- input handling
 
 
-def _inertia(inertia: ArrayLike) -> tuple[Array, bool]:
+def _inertia(inertia: InertiaLike) -> tuple[Mat33 | Vec3, bool]:
     """`(I, is_tensor)` after the validity checks of `rigidjax.inertia.check_inertia`."""
     I = as_float(inertia, "inertia")
     tensor = I.ndim >= 2 and I.shape[-2:] == (3, 3)
@@ -92,11 +97,11 @@ def _inertia(inertia: ArrayLike) -> tuple[Array, bool]:
     return (T if tensor else jnp.diagonal(T, axis1=-2, axis2=-1)), tensor
 
 
-def _axis(axis: AxisLike) -> Array:
+def _axis(axis: AxisLike) -> Int[Array, "*#batch"]:
     a = jnp.asarray(axis)
     if not jnp.issubdtype(a.dtype, jnp.integer):
         raise TypeError(f"axis must be an integer 0, 1 or 2, got dtype {a.dtype}")
-    if not isinstance(a, jax.core.Tracer):
+    if is_concrete(a):
         if not bool(jnp.all((a >= 0) & (a <= 2))):
             raise ValueError(f"axis must be 0, 1 or 2 (a principal axis), got {np.asarray(a)}")
         return a
@@ -129,7 +134,7 @@ def _kappa(moments: Array, k: Array) -> Array:
 # --------------------------------------------------------------------------- public API
 
 
-def stationary_rotation(inertia: ArrayLike, axis: AxisLike, omega0: ArrayLike = 1.0) -> Vec:
+def stationary_rotation(inertia: InertiaLike, axis: AxisLike, omega0: ScalarLike = 1.0) -> Vec3:
     """The stationary solution `Ω = Ω0 e_k` of the free Euler equations (body components):
     `omega0` times principal axis `axis` (see the module docstring for the axis convention)."""
     I, tensor = _inertia(inertia)
@@ -145,7 +150,7 @@ def _stationary(I, k, w0, tensor):
     return jnp.vectorize(one, signature=f"{_core(tensor)},(),()->(3)")(I, k, w0)
 
 
-def jacobian(inertia: ArrayLike, omega: ArrayLike) -> Mat:
+def jacobian(inertia: InertiaLike, omega: Vec3Like) -> Mat33:
     """`∂Ω̇/∂Ω` of the torque-free Euler equations `Ω̇ = −I⁻¹(Ω × IΩ)` at any `omega`
     (`jax.jacfwd` of `rigidjax.body.euler_rhs`); general tensor or principal moments."""
     I, tensor = _inertia(inertia)
@@ -163,13 +168,13 @@ def _jacobian(I, omega, tensor):
     return jnp.vectorize(one, signature=f"{_core(tensor)},(3)->(3,3)")(I, omega)
 
 
-def linearization(inertia: ArrayLike, axis: AxisLike, omega0: ArrayLike = 1.0) -> Mat:
+def linearization(inertia: InertiaLike, axis: AxisLike, omega0: ScalarLike = 1.0) -> Mat33:
     """The matrix `A` of the first-approximation system `δΩ̇ = A δΩ` about the stationary
     rotation `Ω0 e_k` (body components; in principal axes the system of 002 / 004 (12.44))."""
     return jacobian(inertia, stationary_rotation(inertia, axis, omega0))
 
 
-def characteristic_coefficients(A: ArrayLike) -> Float[Array, "*batch 4"]:
+def characteristic_coefficients(A: Mat33Like) -> Float[Array, "*#batch 4"]:
     """Coefficients of `det(λE − A) = λ³ − tr A λ² + ½(tr²A − tr A²) λ − det A` of any 3×3
     matrix, highest power first (NumPy `np.roots` order)."""
     A = matrix(A, "A")
@@ -178,7 +183,7 @@ def characteristic_coefficients(A: ArrayLike) -> Float[Array, "*batch 4"]:
     return jnp.stack([jnp.ones_like(tr), -tr, 0.5 * (tr * tr - tr2), -jnp.linalg.det(A)], -1)
 
 
-def stability_coefficient(inertia: ArrayLike, axis: AxisLike) -> Scalar:
+def stability_coefficient(inertia: InertiaLike, axis: AxisLike) -> Scalar:
     """`κ_k = (I_k − I_i)(I_k − I_j)/(I_i I_j)` of (★): > 0 stable (largest or smallest
     moment), < 0 unstable (middle moment), 0 degenerate (neutral)."""
     I, tensor = _inertia(inertia)
@@ -194,8 +199,8 @@ def _stability_coefficient(I, k, tensor):
 
 
 def characteristic_polynomial(
-    inertia: ArrayLike, axis: AxisLike, omega0: ArrayLike = 1.0
-) -> Float[Array, "*batch 4"]:
+    inertia: InertiaLike, axis: AxisLike, omega0: ScalarLike = 1.0
+) -> Float[Array, "*#batch 4"]:
     """Closed form (★) of the characteristic polynomial of `linearization(...)`:
     `λ³ + κ_k Ω0² λ`, as coefficients `[1, 0, κ_k Ω0², 0]` (highest power first)."""
     kappa = stability_coefficient(inertia, axis)
@@ -205,22 +210,22 @@ def characteristic_polynomial(
     return jnp.stack([one, zero, c, zero], -1)
 
 
-def _half_trace_square(inertia, axis, omega0) -> Array:
+def _half_trace_square(inertia: InertiaLike, axis: AxisLike, omega0: ScalarLike) -> Scalar:
     """`s = ½ tr(A²) = −κ_k Ω0²` from the jacfwd linearisation A (the char. polynomial is
     `λ(λ² − s)` since tr A = det A = 0 at a stationary rotation)."""
     A = linearization(inertia, axis, omega0)
     return 0.5 * jnp.sum(A * jnp.swapaxes(A, -1, -2), axis=(-2, -1))
 
 
-def _sqrt_pos(x: Array) -> Array:
+def _sqrt_pos(x: Scalar) -> Scalar:
     """`√max(x, 0)` with a finite (zero) gradient where x ≤ 0."""
     pos = x > 0
     return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1.0)), 0.0)
 
 
 def eigenvalues(
-    inertia: ArrayLike, axis: AxisLike, omega0: ArrayLike = 1.0
-) -> Complex[Array, "*batch 3"]:
+    inertia: InertiaLike, axis: AxisLike, omega0: ScalarLike = 1.0
+) -> Complex[Array, "*#batch 3"]:
     """Eigenvalues of the jacfwd linearisation about `Ω0 e_k`, as `(√s, 0, −√s)` with
     `s = ½ tr(A²) = −κ_k Ω0²` (exact because tr A = det A = 0 there; see the module docstring):
     `(p, 0, −p)` for the middle axis, `(iν, 0, −iν)` for a stable one. Works on any device
@@ -231,14 +236,14 @@ def eigenvalues(
     return jnp.stack([r, jnp.zeros_like(r), -r], -1)
 
 
-def growth_rate(inertia: ArrayLike, axis: AxisLike, omega0: ArrayLike = 1.0) -> Scalar:
+def growth_rate(inertia: InertiaLike, axis: AxisLike, omega0: ScalarLike = 1.0) -> Scalar:
     """Largest real part of the eigenvalues of the jacfwd linearisation about `Ω0 e_k`:
     `√max(½ tr A², 0)` — the exponential growth rate p of 004 (12.49)–(12.50) for the middle axis,
     0 for the others. jit/vmap/grad friendly (zero gradient where the axis is not unstable)."""
     return _sqrt_pos(_half_trace_square(inertia, axis, omega0))
 
 
-def oscillation_frequency(inertia: ArrayLike, axis: AxisLike, omega0: ArrayLike = 1.0) -> Scalar:
+def oscillation_frequency(inertia: InertiaLike, axis: AxisLike, omega0: ScalarLike = 1.0) -> Scalar:
     """Angular frequency `|Ω0| √κ_k` of small oscillations about a stable axis (the imaginary
     part of the eigenvalues; 0 for the middle and degenerate axes), from the jacfwd
     linearisation. For a symmetric top about its symmetry axis it is the body-frame precession
@@ -246,7 +251,7 @@ def oscillation_frequency(inertia: ArrayLike, axis: AxisLike, omega0: ArrayLike 
     return _sqrt_pos(-_half_trace_square(inertia, axis, omega0))
 
 
-def middle_axis_growth_rate(inertia: ArrayLike, omega0: ArrayLike = 1.0) -> Scalar:
+def middle_axis_growth_rate(inertia: InertiaLike, omega0: ScalarLike = 1.0) -> Scalar:
     """004 (12.49) in closed form: `p = |Ω0| √((I3 − I2)(I2 − I1)/(I1 I3))` with the principal
     moments sorted `I1 ≤ I2 ≤ I3` (whatever order they are given in)."""
     I, tensor = _inertia(inertia)
@@ -257,8 +262,8 @@ def middle_axis_growth_rate(inertia: ArrayLike, omega0: ArrayLike = 1.0) -> Scal
 
 
 def stability_code(
-    inertia: ArrayLike, axis: AxisLike, omega0: ArrayLike = 1.0, rtol: float = 1e-9
-) -> Int[Array, "*batch"]:
+    inertia: InertiaLike, axis: AxisLike, omega0: ScalarLike = 1.0, rtol: float = 1e-9
+) -> Int[Array, "*#batch"]:
     """Traceable classification: `1` stable (κ_k > 0), `-1` unstable (κ_k < 0), `0` neutral —
     `Ω0 = 0`, or I_k within `rtol · max moment` of another moment (symmetric / spherical
     degeneracy, where the linearisation has only zero eigenvalues)."""
@@ -281,14 +286,14 @@ def _stability_code(I, k, w0, rtol, tensor):
 
 
 def classify(
-    inertia: ArrayLike, axis: AxisLike, omega0: ArrayLike = 1.0, rtol: float = 1e-9
+    inertia: InertiaLike, axis: AxisLike, omega0: ScalarLike = 1.0, rtol: float = 1e-9
 ) -> str | np.ndarray:
     """`"stable"`, `"unstable"` or `"neutral"` for the stationary rotation `Ω0 e_k` (linear
     stability, see `stability_code` and the module docstring for "neutral": the symmetric or
     spherical degenerate case, or Ω0 = 0). A string for one body, a NumPy array of strings for a
     batch. Needs concrete inputs; under jit/vmap use `stability_code`."""
     code = stability_code(inertia, axis, omega0, rtol)
-    if isinstance(code, jax.core.Tracer):
+    if not is_concrete(code):
         raise TypeError("classify needs concrete inputs; use stability_code under jit/vmap")
     code = np.asarray(code)
     if code.ndim == 0:

@@ -7,12 +7,12 @@ Each is the closed form away from θ = 0 and its Taylor series near it (see
 from __future__ import annotations
 
 import jax.numpy as jnp
-from jaxtyping import Array
+from jaxtyping import Array, Float
 
 from .._numerics import guarded, poly
 
 
-def sin_over(x2: Array) -> Array:
+def sin_over(x2: Float[Array, "*shape"]) -> Float[Array, "*shape"]:
     """A(θ) = sin θ / θ."""
     return guarded(
         x2,
@@ -21,7 +21,7 @@ def sin_over(x2: Array) -> Array:
     )
 
 
-def one_minus_cos_over(x2: Array) -> Array:
+def one_minus_cos_over(x2: Float[Array, "*shape"]) -> Float[Array, "*shape"]:
     """B(θ) = (1 − cos θ) / θ² = 2 sin²(θ/2) / θ² (the second form has no cancellation)."""
     return guarded(
         x2,
@@ -30,7 +30,7 @@ def one_minus_cos_over(x2: Array) -> Array:
     )
 
 
-def theta_minus_sin_over(x2: Array) -> Array:
+def theta_minus_sin_over(x2: Float[Array, "*shape"]) -> Float[Array, "*shape"]:
     """C(θ) = (θ − sin θ) / θ³."""
     return guarded(
         x2,
@@ -39,7 +39,7 @@ def theta_minus_sin_over(x2: Array) -> Array:
     )
 
 
-def zhilin_d(x2: Array) -> Array:
+def zhilin_d(x2: Float[Array, "*shape"]) -> Float[Array, "*shape"]:
     """D(θ) = (1 − g)/θ², g = θ sin θ / (2(1 − cos θ)) = (θ/2) cot(θ/2)  (Zhilin 3.14.15).
 
     Finite for |θ| < 2π; singular at |θ| = 2π (where det Z = ∞).
@@ -54,7 +54,7 @@ def zhilin_d(x2: Array) -> Array:
     )
 
 
-def half_sin_over(x2: Array) -> Array:
+def half_sin_over(x2: Float[Array, "*shape"]) -> Float[Array, "*shape"]:
     """sin(θ/2) / θ (vector part of the unit quaternion of rotation vector θ)."""
     return guarded(
         x2,
@@ -63,7 +63,7 @@ def half_sin_over(x2: Array) -> Array:
     )
 
 
-def half_cos(x2: Array) -> Array:
+def half_cos(x2: Float[Array, "*shape"]) -> Float[Array, "*shape"]:
     """cos(θ/2), as a function of θ² with a finite gradient at 0."""
     return guarded(
         x2,

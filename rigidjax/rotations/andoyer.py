@@ -43,18 +43,15 @@ come back to ~√eps; the conditioning of the variables, not of the formulas. Ex
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Annotated, NamedTuple
 
 import equinox as eqx
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, Bool, Float
 
 from .._checks import floats, matrix, vector
+from .._custom_types import Mat33, Mat33Like, RealLike, Scalar, ScalarLike, Vec3, Vec3Like
 from .._numerics import safe_sqrt
-
-Scalar = Float[Array, "*batch"]
-Vec = Float[Array, "*batch 3"]
-Mat = Float[Array, "*batch 3 3"]
 
 
 class AndoyerVariables(NamedTuple):
@@ -71,12 +68,12 @@ class AndoyerVariables(NamedTuple):
     g: Scalar
     h: Scalar
 
-    def as_array(self) -> Float[Array, "*batch 6"]:
+    def as_array(self) -> Float[Array, "*#batch 6"]:
         """Stack into one array `(..., 6)` in the order `(L, G, H, l, g, h)`."""
         return jnp.stack(jnp.broadcast_arrays(*self), axis=-1)
 
     @classmethod
-    def from_array(cls, x: ArrayLike) -> AndoyerVariables:
+    def from_array(cls, x: Annotated[RealLike, "*#batch 6"]) -> AndoyerVariables:
         """Inverse of `as_array`: split `(..., 6)` into the six fields."""
         x = vector(x, 6, "x")
         return cls(*(x[..., i] for i in range(6)))
@@ -85,7 +82,7 @@ class AndoyerVariables(NamedTuple):
 # --- private helpers -------------------------------------------------------------------------
 
 
-def _rz(c: Array, s: Array) -> Array:
+def _rz(c: Scalar, s: Scalar) -> Mat33:
     """Rotation about z by the angle with cosine `c`, sine `s`:
     [[c, −s, 0], [s, c, 0], [0, 0, 1]]."""
     o, i = jnp.zeros_like(c), jnp.ones_like(c)
@@ -94,7 +91,7 @@ def _rz(c: Array, s: Array) -> Array:
     )
 
 
-def _rx(c: Array, s: Array) -> Array:
+def _rx(c: Scalar, s: Scalar) -> Mat33:
     """Rotation about x by the angle with cosine `c`, sine `s`:
     [[1, 0, 0], [0, c, −s], [0, s, c]]."""
     o, i = jnp.zeros_like(c), jnp.ones_like(c)
@@ -103,7 +100,7 @@ def _rx(c: Array, s: Array) -> Array:
     )
 
 
-def _direction(x: Array, y: Array) -> tuple[Array, Array, Array]:
+def _direction(x: Scalar, y: Scalar) -> tuple[Scalar, Scalar, Bool[Array, "*#batch"]]:
     """`(cos φ, sin φ) = (x, y)/√(x² + y²)` for a planar vector of length ≤ 1; `(1, 0)` (φ = 0)
     when its length is at the rounding level (≤ eps), with finite values and gradients.
     Also returns that degeneracy mask."""
@@ -116,7 +113,7 @@ def _direction(x: Array, y: Array) -> tuple[Array, Array, Array]:
     return c, s, degenerate
 
 
-def _check_G(G: Array, name: str) -> Array:
+def _check_G(G: Scalar, name: str) -> Scalar:
     return eqx.error_if(
         G,
         ~(G > 0),
@@ -124,11 +121,11 @@ def _check_G(G: Array, name: str) -> Array:
     )
 
 
-def _broadcast(*xs: ArrayLike, names: tuple[str, ...]) -> list[Array]:
+def _broadcast(*xs: ScalarLike, names: tuple[str, ...]) -> list[Scalar]:
     return list(jnp.broadcast_arrays(*floats(*zip(xs, names, strict=True))))
 
 
-def _cos_sin(X: Array, G: Array, name: str) -> tuple[Array, Array]:
+def _cos_sin(X: Scalar, G: Scalar, name: str) -> tuple[Scalar, Scalar]:
     """`(cos, sin)` of the angle in [0, π] with cosine `X/G` (X = L or H), checked `|X| ≤ G` to
     64 eps. The sine is `√((G − X)(G + X))/G`, which keeps its relative accuracy near the poles
     better than `√(1 − cos²)`; values are clipped to the unit circle."""
@@ -146,7 +143,7 @@ def _cos_sin(X: Array, G: Array, name: str) -> tuple[Array, Array]:
 # --- public functions ------------------------------------------------------------------------
 
 
-def momentum(L: ArrayLike, G: ArrayLike, l: ArrayLike) -> Vec:
+def momentum(L: ScalarLike, G: ScalarLike, l: ScalarLike) -> Vec3:
     """Body angular momentum `M = (√(G² − L²) sin l, √(G² − L²) cos l, L)` (Borisov–Mamaev (001);
     THEORY §5). `L, l` are cylindrical coordinates on the sphere |M| = G."""
     L, G, l = _broadcast(L, G, l, names=("L", "G", "l"))
@@ -156,7 +153,7 @@ def momentum(L: ArrayLike, G: ArrayLike, l: ArrayLike) -> Vec:
     return jnp.stack([rho * jnp.sin(l), rho * jnp.cos(l), L], axis=-1)
 
 
-def space_momentum(G: ArrayLike, H: ArrayLike, h: ArrayLike) -> Vec:
+def space_momentum(G: ScalarLike, H: ScalarLike, h: ScalarLike) -> Vec3:
     """Space angular momentum `P M = G (sin I sin h, −sin I cos h, cos I)`, `cos I = H/G`
     (THEORY §5)."""
     G, H, h = _broadcast(G, H, h, names=("G", "H", "h"))
@@ -167,8 +164,8 @@ def space_momentum(G: ArrayLike, H: ArrayLike, h: ArrayLike) -> Vec:
 
 
 def from_andoyer(
-    L: ArrayLike, G: ArrayLike, H: ArrayLike, l: ArrayLike, g: ArrayLike, h: ArrayLike
-) -> tuple[Vec, Mat]:
+    L: ScalarLike, G: ScalarLike, H: ScalarLike, l: ScalarLike, g: ScalarLike, h: ScalarLike
+) -> tuple[Vec3, Mat33]:
     """Body angular momentum and attitude `(M_body (..., 3), P (..., 3, 3))` of Andoyer–Deprit
     variables (Borisov–Mamaev (001); THEORY §5):
 
@@ -196,7 +193,9 @@ def from_andoyer(
     return M, P
 
 
-def to_momentum_attitude(av: AndoyerVariables | ArrayLike) -> tuple[Vec, Mat]:
+def to_momentum_attitude(
+    av: AndoyerVariables | Annotated[RealLike, "*#batch 6"],
+) -> tuple[Vec3, Mat33]:
     """`from_andoyer` for an `AndoyerVariables` or a stacked array `(..., 6)` in the order
     `(L, G, H, l, g, h)`."""
     if not isinstance(av, AndoyerVariables):
@@ -204,7 +203,7 @@ def to_momentum_attitude(av: AndoyerVariables | ArrayLike) -> tuple[Vec, Mat]:
     return from_andoyer(*av)
 
 
-def to_andoyer(M_body: ArrayLike, P: ArrayLike) -> AndoyerVariables:
+def to_andoyer(M_body: Vec3Like, P: Mat33Like) -> AndoyerVariables:
     """Andoyer–Deprit variables of a body angular momentum `M_body (..., 3)` and attitude
     `P (..., 3, 3)` (body → space); inverse of `from_andoyer` (Borisov–Mamaev (001); THEORY §5).
 
@@ -273,7 +272,7 @@ def to_andoyer(M_body: ArrayLike, P: ArrayLike) -> AndoyerVariables:
     )
 
 
-def gamma(L: ArrayLike, G: ArrayLike, H: ArrayLike, l: ArrayLike, g: ArrayLike) -> Vec:
+def gamma(L: ScalarLike, G: ScalarLike, H: ScalarLike, l: ScalarLike, g: ScalarLike) -> Vec3:
     """γ, the space axis OZ in body components (third row of P; Poisson variable), by the seed's
     formulas (Borisov–Mamaev (001); THEORY §5), `sin τ = L/G`, `sin ζ = H/G`:
 
@@ -295,7 +294,7 @@ def gamma(L: ArrayLike, G: ArrayLike, H: ArrayLike, l: ArrayLike, g: ArrayLike) 
     )
 
 
-def free_body_hamiltonian(inertia: ArrayLike, L: ArrayLike, G: ArrayLike, l: ArrayLike) -> Scalar:
+def free_body_hamiltonian(inertia: Vec3Like, L: ScalarLike, G: ScalarLike, l: ScalarLike) -> Scalar:
     """Kinetic energy of the free body in Andoyer–Deprit variables (principal moments
     `inertia = (I1, I2, I3)`, shape `(..., 3)`):
 

@@ -22,15 +22,22 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, DTypeLike, Float
 
 from .._checks import as_float, vector
+from .._custom_types import (
+    DavenportAxesLike,
+    EulerSeq,
+    Frame,
+    Mat33,
+    Mat33Like,
+    Quat,
+    QuatLike,
+    Scalar,
+    Vec3,
+    Vec3Like,
+)
 from . import quat
-from .so3 import Frame
-
-Vec = Float[Array, "*batch 3"]
-Quat = Float[Array, "*batch 4"]
-Mat = Float[Array, "*batch 3 3"]
 
 SEQUENCES: tuple[str, ...] = tuple(
     s
@@ -46,7 +53,7 @@ SEQUENCES: tuple[str, ...] = tuple(
 # --------------------------------------------------------------------------- helpers
 
 
-def _parse_seq(seq) -> tuple[tuple[int, int, int], bool]:
+def _parse_seq(seq: object) -> tuple[tuple[int, int, int], bool]:
     """Axis indices and `intrinsic` flag of a sequence string; ValueError naming `seq` if bad."""
     if not isinstance(seq, str) or seq not in SEQUENCES:
         raise ValueError(
@@ -54,15 +61,16 @@ def _parse_seq(seq) -> tuple[tuple[int, int, int], bool]:
             "lower case (extrinsic, fixed axes), with no two consecutive letters equal, "
             f"e.g. 'ZXZ', 'ZYX', 'xyz'; got seq={seq!r}"
         )
-    return tuple("xyz".index(c) for c in seq.lower()), seq.isupper()
+    i, j, k = ("xyz".index(c) for c in seq.lower())
+    return (i, j, k), seq.isupper()
 
 
-def _check_frame(frame) -> None:
+def _check_frame(frame: object) -> None:
     if frame not in ("body", "space"):
         raise ValueError(f"frame must be 'body' or 'space', got frame={frame!r}")
 
 
-def gimbal_tol(dtype) -> float:
+def gimbal_tol(dtype: DTypeLike) -> float:
     """Gimbal-lock threshold on the middle angle (radians, distance to 0/π or ±π/2).
 
     1e-7 in float64 (SciPy's value); 1e-5 in float32, where rounding of the quaternion alone
@@ -71,11 +79,11 @@ def gimbal_tol(dtype) -> float:
     return 1e-7 if jnp.finfo(dtype).eps < 1e-10 else 1e-5
 
 
-def _basis(k: int, dtype) -> Array:
+def _basis(k: int, dtype: DTypeLike) -> Float[Array, "3"]:
     return jnp.zeros(3, dtype).at[k].set(1)
 
 
-def _axis_quat(n: Array, t: Array) -> Quat:
+def _axis_quat(n: Vec3, t: Scalar) -> Quat:
     """Quaternion `(cos(t/2), sin(t/2) n)` of the turn by t about the unit axis n."""
     h = t / 2
     v = jnp.sin(h)[..., None] * n
@@ -83,7 +91,7 @@ def _axis_quat(n: Array, t: Array) -> Quat:
     return jnp.concatenate([c, v], axis=-1)
 
 
-def _compose(angles: Array, n1: Array, n2: Array, n3: Array) -> Quat:
+def _compose(angles: Vec3, n1: Vec3, n2: Vec3, n3: Vec3) -> Quat:
     """`Q(α n1) Q(β n2) Q(γ n3)` as a quaternion (intrinsic order of the factors)."""
     q1 = _axis_quat(n1, angles[..., 0])
     q2 = _axis_quat(n2, angles[..., 1])
@@ -91,20 +99,20 @@ def _compose(angles: Array, n1: Array, n2: Array, n3: Array) -> Quat:
     return quat.mul(quat.mul(q1, q2), q3)
 
 
-def _safe_norm(x: Array, y: Array) -> Array:
+def _safe_norm(x: Scalar, y: Scalar) -> Scalar:
     """`hypot(x, y)` with gradient 0 (not NaN) at the origin."""
     r2 = x * x + y * y
     pos = r2 > 0
     return jnp.where(pos, jnp.sqrt(jnp.where(pos, r2, jnp.ones_like(r2))), jnp.zeros_like(r2))
 
 
-def _wrap(x: Array) -> Array:
+def _wrap(x: Scalar) -> Scalar:
     """Shift an angle in (−3π, 3π) into [−π, π] (SciPy's wrapping)."""
     two_pi = 2 * jnp.pi
     return jnp.where(x < -jnp.pi, x + two_pi, jnp.where(x > jnp.pi, x - two_pi, x))
 
 
-def _angles(q: Array, n1: Array, n2: Array, n3: Array, intrinsic: bool) -> Vec:
+def _angles(q: Quat, n1: Vec3, n2: Vec3, n3: Vec3, intrinsic: bool) -> Vec3:
     """Bernardes & Viollet (2022) for `q = Q(ψ3 n3) Q(ψ2 n2) Q(ψ1 n1)` (extrinsic order n1, n2, n3,
     unit axes with n2 ⟂ n1, n3). Returns `(ψ1, ψ2, ψ3)`, or `(ψ3, ψ2, ψ1)` if `intrinsic`.
 
@@ -156,22 +164,23 @@ _HAMILTON = (
 )
 
 
-def _mul_components(a: list, b: list) -> list:
+def _mul_components(a: list[Array | None], b: list[Array | None]) -> list[Array | None]:
     """Hamilton product of quaternions given as four components, `None` for an exact zero (the
     zero terms of basis-axis factors are skipped, not multiplied)."""
-    out = []
+    out: list[Array | None] = []
     for row in _HAMILTON:
         acc = None
         for sign, i, j in row:
-            if a[i] is None or b[j] is None:
+            ai, bj = a[i], b[j]
+            if ai is None or bj is None:
                 continue
-            t = a[i] * b[j]
+            t = ai * bj
             acc = (t if sign > 0 else -t) if acc is None else (acc + t if sign > 0 else acc - t)
         out.append(acc)
     return out
 
 
-def _seq_axes(seq: str, dtype) -> tuple[tuple[Array, Array, Array], bool]:
+def _seq_axes(seq: EulerSeq, dtype: DTypeLike) -> tuple[tuple[Array, Array, Array], bool]:
     (i, j, k), intrinsic = _parse_seq(seq)
     return (_basis(i, dtype), _basis(j, dtype), _basis(k, dtype)), intrinsic
 
@@ -179,7 +188,7 @@ def _seq_axes(seq: str, dtype) -> tuple[tuple[Array, Array, Array], bool]:
 # --------------------------------------------------------------------------- Euler angles
 
 
-def to_quat(angles: ArrayLike, seq: str = "ZXZ") -> Quat:
+def to_quat(angles: Vec3Like, seq: EulerSeq = "ZXZ") -> Quat:
     """Unit quaternion of Euler angles: the product of the half-angle quaternions in the order of
     the matrix product (intrinsic `"ABC"`: `q_A(α) ∘ q_B(β) ∘ q_C(γ)`).
 
@@ -190,16 +199,20 @@ def to_quat(angles: ArrayLike, seq: str = "ZXZ") -> Quat:
     angles = vector(angles, 3, "angles")
     axes, intrinsic = _parse_seq(seq)
     order = (0, 1, 2) if intrinsic else (2, 1, 0)  # extrinsic "abc": q_c(γ) ∘ q_b(β) ∘ q_a(α)
-    q = None
-    for m in order:  # basis-axis factors: only the non-zero products are formed
+
+    def factor(m: int) -> list[Array | None]:
         h = angles[..., m] / 2
-        factor = [jnp.cos(h), None, None, None]
-        factor[axes[m] + 1] = jnp.sin(h)
-        q = factor if q is None else _mul_components(q, factor)
+        f: list[Array | None] = [jnp.cos(h), None, None, None]
+        f[axes[m] + 1] = jnp.sin(h)
+        return f
+
+    q = factor(order[0])
+    for m in order[1:]:  # basis-axis factors: only the non-zero products are formed
+        q = _mul_components(q, factor(m))
     return jnp.stack([jnp.zeros_like(angles[..., 0]) if c is None else c for c in q], axis=-1)
 
 
-def to_matrix(angles: ArrayLike, seq: str = "ZXZ") -> Mat:
+def to_matrix(angles: Vec3Like, seq: EulerSeq = "ZXZ") -> Mat33:
     """Rotation tensor of Euler angles, e.g. `"ZXZ"`: `P = Rz(ψ) Rx(θ) Rz(φ)` (THEORY §4;
     `Pᵀ` is the direction-cosine matrix of Borisov–Mamaev 001, remark 2)."""
     # the barrier keeps XLA from fusing the quaternion into each of the nine entries, which
@@ -207,7 +220,7 @@ def to_matrix(angles: ArrayLike, seq: str = "ZXZ") -> Mat:
     return quat.to_matrix(jax.lax.optimization_barrier(to_quat(angles, seq)))
 
 
-def from_quat(q: ArrayLike, seq: str = "ZXZ") -> Vec:
+def from_quat(q: QuatLike, seq: EulerSeq = "ZXZ") -> Vec3:
     """Euler angles of a quaternion (any non-zero `q`, treated as `q/|q|`; `±q` give the same).
 
     Bernardes & Viollet (2022), as SciPy's `Rotation.as_euler`: first/third angle in [−π, π],
@@ -221,7 +234,7 @@ def from_quat(q: ArrayLike, seq: str = "ZXZ") -> Vec:
     return _angles(q, n1, n2, n3, False)
 
 
-def from_matrix(P: ArrayLike, seq: str = "ZXZ") -> Vec:
+def from_matrix(P: Mat33Like, seq: EulerSeq = "ZXZ") -> Vec3:
     """Euler angles of a rotation matrix (via the largest-component `quat.from_matrix`), with the
     ranges and gimbal-lock convention of `from_quat`."""
     return from_quat(quat.from_matrix(P), seq)
@@ -230,7 +243,7 @@ def from_matrix(P: ArrayLike, seq: str = "ZXZ") -> Vec:
 # --------------------------------------------------------------------------- Davenport angles
 
 
-def _davenport_axes(axes: ArrayLike, dtype) -> tuple[Array, Array, Array]:
+def _davenport_axes(axes: DavenportAxesLike, dtype: DTypeLike) -> tuple[Vec3, Vec3, Vec3]:
     """Unit axes (m, e, n) from `axes` of shape (..., 3, 3) = (m, e, n) or (..., 2, 3) = (m, n)."""
     axes = as_float(axes, "axes")
     if axes.ndim < 2 or axes.shape[-1] != 3 or axes.shape[-2] not in (2, 3):
@@ -278,7 +291,7 @@ def _davenport_axes(axes: ArrayLike, dtype) -> tuple[Array, Array, Array]:
     return m, e, n
 
 
-def davenport_to_quat(angles: ArrayLike, axes: ArrayLike) -> Quat:
+def davenport_to_quat(angles: Vec3Like, axes: DavenportAxesLike) -> Quat:
     """Quaternion of generalized (Davenport) angles `(ψ, ϑ, φ)`: `q = q(ψ m) ∘ q(ϑ e) ∘ q(φ n)`.
 
     See `davenport_to_matrix` for `axes`."""
@@ -287,7 +300,7 @@ def davenport_to_quat(angles: ArrayLike, axes: ArrayLike) -> Quat:
     return _compose(angles, m, e, n)
 
 
-def davenport_to_matrix(angles: ArrayLike, axes: ArrayLike) -> Mat:
+def davenport_to_matrix(angles: Vec3Like, axes: DavenportAxesLike) -> Mat33:
     """Generalized Euler angles (representation theorem, article 003; THEORY §1):
     `P = Q(ψ m) Q(ϑ e) Q(φ n)` with fixed axes given as `axes = (m, e, n)` (shape (..., 3, 3),
     e ⟂ m and e ⟂ n) or `axes = (m, n)` (shape (..., 2, 3), then `e = m × n/|m × n|`).
@@ -299,14 +312,14 @@ def davenport_to_matrix(angles: ArrayLike, axes: ArrayLike) -> Mat:
     return quat.to_matrix(davenport_to_quat(angles, axes))
 
 
-def davenport_from_quat(q: ArrayLike, axes: ArrayLike) -> Vec:
+def davenport_from_quat(q: QuatLike, axes: DavenportAxesLike) -> Vec3:
     """Generalized angles `(ψ, ϑ, φ)` of a quaternion; see `davenport_from_matrix`."""
     q = quat.normalize(vector(q, 4, "q"))
     m, e, n = _davenport_axes(axes, q.dtype)
     return _angles(q, n, e, m, True)
 
 
-def davenport_from_matrix(P: ArrayLike, axes: ArrayLike) -> Vec:
+def davenport_from_matrix(P: Mat33Like, axes: DavenportAxesLike) -> Vec3:
     """Generalized angles `(ψ, ϑ, φ)` with `P = Q(ψ m) Q(ϑ e) Q(φ n)` (Bernardes & Viollet 2022).
 
     As SciPy `Rotation.as_davenport([m, e, n], "intrinsic")`: ψ, φ ∈ [−π, π], ϑ ∈ [−λ, π − λ]
@@ -319,18 +332,19 @@ def davenport_from_matrix(P: ArrayLike, axes: ArrayLike) -> Vec:
 # --------------------------------------------------------------------------- kinematics
 
 
-def _rot_basis(k: int, t: Array, v: Array) -> Array:
+def _rot_basis(k: int, t: Scalar, v: Vec3) -> Vec3:
     """`R_k(t) v` for the elementary rotation about basis axis k."""
     i, j = (k + 1) % 3, (k + 2) % 3
     c, s = jnp.cos(t), jnp.sin(t)
-    comp = [None, None, None]
-    comp[k] = jnp.broadcast_to(v[..., k], c.shape)
-    comp[i] = c * v[..., i] - s * v[..., j]
-    comp[j] = s * v[..., i] + c * v[..., j]
-    return jnp.stack(comp, axis=-1)
+    comp = {
+        k: jnp.broadcast_to(v[..., k], c.shape),
+        i: c * v[..., i] - s * v[..., j],
+        j: s * v[..., i] + c * v[..., j],
+    }
+    return jnp.stack([comp[0], comp[1], comp[2]], axis=-1)
 
 
-def jacobian(angles: ArrayLike, seq: str = "ZXZ", frame: Frame = "body") -> Mat:
+def jacobian(angles: Vec3Like, seq: EulerSeq = "ZXZ", frame: Frame = "body") -> Mat33:
     """Matrix `J` (columns per angle) with `ω = J (α̇, β̇, γ̇)`: kinematic Euler formulas for any
     sequence (Borisov–Mamaev 001; THEORY §4).
 
@@ -360,8 +374,8 @@ def jacobian(angles: ArrayLike, seq: str = "ZXZ", frame: Frame = "body") -> Mat:
 
 
 def rates_to_omega(
-    angles: ArrayLike, rates: ArrayLike, seq: str = "ZXZ", frame: Frame = "body"
-) -> Vec:
+    angles: Vec3Like, rates: Vec3Like, seq: EulerSeq = "ZXZ", frame: Frame = "body"
+) -> Vec3:
     """Angular velocity from Euler-angle rates, `ω = J(angles) rates` (see `jacobian`):
     body components Ω for `frame="body"`, space components ω = P Ω for `frame="space"`."""
     rates = vector(rates, 3, "rates")
@@ -370,13 +384,13 @@ def rates_to_omega(
 
 
 def omega_to_rates(
-    angles: ArrayLike,
-    omega: ArrayLike,
-    seq: str = "ZXZ",
+    angles: Vec3Like,
+    omega: Vec3Like,
+    seq: EulerSeq = "ZXZ",
     frame: Frame = "body",
     check: bool = False,
     tol: float = 1e-6,
-) -> Vec:
+) -> Vec3:
     """Euler-angle rates from the angular velocity (body Ω or space ω): `rates = J⁻¹ ω`, with the
     closed-form inverse `J⁻¹ = (c2×c3, c3×c1, c1×c2)ᵀ / det J` of the columns `c_i` of `jacobian`.
 

@@ -10,18 +10,15 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array
 
 from .._checks import matrix, vector
+from .._custom_types import Mat33, Mat33Like, Quat, QuatLike, Vec3, Vec3Like
 from . import quat
 from .so3 import hat
 
-Vec = Float[Array, "*batch 3"]
-Quat = Float[Array, "*batch 4"]
-Mat = Float[Array, "*batch 3 3"]
 
-
-def _finite(g: Array, what: str) -> Array:
+def _finite(g: Vec3, what: str) -> Vec3:
     return eqx.error_if(
         g,
         ~jnp.all(jnp.isfinite(g), axis=-1),
@@ -30,16 +27,16 @@ def _finite(g: Array, what: str) -> Array:
     )
 
 
-def _ratio(q: Array) -> Array:
+def _ratio(q: Array) -> Vec3:
     return 2 * q[..., 1:] / q[..., :1]
 
 
-def from_quat(q: ArrayLike) -> Vec:
+def from_quat(q: QuatLike) -> Vec3:
     """`θ_G = 2 λ/λ0` (`q` any non-zero quaternion). Raises for a 180° rotation (`λ0 = 0`)."""
     return _finite(_ratio(vector(q, 4, "q")), "q")
 
 
-def to_quat(g: ArrayLike) -> Quat:
+def to_quat(g: Vec3Like) -> Quat:
     """Unit quaternion `(1, θ_G/2)/√(1 + θ_G²/4)` with λ0 > 0."""
     g = vector(g, 3, "g")
     h = g / 2
@@ -47,13 +44,13 @@ def to_quat(g: ArrayLike) -> Quat:
     return jnp.concatenate([s, s * h], axis=-1)
 
 
-def from_matrix(P: ArrayLike) -> Vec:
+def from_matrix(P: Mat33Like) -> Vec3:
     """Gibbs vector of a rotation matrix (through the largest-component quaternion; equals
     `4 vee(P)/(1 + tr P)` but loses less accuracy near χ = π). Raises at χ = π."""
     return _finite(_ratio(quat.from_matrix(matrix(P, "P"))), "P")
 
 
-def to_matrix(g: ArrayLike) -> Mat:
+def to_matrix(g: Vec3Like) -> Mat33:
     """`P = E + (R + ½ R²)/(1 + θ_G²/4)`, `R = θ_G × E` (the Cayley transform
     `(E − R/2)⁻¹ (E + R/2)`)."""
     g = vector(g, 3, "g")
@@ -62,7 +59,7 @@ def to_matrix(g: ArrayLike) -> Mat:
     return jnp.eye(3, dtype=g.dtype) + c[..., None, None] * (R + 0.5 * (R @ R))
 
 
-def rotate(g: ArrayLike, r: ArrayLike) -> Vec:
+def rotate(g: Vec3Like, r: Vec3Like) -> Vec3:
     """`r' = r + θ_G × (r + ½ θ_G × r)/(1 + θ_G²/4)` (Borisov–Mamaev (001); THEORY §3)."""
     g = vector(g, 3, "g")
     r = vector(r, 3, "r")
@@ -71,7 +68,7 @@ def rotate(g: ArrayLike, r: ArrayLike) -> Vec:
     return r + c * jnp.cross(g, r + 0.5 * jnp.cross(g, r))
 
 
-def compose(g1: ArrayLike, g2: ArrayLike) -> Vec:
+def compose(g1: Vec3Like, g2: Vec3Like) -> Vec3:
     """Gibbs vector of `P(g1) P(g2)`: `(g1 + g2 + ½ g1 × g2)/(1 − g1·g2/4)` (from the Hamilton
     product divided by λ0(1) λ0(2)). Raises if the product is a 180° rotation."""
     g1 = vector(g1, 3, "g1")

@@ -9,50 +9,46 @@ Every rotation has two MRP vectors, `p` and its shadow `−p/|p|²` (from `q` an
 from __future__ import annotations
 
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike, Float
 
 from .._checks import matrix, vector
+from .._custom_types import Mat33, Mat33Like, Quat, QuatLike, Vec3, Vec3Like
 from . import quat
 
-Vec = Float[Array, "*batch 3"]
-Quat = Float[Array, "*batch 4"]
-Mat = Float[Array, "*batch 3 3"]
 
-
-def from_quat(q: ArrayLike) -> Vec:
+def from_quat(q: QuatLike) -> Vec3:
     """`p = λ/(1 + λ0)` after choosing λ0 ≥ 0 (`q` treated as `q/|q|`), so `|p| ≤ 1`."""
     q = quat.canonical(quat.normalize(vector(q, 4, "q")))
     return q[..., 1:] / (1 + q[..., :1])
 
 
-def to_quat(p: ArrayLike) -> Quat:
+def to_quat(p: Vec3Like) -> Quat:
     """`(1 − p², 2p)/(1 + p²)`, for any `p` (a shadow `|p| > 1` gives λ0 < 0)."""
     p = vector(p, 3, "p")
     p2 = jnp.sum(p * p, axis=-1, keepdims=True)
     return jnp.concatenate([1 - p2, 2 * p], axis=-1) / (1 + p2)
 
 
-def from_matrix(P: ArrayLike) -> Vec:
+def from_matrix(P: Mat33Like) -> Vec3:
     """MRP (`|p| ≤ 1`) of a rotation matrix, through the largest-component quaternion."""
     return from_quat(quat.from_matrix(matrix(P, "P")))
 
 
-def to_matrix(p: ArrayLike) -> Mat:
+def to_matrix(p: Vec3Like) -> Mat33:
     """`P = E + (8 S² + 4(1 − p²) S)/(1 + p²)²`, `S = p × E`."""
     return quat.to_matrix(to_quat(p))
 
 
-def rotate(p: ArrayLike, r: ArrayLike) -> Vec:
+def rotate(p: Vec3Like, r: Vec3Like) -> Vec3:
     """`P(p) r`."""
     return quat.rotate(to_quat(p), r)
 
 
-def compose(p1: ArrayLike, p2: ArrayLike) -> Vec:
+def compose(p1: Vec3Like, p2: Vec3Like) -> Vec3:
     """MRP (`|p| ≤ 1`) of `P(p1) P(p2)`, through the Hamilton product."""
     return from_quat(quat.mul(to_quat(p1), to_quat(p2)))
 
 
-def shadow(p: ArrayLike) -> Vec:
+def shadow(p: Vec3Like) -> Vec3:
     """The same rotation with `|p| ≤ 1`: `−p/|p|²` where `|p| > 1`, else `p` (the switch used to
     keep MRP integrations away from the singularity at χ = 2π). Finite gradients at p = 0."""
     p = vector(p, 3, "p")

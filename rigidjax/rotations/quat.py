@@ -7,36 +7,46 @@ it as `q/|q|` (like SciPy); `normalize` raises on a zero quaternion.
 
 from __future__ import annotations
 
+from typing import Annotated
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike, Complex, Float, PRNGKeyArray
+from jaxtyping import Array, ArrayLike, Complex, DTypeLike, Float, PRNGKeyArray, Real
 
 from .._checks import as_float, check_shape, matrix, vector
+from .._custom_types import (
+    CMat22,
+    CMat22Like,
+    Mat33,
+    Mat33Like,
+    Quat,
+    QuatLike,
+    RealLike,
+    Scalar,
+    ScalarLike,
+    Vec3,
+    Vec3Like,
+)
 from . import _series
 
-Quat = Float[Array, "*batch 4"]
-Vec = Float[Array, "*batch 3"]
-Mat = Float[Array, "*batch 3 3"]
-CMat = Complex[Array, "*batch 2 2"]
 
-
-def _split(q: Array) -> tuple[Array, Array]:
+def _split(q: Quat) -> tuple[Scalar, Vec3]:
     return q[..., 0], q[..., 1:]
 
 
-def _join(w: Array, v: Array) -> Array:
+def _join(w: Scalar, v: Vec3) -> Quat:
     w, v = jnp.broadcast_arrays(w[..., None], v)
     return jnp.concatenate([w[..., :1], v], axis=-1)
 
 
-def identity(shape: tuple[int, ...] = (), dtype=None) -> Quat:
+def identity(shape: tuple[int, ...] = (), dtype: DTypeLike | None = None) -> Quat:
     """The identity rotation `(1, 0, 0, 0)` with leading shape `shape`."""
     dtype = jnp.result_type(float) if dtype is None else dtype
     return jnp.zeros((*shape, 4), dtype).at[..., 0].set(1)
 
 
-def mul(a: ArrayLike, b: ArrayLike) -> Quat:
+def mul(a: QuatLike, b: QuatLike) -> Quat:
     """Hamilton product `a ∘ b`: `λ0 = μ0ν0 − μ·ν`, `λ = μ0 ν + ν0 μ + μ × ν`
     (article 003 (68)–(69)).
 
@@ -51,17 +61,18 @@ def mul(a: ArrayLike, b: ArrayLike) -> Quat:
     return _join(w, v)
 
 
-def conj(q: ArrayLike) -> Quat:
+def conj(q: QuatLike) -> Quat:
     """Conjugate `(λ0, −λ)`: the inverse rotation for a unit quaternion."""
     q = vector(q, 4, "q")
     return q * jnp.array([1, -1, -1, -1], q.dtype)
 
 
-def norm2(q: Quat) -> Array:
+def norm2(q: Real[ArrayLike, "*#batch 4"]) -> Scalar:
+    """`|q|²` (no validation: for arrays already checked by the caller)."""
     return jnp.sum(q * q, axis=-1)
 
 
-def _checked_norm2(q: Quat, name: str) -> Array:
+def _checked_norm2(q: Quat, name: str) -> Scalar:
     n2 = norm2(q)
     return eqx.error_if(
         n2,
@@ -70,19 +81,19 @@ def _checked_norm2(q: Quat, name: str) -> Array:
     )
 
 
-def normalize(q: ArrayLike) -> Quat:
+def normalize(q: QuatLike) -> Quat:
     """`q / |q|`; raises a clear error for a zero or non-finite quaternion."""
     q = vector(q, 4, "q")
     return q / jnp.sqrt(_checked_norm2(q, "q"))[..., None]
 
 
-def canonical(q: ArrayLike) -> Quat:
+def canonical(q: QuatLike) -> Quat:
     """The representative of ±q with λ0 ≥ 0."""
     q = vector(q, 4, "q")
     return jnp.where(q[..., :1] < 0, -q, q)
 
 
-def rotate(q: ArrayLike, v: ArrayLike) -> Vec:
+def rotate(q: QuatLike, v: Vec3Like) -> Vec3:
     """`P(q) v = v + 2 λ0 λ × v + 2 λ × (λ × v)` for unit `q` (article 003), divided by |q|²."""
     q = vector(q, 4, "q")
     v = vector(v, 3, "v")
@@ -92,14 +103,14 @@ def rotate(q: ArrayLike, v: ArrayLike) -> Vec:
     return v + s[..., None] * (w[..., None] * t + jnp.cross(u, t))
 
 
-def from_rotvec(theta: ArrayLike) -> Quat:
+def from_rotvec(theta: Vec3Like) -> Quat:
     """`(cos(θ/2), sin(θ/2) θ/|θ|)`; exact and differentiable at θ = 0."""
     theta = vector(theta, 3, "theta")
     x2 = jnp.sum(theta * theta, axis=-1)
     return _join(_series.half_cos(x2), _series.half_sin_over(x2)[..., None] * theta)
 
 
-def to_rotvec(q: ArrayLike) -> Vec:
+def to_rotvec(q: QuatLike) -> Vec3:
     """Rotation vector with |θ| ≤ π: `θ = 2 atan2(|λ|, λ0) λ/|λ|` after choosing λ0 ≥ 0.
 
     Near θ = 0 uses `atan(y)/y = 1 − y²/3 + y⁴/5 − …`, so values and gradients stay finite.
@@ -117,7 +128,7 @@ def to_rotvec(q: ArrayLike) -> Vec:
     return jnp.where(small, series, exact)[..., None] * v
 
 
-def to_matrix(q: ArrayLike) -> Mat:
+def to_matrix(q: QuatLike) -> Mat33:
     """`P = E + 2(λ0 λ × E + (λ × E)²)/|q|²`; for unit q this is `2{λλ + (λ0² − ½)E + λ0 λ × E}`
     (Borisov–Mamaev; THEORY §3)."""
     q = vector(q, 4, "q")
@@ -134,7 +145,7 @@ def to_matrix(q: ArrayLike) -> Mat:
     return jnp.stack([jnp.stack(r, axis=-1) for r in rows], axis=-2)
 
 
-def from_matrix(P: ArrayLike) -> Quat:
+def from_matrix(P: Mat33Like) -> Quat:
     """Unit quaternion (λ0 ≥ 0) of a rotation matrix by the largest-component method.
 
     Of the four squared components `4λ0² = 1 + tr P`, `4λi² = 1 + 2Pii − tr P` (THEORY §3), the
@@ -171,7 +182,7 @@ def from_matrix(P: ArrayLike) -> Quat:
     return canonical(c / jnp.linalg.norm(c, axis=-1, keepdims=True))
 
 
-def angle(q: ArrayLike) -> Array:
+def angle(q: QuatLike) -> Scalar:
     """Rotation angle ∈ [0, π] of `q`: `2 atan2(|λ|, |λ0|)`.
 
     The angle has a kink at the identity; there the gradient is the zero subgradient (finite).
@@ -183,32 +194,32 @@ def angle(q: ArrayLike) -> Array:
     return 2 * jnp.arctan2(n, jnp.abs(q[..., 0]))
 
 
-def random(key: PRNGKeyArray, shape: tuple[int, ...] = (), dtype=None) -> Quat:
+def random(key: PRNGKeyArray, shape: tuple[int, ...] = (), dtype: DTypeLike | None = None) -> Quat:
     """Uniformly distributed unit quaternions (λ0 ≥ 0): normalised standard Gaussian 4-vectors."""
     dtype = jnp.result_type(float) if dtype is None else dtype
     g = jax.random.normal(key, (*shape, 4), dtype)
     return canonical(g / jnp.linalg.norm(g, axis=-1, keepdims=True))
 
 
-def inv(q: ArrayLike) -> Quat:
+def inv(q: QuatLike) -> Quat:
     """Inverse `q⁻¹ = conj(q)/|q|²` (equal to `conj(q)` for a unit quaternion)."""
     q = vector(q, 4, "q")
     return conj(q) / _checked_norm2(q, "q")[..., None]
 
 
-def to_xyzw(q: ArrayLike) -> Float[Array, "*batch 4"]:
+def to_xyzw(q: QuatLike) -> Quat:
     """Scalar-last `(λ1, λ2, λ3, λ0)`: SciPy's `Rotation.as_quat()` / `from_quat` default order."""
     q = vector(q, 4, "q")
     return jnp.concatenate([q[..., 1:], q[..., :1]], axis=-1)
 
 
-def from_xyzw(q: ArrayLike) -> Quat:
+def from_xyzw(q: QuatLike) -> Quat:
     """Scalar-first quaternion from scalar-last `(x, y, z, w)` (SciPy `as_quat()`, jaxlie xyzw)."""
     q = vector(q, 4, "q")
     return jnp.concatenate([q[..., 3:], q[..., :3]], axis=-1)
 
 
-def slerp(a: ArrayLike, b: ArrayLike, t: ArrayLike) -> Quat:
+def slerp(a: QuatLike, b: QuatLike, t: ScalarLike) -> Quat:
     """Shortest-path spherical interpolation `a ∘ exp(t log(a⁻¹ ∘ b))`, as SciPy's `Slerp`.
 
     `a`, `b` (..., 4) (treated as unit), `t` (...) broadcast against their leading dims. `b` is
@@ -230,7 +241,7 @@ def slerp(a: ArrayLike, b: ArrayLike, t: ArrayLike) -> Quat:
 
 
 @jax.custom_jvp
-def _top_eigvec(M: Array) -> Array:
+def _top_eigvec(M: Float[Array, "*#batch 4 4"]) -> Quat:
     return jnp.linalg.eigh(M)[1][..., :, -1]
 
 
@@ -248,7 +259,10 @@ def _top_eigvec_jvp(primals, tangents):
     return top, jnp.einsum("...ki,...i->...k", V, coef)
 
 
-def mean(q: ArrayLike, weights: ArrayLike | None = None) -> Quat:
+def mean(
+    q: Annotated[RealLike, "*#batch N 4"],
+    weights: Annotated[RealLike, "*#batch N"] | None = None,
+) -> Quat:
     """Rotation average (Markley et al. 2007, as SciPy `Rotation.mean`): the unit eigenvector of
     the largest eigenvalue of `M = Σ_n w_n q_n q_nᵀ`, returned with λ0 ≥ 0.
 
@@ -265,11 +279,11 @@ def mean(q: ArrayLike, weights: ArrayLike | None = None) -> Quat:
     return canonical(_top_eigvec(M))
 
 
-def _complex_dtype(dtype):
+def _complex_dtype(dtype: DTypeLike) -> jnp.dtype:
     return jnp.result_type(dtype, jnp.complex64)
 
 
-def _c2(x: ArrayLike, name: str) -> Array:
+def _c2(x: CMat22Like, name: str) -> CMat22:
     x = jnp.asarray(x)
     if not jnp.issubdtype(x.dtype, jnp.complexfloating):
         x = as_float(x, name)
@@ -278,7 +292,7 @@ def _c2(x: ArrayLike, name: str) -> Array:
     return x
 
 
-def to_cayley_klein(q: ArrayLike) -> CMat:
+def to_cayley_klein(q: QuatLike) -> CMat22:
     """Cayley–Klein matrix `[[α, β], [γ, δ]]`, `α = λ0 + iλ3`, `β = −λ2 + iλ1`, `γ = λ2 + iλ1`,
     `δ = λ0 − iλ3`, `αδ − βγ = 1` (Borisov–Mamaev (001); `q` treated as `q/|q|`).
 
@@ -293,7 +307,7 @@ def to_cayley_klein(q: ArrayLike) -> CMat:
     return jnp.stack([row0, row1], axis=-2)
 
 
-def from_cayley_klein(U: ArrayLike) -> Quat:
+def from_cayley_klein(U: CMat22Like) -> Quat:
     """Unit quaternion of a Cayley–Klein matrix (inverse of `to_cayley_klein`, sign kept).
 
     Averages the redundant entries, `λ0 = Re(α + δ)/2`, `λ1 = Im(β + γ)/2`, `λ2 = Re(γ − β)/2`,
@@ -305,14 +319,14 @@ def from_cayley_klein(U: ArrayLike) -> Quat:
     return normalize(q / 2)
 
 
-def pauli(dtype=None) -> Complex[Array, "3 2 2"]:
+def pauli(dtype: DTypeLike | None = None) -> Complex[Array, "3 2 2"]:
     """The Pauli matrices `σ1 = [[0, 1], [1, 0]]`, `σ2 = [[0, −i], [i, 0]]`,
     `σ3 = [[1, 0], [0, −1]]`, stacked `(3, 2, 2)`."""
     dtype = _complex_dtype(jnp.result_type(float) if dtype is None else dtype)
     return jnp.array([[[0, 1], [1, 0]], [[0, -1j], [1j, 0]], [[1, 0], [0, -1]]], dtype)
 
 
-def vec_to_sigma(r: ArrayLike) -> CMat:
+def vec_to_sigma(r: Vec3Like) -> CMat22:
     """`r·σ = [[r3, r1 − i r2], [r1 + i r2, −r3]]` (Hermitian, traceless)."""
     r = vector(r, 3, "r")
     x, y, z = r[..., 0], r[..., 1], r[..., 2]
@@ -322,7 +336,7 @@ def vec_to_sigma(r: ArrayLike) -> CMat:
     return jnp.stack([row0, row1], axis=-2)
 
 
-def sigma_to_vec(S: ArrayLike) -> Vec:
+def sigma_to_vec(S: CMat22Like) -> Vec3:
     """`r` with `r·σ` the Hermitian traceless part of `S`: `r_k = Re tr(S σ_k)/2`."""
     S = _c2(S, "S")
     return jnp.stack(
@@ -335,7 +349,7 @@ def sigma_to_vec(S: ArrayLike) -> Vec:
     )
 
 
-def to_su2(q: ArrayLike) -> CMat:
+def to_su2(q: QuatLike) -> CMat22:
     """Physics SU(2) matrix `U = λ0 σ0 − i λ·σ` (`q` treated as `q/|q|`; THEORY §3).
 
     It acts by `U (r·σ) Uᴴ = (P r)·σ` (see `su2_act`) and is the complex conjugate of
@@ -345,25 +359,25 @@ def to_su2(q: ArrayLike) -> CMat:
     return jnp.conj(to_cayley_klein(q))
 
 
-def from_su2(U: ArrayLike) -> Quat:
+def from_su2(U: CMat22Like) -> Quat:
     """Unit quaternion (sign kept) of `U = λ0 σ0 − i λ·σ`; inverse of `to_su2`."""
     return from_cayley_klein(jnp.conj(_c2(U, "U")))
 
 
-def su2_act(U: ArrayLike, r: ArrayLike) -> Vec:
+def su2_act(U: CMat22Like, r: Vec3Like) -> Vec3:
     """`r'` with `r'·σ = U (r·σ) Uᴴ`; equals `rotate(from_su2(U), r)` for `U` in SU(2)."""
     U = _c2(U, "U")
     S = vec_to_sigma(r)
     return sigma_to_vec(U @ S @ jnp.conj(jnp.swapaxes(U, -1, -2)))
 
 
-def retract(q: ArrayLike, delta: ArrayLike) -> Quat:
+def retract(q: QuatLike, delta: Vec3Like) -> Quat:
     """Move `q` by the body-frame rotation vector `delta`: `q ∘ exp(δ)` (a chart of SO(3) around q;
     a gradient with respect to a rotation lives in this 3-dimensional tangent space)."""
     return mul(q, from_rotvec(delta))
 
 
-def local(q_ref: ArrayLike, q: ArrayLike) -> Vec:
+def local(q_ref: QuatLike, q: QuatLike) -> Vec3:
     """Inverse of `retract`: the body-frame rotation vector `δ = log(q_ref⁻¹ ∘ q)`, |δ| ≤ π."""
     q_ref = vector(q_ref, 4, "q_ref")
     return to_rotvec(mul(conj(q_ref) / norm2(q_ref)[..., None], q))

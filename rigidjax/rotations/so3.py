@@ -6,21 +6,16 @@ left (space) angular velocity `Ṗ = ω × P`, right (body) `Ṗ = P (Ω × E)`,
 
 from __future__ import annotations
 
-from typing import Literal
-
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
+from jaxtyping import DTypeLike, PRNGKeyArray
 
 from .._checks import matrix, validate, vector
+from .._custom_types import Frame, Mat33, Mat33Like, Scalar, Vec3, Vec3Like
 from . import _series, quat
 
-Vec = Float[Array, "*batch 3"]
-Mat = Float[Array, "*batch 3 3"]
-Frame = Literal["space", "body"]
 
-
-def hat(v: ArrayLike) -> Mat:
+def hat(v: Vec3Like) -> Mat33:
     """Skew matrix `v × E`: `hat(v) @ a = v × a`."""
     v = vector(v, 3, "v")
     x, y, z = v[..., 0], v[..., 1], v[..., 2]
@@ -30,7 +25,7 @@ def hat(v: ArrayLike) -> Mat:
     )
 
 
-def vee(A: ArrayLike) -> Vec:
+def vee(A: Mat33Like) -> Vec3:
     """Inverse of `hat` on skew matrices: `−½ A_×` (Zhilin's vector invariant, `(a × E)_× = −2a`).
 
     Uses only the skew part of `A`, so `vee(A) = vee((A − Aᵀ)/2)`.
@@ -42,18 +37,18 @@ def vee(A: ArrayLike) -> Vec:
     )
 
 
-def _sq(theta: Array) -> Array:
+def _sq(theta: Vec3) -> Scalar:
     return jnp.sum(theta * theta, axis=-1)
 
 
-def _hat_sq(theta: Array, x2: Array) -> Mat:
+def _hat_sq(theta: Vec3, x2: Scalar) -> Mat33:
     """`(θ × E)² = θθ − θ² E`, elementwise (cheaper than a matrix product)."""
     return theta[..., :, None] * theta[..., None, :] - x2[..., None, None] * jnp.eye(
         3, dtype=theta.dtype
     )
 
 
-def exp(theta: ArrayLike) -> Mat:
+def exp(theta: Vec3Like) -> Mat33:
     """`P(θ) = exp(θ × E) = E + (sin θ/θ) R + ((1 − cos θ)/θ²) R²`, `R = θ × E` (Zhilin; Euler's
     theorem). Finite values and gradients at θ = 0."""
     theta = vector(theta, 3, "theta")
@@ -64,13 +59,13 @@ def exp(theta: ArrayLike) -> Mat:
     return jnp.eye(3, dtype=theta.dtype) + a * R + b * _hat_sq(theta, x2)
 
 
-def log(P: ArrayLike) -> Vec:
+def log(P: Mat33Like) -> Vec3:
     """Rotation vector of `P` with |θ| ≤ π, through the largest-component quaternion
     (exact at θ = π, no loss of accuracy near it, finite gradients at the identity)."""
     return quat.to_rotvec(quat.from_matrix(matrix(P, "P")))
 
 
-def rotate(theta: ArrayLike, a: ArrayLike) -> Vec:
+def rotate(theta: Vec3Like, a: Vec3Like) -> Vec3:
     """`a' = a + (sin θ/θ) θ × a + ((1 − cos θ)/θ²) θ × (θ × a)` (Zhilin)."""
     theta = vector(theta, 3, "theta")
     a = vector(a, 3, "a")
@@ -80,14 +75,14 @@ def rotate(theta: ArrayLike, a: ArrayLike) -> Vec:
     return a + _series.sin_over(x2) * t + _series.one_minus_cos_over(x2) * jnp.cross(theta, t)
 
 
-def rotate_tensor(P: ArrayLike, T: ArrayLike) -> Mat:
+def rotate_tensor(P: Mat33Like, T: Mat33Like) -> Mat33:
     """Second-order tensor carried by the rotation: `T' = P T Pᵀ` (article 003)."""
     P = matrix(P, "P")
     T = matrix(T, "T")
     return P @ T @ jnp.swapaxes(P, -1, -2)
 
 
-def Z_inv(theta: ArrayLike) -> Mat:
+def Z_inv(theta: Vec3Like) -> Mat33:
     """`Z⁻¹(θ) = E + ((1 − cos θ)/θ²) R + ((θ − sin θ)/θ³) R²`: `ω = Z⁻¹ θ̇` (Zhilin 3.14.13).
 
     The left Jacobian of SO(3)."""
@@ -99,7 +94,7 @@ def Z_inv(theta: ArrayLike) -> Mat:
     return jnp.eye(3, dtype=theta.dtype) + b * R + c * _hat_sq(theta, x2)
 
 
-def Z(theta: ArrayLike) -> Mat:
+def Z(theta: Vec3Like) -> Mat33:
     """Integrator tensor `Z(θ) = E − ½ R + ((1 − g)/θ²) R²`, `g = θ sin θ/(2(1 − cos θ))`:
     `θ̇ = Z ω` (Zhilin 3.14.15). `det Z = θ²/(2(1 − cos θ))`, singular at |θ| = 2π."""
     theta = vector(theta, 3, "theta")
@@ -109,14 +104,14 @@ def Z(theta: ArrayLike) -> Mat:
     return jnp.eye(3, dtype=theta.dtype) - 0.5 * R + d * _hat_sq(theta, x2)
 
 
-def compose(phi: ArrayLike, psi: ArrayLike) -> Vec:
+def compose(phi: Vec3Like, psi: Vec3Like) -> Vec3:
     """Rotation vector (|θ| ≤ π) of `exp(phi) @ exp(psi)`, via the quaternion product."""
     phi = vector(phi, 3, "phi")
     psi = vector(psi, 3, "psi")
     return quat.to_rotvec(quat.mul(quat.from_rotvec(phi), quat.from_rotvec(psi)))
 
 
-def shadow(theta: ArrayLike) -> Vec:
+def shadow(theta: Vec3Like) -> Vec3:
     """The same rotation with |θ| ≤ π: `θ − 2πk θ/|θ|`, k = round(|θ|/2π) (Zhilin 3.14).
 
     `P(θ) = P(θ − 2π θ/|θ|)`, so the shadow vector keeps an integration of θ̇ = Zω away from the
@@ -133,7 +128,7 @@ def shadow(theta: ArrayLike) -> Vec:
     return scale[..., None] * theta
 
 
-def angular_velocity(P: ArrayLike, P_dot: ArrayLike, frame: Frame = "space") -> Vec:
+def angular_velocity(P: Mat33Like, P_dot: Mat33Like, frame: Frame = "space") -> Vec3:
     """`ω = −½ (Ṗ Pᵀ)_× = vee(Ṗ Pᵀ)` (space, Zhilin 3.12) or `Ω = vee(Pᵀ Ṗ) = Pᵀ ω` (body)."""
     P = matrix(P, "P")
     P_dot = matrix(P_dot, "P_dot")
@@ -145,7 +140,7 @@ def angular_velocity(P: ArrayLike, P_dot: ArrayLike, frame: Frame = "space") -> 
     raise ValueError(f"frame must be 'space' or 'body', got {frame!r}")
 
 
-def project(A: ArrayLike) -> Mat:
+def project(A: Mat33Like) -> Mat33:
     """Nearest rotation to a (nearly orthogonal) matrix in the Frobenius norm: `U diag(1,1,det) Vᵀ`
     from the SVD `A = U S Vᵀ` (orthogonal Procrustes)."""
     A = matrix(A, "A")
@@ -155,20 +150,20 @@ def project(A: ArrayLike) -> Mat:
     return U @ Vt
 
 
-def distance(P1: ArrayLike, P2: ArrayLike) -> Array:
+def distance(P1: Mat33Like, P2: Mat33Like) -> Scalar:
     """Geodesic distance `|log(P1ᵀ P2)|` ∈ [0, π] (the angle of the relative rotation)."""
     q1 = quat.from_matrix(matrix(P1, "P1"))
     q2 = quat.from_matrix(matrix(P2, "P2"))
     return quat.angle(quat.mul(quat.conj(q1), q2))
 
 
-def orthogonality_error(P: ArrayLike) -> Array:
+def orthogonality_error(P: Mat33Like) -> Scalar:
     """`‖PᵀP − E‖_F`: how far a matrix is from orthogonal."""
     P = matrix(P, "P")
     return jnp.linalg.norm(jnp.swapaxes(P, -1, -2) @ P - jnp.eye(3, dtype=P.dtype), axis=(-2, -1))
 
 
-def check_rotation(P: ArrayLike, atol: float = 1e-6, name: str = "P") -> Mat:
+def check_rotation(P: Mat33Like, atol: float = 1e-6, name: str = "P") -> Mat33:
     """Return `P` unchanged if it is a rotation to within `atol` (`‖PᵀP − E‖_F` and `det P − 1`);
     otherwise a ValueError stating the deviation (concrete input) or a runtime error (under
     jit/vmap), with the fix."""
@@ -191,7 +186,7 @@ def check_rotation(P: ArrayLike, atol: float = 1e-6, name: str = "P") -> Mat:
     )
 
 
-def random(key: PRNGKeyArray, shape: tuple[int, ...] = (), dtype=None) -> Mat:
+def random(key: PRNGKeyArray, shape: tuple[int, ...] = (), dtype: DTypeLike | None = None) -> Mat33:
     """Rotations uniformly distributed on SO(3) (Haar measure), from normalised Gaussian
     quaternions."""
     return quat.to_matrix(quat.random(key, shape, dtype))

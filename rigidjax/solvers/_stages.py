@@ -11,7 +11,10 @@ from collections.abc import Callable
 import diffrax
 import jax.numpy as jnp
 import jax.tree_util as jtu
-from jaxtyping import Array, PyTree
+import numpy as np
+from jaxtyping import Float, PyTree
+
+from .._custom_types import RealScalarLike
 
 
 def tableau_of(method: diffrax.AbstractSolver) -> diffrax.ButcherTableau:
@@ -25,7 +28,7 @@ def tableau_of(method: diffrax.AbstractSolver) -> diffrax.ButcherTableau:
     return tab
 
 
-def lincomb(coeffs, trees: list[PyTree]) -> PyTree:
+def lincomb(coeffs: Float[np.ndarray, " k"], trees: list[PyTree]) -> PyTree:
     """Σ c_k trees[k], skipping zero coefficients (PyTrees, possibly None)."""
     pairs = [(float(c), t) for c, t in zip(coeffs, trees, strict=False) if c != 0]
     if not pairs:
@@ -40,13 +43,16 @@ def lincomb(coeffs, trees: list[PyTree]) -> PyTree:
     return jtu.tree_map(comb, *[t for _, t in pairs])
 
 
-def increment(h: Array, coeffs, ks: list[PyTree]) -> PyTree:
+def increment(h: RealScalarLike, coeffs: Float[np.ndarray, " k"], ks: list[PyTree]) -> PyTree:
     """h Σ c_k k_k."""
     return jtu.tree_map(lambda d: h * d, lincomb(coeffs, ks))
 
 
 def stages(
-    tab: diffrax.ButcherTableau, t0: Array, h: Array, stage: Callable[[Array, PyTree], PyTree]
+    tab: diffrax.ButcherTableau,
+    t0: RealScalarLike,
+    h: RealScalarLike,
+    stage: Callable[[RealScalarLike, PyTree | None], PyTree],
 ) -> list[PyTree]:
     """Stage derivatives `k_i = stage(t0 + c_i h, h Σ_j a_ij k_j)`; the first stage gets `None`
     as its (zero) increment."""
@@ -60,6 +66,6 @@ def stages(
     return ks
 
 
-def stacked(h: Array, ks: list[PyTree]) -> PyTree:
+def stacked(h: RealScalarLike, ks: list[PyTree]) -> PyTree:
     """Stage increments `h k_i` stacked on a leading axis, as Diffrax's dense outputs take them."""
     return jtu.tree_map(lambda *leaves: h * jnp.stack(leaves), *ks)

@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import ClassVar
 
 import diffrax
 import jax.tree_util as jtu
+from jaxtyping import PyTree
 
+from .._custom_types import VF, Args, BoolScalarLike, DenseInfo, RealScalarLike, Y
 from . import _stages
 
 
-class ExplicitRK(diffrax.AbstractSolver):
+class ExplicitRK(diffrax.AbstractSolver[None]):
     """Any explicit Diffrax Runge–Kutta tableau (`method`, default Tsit5) with its stages unrolled
     into one fused step, its embedded error estimate (for `diffrax.PIDController`) and its own
     dense output. Same numbers as `method` itself (no first-same-as-last reuse: one more
@@ -21,26 +24,40 @@ class ExplicitRK(diffrax.AbstractSolver):
 
     term_structure: ClassVar = diffrax.ODETerm
 
-    def __check_init__(self):
+    def __check_init__(self) -> None:
         _stages.tableau_of(self.method)
 
+    # A property where Diffrax declares a ClassVar, as Diffrax's own wrappers (`HalfSolver`) do.
     @property
-    def interpolation_cls(self):
+    def interpolation_cls(  # pyright: ignore[reportIncompatibleMethodOverride]
+        self,
+    ) -> Callable[..., diffrax.AbstractLocalInterpolation]:
         return self.method.interpolation_cls
 
-    def order(self, terms):
+    def order(self, terms: PyTree[diffrax.AbstractTerm]) -> int | None:
         return self.method.order(terms)
 
-    def error_order(self, terms):
+    def error_order(self, terms: PyTree[diffrax.AbstractTerm]) -> RealScalarLike | None:
         return self.method.error_order(terms)
 
-    def init(self, terms, t0, t1, y0, args):
+    def init(
+        self, terms: diffrax.AbstractTerm, t0: RealScalarLike, t1: RealScalarLike, y0: Y, args: Args
+    ) -> None:
         return None
 
-    def func(self, terms, t0, y0, args):
+    def func(self, terms: diffrax.AbstractTerm, t0: RealScalarLike, y0: Y, args: Args) -> VF:
         return terms.vf(t0, y0, args)
 
-    def step(self, terms, t0, t1, y0, args, solver_state, made_jump):
+    def step(
+        self,
+        terms: diffrax.AbstractTerm,
+        t0: RealScalarLike,
+        t1: RealScalarLike,
+        y0: Y,
+        args: Args,
+        solver_state: None,
+        made_jump: BoolScalarLike,
+    ) -> tuple[Y, Y, DenseInfo, None, diffrax.RESULTS]:
         del solver_state, made_jump
         tab = _stages.tableau_of(self.method)
         h = t1 - t0

@@ -12,33 +12,41 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from typing import ClassVar, Literal
+from typing import ClassVar
 
 import diffrax
 import equinox as eqx
 import jax.numpy as jnp
 import jax.tree_util as jtu
-from jaxtyping import Array
+from jaxtyping import PyTree
 
+from .._custom_types import (
+    Args,
+    BoolScalarLike,
+    DenseInfo,
+    Frame,
+    Mat33,
+    RealScalarLike,
+    Vec3,
+    Y,
+)
 from ..rotations import so3
 from . import _stages
 
-Frame = Literal["space", "body"]
 
-
-def _move(R0: Array, theta: Array, frame: Frame) -> Array:
+def _move(R0: Mat33, theta: Vec3, frame: Frame) -> Mat33:
     E = so3.exp(theta)
     return E @ R0 if frame == "space" else R0 @ E
 
 
-def _reorthonormalize(R: Array) -> Array:
+def _reorthonormalize(R: Mat33) -> Mat33:
     """One Newton step of the polar decomposition, `R (3E − RᵀR)/2`: removes the rounding error
     that products of exact rotations accumulate (quadratically small; a no-op in exact arithmetic),
     so the state stays orthogonal to ~1e-16 for any number of steps."""
     return R @ (3 * jnp.eye(3, dtype=R.dtype) - jnp.swapaxes(R, -1, -2) @ R) / 2
 
 
-def _dexpinv(theta: Array, w: Array, frame: Frame) -> Array:
+def _dexpinv(theta: Vec3, w: Vec3, frame: Frame) -> Vec3:
     """θ̇ = Z(θ) ω (left) or Zᵀ(θ) Ω = Z(−θ) Ω (right), Zhilin (3.14.21)–(3.14.22)."""
     return jnp.einsum("...ij,...j->...i", so3.Z(theta if frame == "space" else -theta), w)
 
@@ -47,17 +55,32 @@ class _LieInterpolation(diffrax.AbstractLocalInterpolation):
     """Dense output: the tableau's own continuous extension applied to the local rotation vector
     θ(t) (and to x), mapped through `exp`, so interpolated attitudes are rotations too."""
 
-    t0: Array
-    t1: Array
-    R0: Array
+    # Diffrax's `AbstractPath` declares t0, t1 as `AbstractVar`, which it shows to type checkers as
+    # `ClassVar`; its own interpolations override them with fields exactly like this.
+    t0: RealScalarLike  # pyright: ignore[reportIncompatibleVariableOverride]
+    t1: RealScalarLike  # pyright: ignore[reportIncompatibleVariableOverride]
+    R0: Mat33
     local: diffrax.AbstractLocalInterpolation
     frame: Frame = eqx.field(static=True)
 
     @classmethod
-    def build(cls, *, t0, t1, R0, y0, y1, k, frame, local_cls):
+    def build(
+        cls,
+        *,
+        t0: RealScalarLike,
+        t1: RealScalarLike,
+        R0: Mat33,
+        y0: tuple[Vec3, Y],
+        y1: tuple[Vec3, Y],
+        k: tuple[PyTree, PyTree],
+        frame: Frame,
+        local_cls: Callable[..., diffrax.AbstractLocalInterpolation],
+    ) -> _LieInterpolation:
         return cls(t0, t1, R0, local_cls(t0=t0, t1=t1, y0=y0, y1=y1, k=k), frame)
 
-    def evaluate(self, t0, t1=None, left=True):
+    def evaluate(
+        self, t0: RealScalarLike, t1: RealScalarLike | None = None, left: bool = True
+    ) -> tuple[Mat33, Y]:
         if t1 is not None:
             return jtu.tree_map(lambda a, b: a - b, self.evaluate(t1), self.evaluate(t0))
         theta, x = self.local.evaluate(t0, left=left)
@@ -66,23 +89,23 @@ class _LieInterpolation(diffrax.AbstractLocalInterpolation):
         return _move(self.R0, theta, self.frame), x
 
 
-class LieTerm(diffrax.AbstractTerm):
+class LieTerm(diffrax.AbstractTerm[tuple[Vec3, PyTree], RealScalarLike]):
     """Vector field on SO(3) × ℝⁿ: `vector_field(t, (R, x), args) -> (w, ẋ)`, `w` the angular
     velocity of R (its Lie-algebra element), `ẋ` shaped like x. Used with `RKMK`."""
 
-    vector_field: Callable
+    vector_field: Callable[[RealScalarLike, tuple[Mat33, Y], Args], tuple[Vec3, PyTree]]
 
-    def vf(self, t, y, args):
+    def vf(self, t: RealScalarLike, y: tuple[Mat33, Y], args: Args) -> tuple[Vec3, PyTree]:
         return self.vector_field(t, y, args)
 
-    def contr(self, t0, t1, **kwargs):
+    def contr(self, t0: RealScalarLike, t1: RealScalarLike, **kwargs) -> RealScalarLike:
         return t1 - t0
 
-    def prod(self, vf, control):
+    def prod(self, vf: tuple[Vec3, PyTree], control: RealScalarLike) -> tuple[Vec3, PyTree]:
         return jtu.tree_map(lambda v: control * v, vf)
 
 
-class RKMK(diffrax.AbstractSolver):
+class RKMK(diffrax.AbstractSolver[None]):
     """Geometric (Lie-group) Runge–Kutta solver for `y = (R, x)`, R ∈ SO(3), x any PyTree.
     R may carry leading batch dimensions `(..., 3, 3)` (a batch integrated with one step size).
 
@@ -98,39 +121,60 @@ class RKMK(diffrax.AbstractSolver):
 
     term_structure: ClassVar = LieTerm
 
-    def __check_init__(self):
+    def __check_init__(self) -> None:
         if self.frame not in ("space", "body"):
             raise ValueError(f"frame must be 'space' or 'body', got {self.frame!r}")
         _stages.tableau_of(self.method)
 
+    # A property where Diffrax declares a ClassVar, as Diffrax's own wrappers (`HalfSolver`) do.
     @property
-    def interpolation_cls(self):
+    def interpolation_cls(  # pyright: ignore[reportIncompatibleMethodOverride]
+        self,
+    ) -> Callable[..., _LieInterpolation]:
         return functools.partial(
             _LieInterpolation.build, frame=self.frame, local_cls=self.method.interpolation_cls
         )
 
-    def order(self, terms):
+    def order(self, terms: PyTree[diffrax.AbstractTerm]) -> int | None:
         return self.method.order(terms)
 
-    def error_order(self, terms):
+    def error_order(self, terms: PyTree[diffrax.AbstractTerm]) -> RealScalarLike | None:
         return self.method.error_order(terms)
 
-    def init(self, terms, t0, t1, y0, args):
+    def init(
+        self,
+        terms: diffrax.AbstractTerm,
+        t0: RealScalarLike,
+        t1: RealScalarLike,
+        y0: tuple[Mat33, Y],
+        args: Args,
+    ) -> None:
         return None
 
-    def func(self, terms, t0, y0, args):
+    def func(
+        self, terms: diffrax.AbstractTerm, t0: RealScalarLike, y0: tuple[Mat33, Y], args: Args
+    ) -> tuple[Mat33, Y]:
         R, _ = y0
         w, xdot = terms.vf(t0, y0, args)
         W = so3.hat(w)
         return (W @ R if self.frame == "space" else R @ W), xdot
 
-    def step(self, terms, t0, t1, y0, args, solver_state, made_jump):
+    def step(
+        self,
+        terms: diffrax.AbstractTerm,
+        t0: RealScalarLike,
+        t1: RealScalarLike,
+        y0: tuple[Mat33, Y],
+        args: Args,
+        solver_state: None,
+        made_jump: BoolScalarLike,
+    ) -> tuple[tuple[Mat33, Y], tuple[Mat33, Y], DenseInfo, None, diffrax.RESULTS]:
         del solver_state, made_jump
         tab = _stages.tableau_of(self.method)
         R0, x0 = y0
         h = t1 - t0
 
-        def stage(t, inc):
+        def stage(t: RealScalarLike, inc: tuple[Vec3, PyTree] | None) -> tuple[Vec3, PyTree]:
             # inc = (θ, Δx): local rotation vector and increment of x at this stage
             if inc is None:
                 theta, x = jnp.zeros_like(R0[..., 0]), x0

@@ -10,8 +10,10 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, PyTree
 
+from .._custom_types import VF, Args, BoolScalarLike, DenseInfo, RealScalarLike, Y
 
-class StepEndMap(diffrax.AbstractSolver):
+
+class StepEndMap(diffrax.AbstractSolver[tuple[PyTree, Bool[Array, ""]]]):
     """Wrap `solver`; after each accepted or rejected step apply `fn(y1) -> (y1', jumped)`.
 
     `jumped` (a boolean scalar) says that `y1'` differs from `y1` by more than rounding (e.g. the
@@ -22,10 +24,15 @@ class StepEndMap(diffrax.AbstractSolver):
     """
 
     solver: diffrax.AbstractSolver
-    fn: Callable[[PyTree], tuple[PyTree, Bool[Array, ""]]] = eqx.field(static=True)
+    fn: Callable[[Y], tuple[Y, Bool[Array, ""]]] = eqx.field(static=True)
 
     @classmethod
-    def wrap(cls, solver, fn, adjoint: diffrax.AbstractAdjoint) -> StepEndMap:
+    def wrap(
+        cls,
+        solver: diffrax.AbstractSolver,
+        fn: Callable[[Y], tuple[Y, Bool[Array, ""]]],
+        adjoint: diffrax.AbstractAdjoint,
+    ) -> StepEndMap:
         """Wrap `solver`, choosing its `scan_kind` for `adjoint` as Diffrax does for an unwrapped
         Runge–Kutta solver (`"lax"` for `ForwardMode`, which cannot differentiate the bounded
         loop's custom VJP; `"bounded"` for `RecursiveCheckpointAdjoint`)."""
@@ -37,27 +44,48 @@ class StepEndMap(diffrax.AbstractSolver):
                 )
         return cls(solver, fn)
 
+    # Properties where Diffrax declares ClassVars, as Diffrax's own wrappers (`HalfSolver`) do.
     @property
-    def term_structure(self):
+    def term_structure(  # pyright: ignore[reportIncompatibleVariableOverride]
+        self,
+    ) -> PyTree[type[diffrax.AbstractTerm]]:
         return self.solver.term_structure
 
     @property
-    def interpolation_cls(self):
+    def interpolation_cls(  # pyright: ignore[reportIncompatibleMethodOverride]
+        self,
+    ) -> Callable[..., diffrax.AbstractLocalInterpolation]:
         return self.solver.interpolation_cls
 
-    def order(self, terms):
+    def order(self, terms: PyTree[diffrax.AbstractTerm]) -> int | None:
         return self.solver.order(terms)
 
-    def error_order(self, terms):
+    def error_order(self, terms: PyTree[diffrax.AbstractTerm]) -> RealScalarLike | None:
         return self.solver.error_order(terms)
 
-    def strong_order(self, terms):
+    def strong_order(self, terms: PyTree[diffrax.AbstractTerm]) -> RealScalarLike | None:
         return self.solver.strong_order(terms)
 
-    def init(self, terms, t0, t1, y0, args):
+    def init(
+        self,
+        terms: PyTree[diffrax.AbstractTerm],
+        t0: RealScalarLike,
+        t1: RealScalarLike,
+        y0: Y,
+        args: Args,
+    ) -> tuple[PyTree, Bool[Array, ""]]:
         return self.solver.init(terms, t0, t1, y0, args), jnp.array(False)
 
-    def step(self, terms, t0, t1, y0, args, solver_state, made_jump):
+    def step(
+        self,
+        terms: PyTree[diffrax.AbstractTerm],
+        t0: RealScalarLike,
+        t1: RealScalarLike,
+        y0: Y,
+        args: Args,
+        solver_state: tuple[PyTree, Bool[Array, ""]],
+        made_jump: BoolScalarLike,
+    ) -> tuple[Y, Y | None, DenseInfo, tuple[PyTree, Bool[Array, ""]], diffrax.RESULTS]:
         inner_state, jumped = solver_state
         y1, y_err, dense_info, inner_state, result = self.solver.step(
             terms, t0, t1, y0, args, inner_state, jnp.logical_or(made_jump, jumped)
@@ -65,5 +93,7 @@ class StepEndMap(diffrax.AbstractSolver):
         y1, jumped = self.fn(y1)
         return y1, y_err, dense_info, (inner_state, jumped), result
 
-    def func(self, terms, t0, y0, args):
+    def func(
+        self, terms: PyTree[diffrax.AbstractTerm], t0: RealScalarLike, y0: Y, args: Args
+    ) -> VF:
         return self.solver.func(terms, t0, y0, args)
