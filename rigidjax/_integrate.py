@@ -15,8 +15,9 @@ import jax.numpy as jnp
 import optimistix as optx
 from jaxtyping import Array, PyTree
 
+from ._custom_types import Frame
 from .solvers.explicit_rk import unrolled
-from .solvers.rkmk import RKMK, Frame
+from .solvers.rkmk import RKMK
 from .solvers.step_end_map import StepEndMap
 
 

@@ -22,6 +22,7 @@ import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .._checks import as_float, check_times, vector
+from .._custom_types import RealLike
 from .._integrate import SolveOptions
 from ..mechanics.body import RigidBody
 from ..mechanics.dynamics import simulate
@@ -59,41 +60,44 @@ class InertiaEstimate(eqx.Module):
         return principal_axes(self.inertia)[1]
 
 
-def _tril(params: Array) -> Array:
+def _tril(params: Float[Array, "6"]) -> Float[Array, "3 3"]:
     """L (lower triangular) from (L00, L11, L22, L10, L20, L21)."""
     L = jnp.diag(params[:3])
     return L.at[1, 0].set(params[3]).at[2, 0].set(params[4]).at[2, 1].set(params[5])
 
 
-def inertia_from_params(params: Array, trace: float | None) -> Float[Array, "3 3"]:
+def inertia_from_params(params: Float[ArrayLike, "6"], trace: float | None) -> Float[Array, "3 3"]:
     """`I = tr(Σ) E − Σ`, Σ = L Lᵀ, rescaled to `trace` if given (physical for every value;
     with `trace` the overall scale of L is a redundant direction, harmless to Levenberg–Marquardt
     and removed from the covariance by the pseudo-inverse)."""
-    L = _tril(params)
+    L = _tril(jnp.asarray(params))
     S = L @ L.T
     I = jnp.trace(S) * jnp.eye(3, dtype=S.dtype) - S
     return I if trace is None else I * (trace / jnp.trace(I))
 
 
-def params_from_inertia(I: Array, trace: float | None = None) -> Array:
+def params_from_inertia(
+    I: Float[ArrayLike, "3 3"], trace: float | None = None
+) -> Float[Array, "6"]:
     """Parameters of `I` (Σ = tr(I)/2 E − I, Cholesky; a planar body's singular Σ is nudged by
     1e-9·tr Σ so the factor exists)."""
     del trace  # the same factor serves both gauges
+    I = jnp.asarray(I)
     S = jnp.trace(I) / 2 * jnp.eye(3, dtype=I.dtype) - I
     L = jnp.linalg.cholesky(S + 1e-9 * jnp.trace(S) * jnp.eye(3, dtype=I.dtype))
     return jnp.concatenate([jnp.diagonal(L), jnp.stack([L[1, 0], L[2, 0], L[2, 1]])])
 
 
 def identify_inertia(
-    ts: ArrayLike,
-    omega_obs: ArrayLike | None = None,
-    quat_obs: ArrayLike | None = None,
+    ts: RealLike,
+    omega_obs: RealLike | None = None,
+    quat_obs: RealLike | None = None,
     torque: Callable | None = None,
     *,
     torque_frame: Literal["body", "space"] = "body",
-    inertia_guess: ArrayLike | None = None,
-    omega0_guess: ArrayLike | None = None,
-    q0_guess: ArrayLike | None = None,
+    inertia_guess: RealLike | None = None,
+    omega0_guess: RealLike | None = None,
+    q0_guess: RealLike | None = None,
     trace: float | None = None,
     sigma_omega: float = 1.0,
     sigma_angle: float = 1.0,

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Literal, Unpack
+from typing import Unpack
 
 import diffrax
 import equinox as eqx
@@ -12,12 +12,12 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
 from .._checks import as_float, check_times, matrix, norm_tolerance
+from .._custom_types import Frame, RealLike
 from .._integrate import SolveKwargs, SolveOptions, solve_saved
 from ..rotations import so3
 from ..solvers.rkmk import LieTerm
 from .formulations import AbstractKinematics, check_omega, lookup
 
-Frame = Literal["space", "body"]
 OmegaLike = Callable[[Array], Array] | diffrax.AbstractPath | tuple[ArrayLike, ArrayLike]
 
 
@@ -69,8 +69,8 @@ class _LieField(eqx.Module):
 
 def darboux(
     omega: OmegaLike,
-    ts: ArrayLike,
-    P0: ArrayLike | None = None,
+    ts: RealLike,
+    P0: RealLike | None = None,
     frame: Frame = "space",
     method: str | AbstractKinematics = "rotvec",
     *,

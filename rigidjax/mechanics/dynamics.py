@@ -11,9 +11,10 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import jax.tree_util as jtu
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, Float
 
 from .._checks import as_float, check_finite, check_times, check_unit_norm, vector
+from .._custom_types import RealLike
 from .._integrate import SolveKwargs, SolveOptions, solve_saved
 from .._trajectory import AbstractTrajectory
 from ..kinematics.formulations import AbstractKinematics, Quaternion, lookup
@@ -174,9 +175,9 @@ def _component_args(I: Array) -> tuple:
 
 def simulate(
     body: RigidBody,
-    omega0: ArrayLike,
-    q0: ArrayLike | None = None,
-    ts: ArrayLike | None = None,
+    omega0: RealLike,
+    q0: RealLike | None = None,
+    ts: RealLike | None = None,
     torque: Torque | None = None,
     kinematics: str | AbstractKinematics = "quat",
     *,

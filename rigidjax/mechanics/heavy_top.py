@@ -46,7 +46,7 @@ import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike, Bool, Float
+from jaxtyping import Array, Bool, Float
 
 from .._checks import (
     as_float,
@@ -58,6 +58,7 @@ from .._checks import (
     validate,
     vector,
 )
+from .._custom_types import RealLike, Scalar, Vec3
 from .._integrate import SolveKwargs, SolveOptions, solve_saved
 from .._trajectory import AbstractTrajectory
 from ..kinematics.formulations import Quaternion
@@ -79,9 +80,6 @@ __all__ = [
     "vertical_from_quat",
 ]
 
-Scalar = Float[Array, "*batch"]
-Vec = Float[Array, "*batch 3"]
-
 
 class HeavyTop(eqx.Module):
     """A heavy rigid body with one fixed point O.
@@ -97,7 +95,7 @@ class HeavyTop(eqx.Module):
     com: Float[Array, "*batch 3"]
     g: Float[Array, "*batch"]
 
-    def __init__(self, inertia: ArrayLike, mass: ArrayLike, com: ArrayLike, g: ArrayLike = 9.81):
+    def __init__(self, inertia: RealLike, mass: RealLike, com: RealLike, g: RealLike = 9.81):
         self.body = RigidBody(inertia, mass)
         dtype = self.body.inertia.dtype
         self.com = check_finite(vector(com, 3, "com").astype(dtype), "com")
@@ -112,7 +110,7 @@ class HeavyTop(eqx.Module):
         return self.body.mass
 
     @property
-    def gravity_moment(self) -> Vec:
+    def gravity_moment(self) -> Vec3:
         """`m g r_c` (Borisov–Mamaev's `μ r`): the torque is `γ × (m g r_c)`."""
         return (self.mass * self.g)[..., None] * self.com
 
@@ -120,13 +118,13 @@ class HeavyTop(eqx.Module):
         """`(I, I⁻¹)` for `rigidjax.body.euler_rhs` (moments or tensors, see `RigidBody`)."""
         return self.body.operator()
 
-    def torque(self, gamma: ArrayLike) -> Vec:
+    def torque(self, gamma: RealLike) -> Vec3:
         """Moment of gravity about O in body axes, `m g γ × r_c`."""
         gamma = vector(gamma, 3, "gamma")
         return jnp.cross(gamma, self.gravity_moment)
 
 
-def euler_poisson_rhs(top: HeavyTop, omega: ArrayLike, gamma: ArrayLike) -> tuple[Vec, Vec]:
+def euler_poisson_rhs(top: HeavyTop, omega: RealLike, gamma: RealLike) -> tuple[Vec3, Vec3]:
     """`(Ω̇, γ̇)` of the Euler–Poisson equations `I Ω̇ + Ω × IΩ = m g γ × r_c`, `γ̇ = γ × Ω`."""
     omega = vector(omega, 3, "omega")
     gamma = vector(gamma, 3, "gamma")
@@ -134,7 +132,7 @@ def euler_poisson_rhs(top: HeavyTop, omega: ArrayLike, gamma: ArrayLike) -> tupl
     return euler_rhs(I, I_inv, omega, top.torque(gamma)), jnp.cross(gamma, omega)
 
 
-def vertical_from_quat(q: ArrayLike) -> Vec:
+def vertical_from_quat(q: RealLike) -> Vec3:
     """`γ = P(q)ᵀ e_Z`: the space vertical in body axes (the third row of P)."""
     q = vector(q, 4, "q")
     e_z = jnp.zeros(q.shape[:-1] + (3,), q.dtype).at[..., 2].set(1)
@@ -156,7 +154,7 @@ def _momentum(top: HeavyTop, omega: Array) -> Array:
     return jnp.einsum("...ij,...j->...i", I, omega)
 
 
-def energy(top: HeavyTop, omega: ArrayLike, gamma: ArrayLike) -> Scalar:
+def energy(top: HeavyTop, omega: RealLike, gamma: RealLike) -> Scalar:
     """`E = ½ Ω·IΩ + m g r_c·γ` (kinetic + potential `m g Z_c`, Z up)."""
     omega = vector(omega, 3, "omega")
     gamma = vector(gamma, 3, "gamma")
@@ -164,14 +162,14 @@ def energy(top: HeavyTop, omega: ArrayLike, gamma: ArrayLike) -> Scalar:
     return 0.5 * jnp.sum(_momentum(top, omega) * omega, -1) + jnp.sum(mu_r * gamma, -1)
 
 
-def area_integral(top: HeavyTop, omega: ArrayLike, gamma: ArrayLike) -> Scalar:
+def area_integral(top: HeavyTop, omega: RealLike, gamma: RealLike) -> Scalar:
     """`M·γ = IΩ·γ`: the vertical component of the angular momentum about O."""
     omega = vector(omega, 3, "omega")
     gamma = vector(gamma, 3, "gamma")
     return jnp.sum(_momentum(top, omega) * gamma, -1)
 
 
-def geometric_integral(gamma: ArrayLike) -> Scalar:
+def geometric_integral(gamma: RealLike) -> Scalar:
     """`|γ|²` (= 1 on every motion)."""
     gamma = vector(gamma, 3, "gamma")
     return jnp.sum(gamma * gamma, -1)
@@ -207,7 +205,7 @@ def _require(ok: Array, x: Array, msg: str) -> Array:
 
 
 def lagrange_integral(
-    top: HeavyTop, omega: ArrayLike, *, check: bool = True, rtol: float = 1e-9
+    top: HeavyTop, omega: RealLike, *, check: bool = True, rtol: float = 1e-9
 ) -> Scalar:
     """`M3 = (IΩ)_3` (= I3 Ω3): conserved for the Lagrange top (`I1 = I2` with the tensor
     diagonal, centre of mass on the symmetry axis e3). `check=True` raises for other tops (within
@@ -226,8 +224,8 @@ def lagrange_integral(
 
 def kovalevskaya_integral(
     top: HeavyTop,
-    omega: ArrayLike,
-    gamma: ArrayLike,
+    omega: RealLike,
+    gamma: RealLike,
     *,
     check: bool = True,
     rtol: float = 1e-9,
@@ -332,11 +330,11 @@ def _unit(x: Array, name: str, hint: str = "") -> Array:
 
 def simulate_heavy_top(
     top: HeavyTop,
-    omega0: ArrayLike,
-    gamma0: ArrayLike | None = None,
-    ts: ArrayLike | None = None,
+    omega0: RealLike,
+    gamma0: RealLike | None = None,
+    ts: RealLike | None = None,
     *,
-    q0: ArrayLike | None = None,
+    q0: RealLike | None = None,
     options: SolveOptions | None = None,
     **solve_kwargs: Unpack[SolveKwargs],
 ) -> HeavyTopTrajectory:

@@ -26,7 +26,7 @@ import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, Float
 
 from .._checks import (
     as_float,
@@ -37,11 +37,10 @@ from .._checks import (
     validate,
     vector,
 )
+from .._custom_types import RealLike, Scalar, Vec3
 from .._integrate import SolveKwargs, SolveOptions, solve_saved
 from .._trajectory import AbstractTrajectory
 
-Vec = Float[Array, "*batch 3"]
-Scalar = Float[Array, "*batch"]
 Potential = Callable[[Array], Array]
 
 
@@ -55,7 +54,7 @@ def _check_alpha(alpha: Array) -> Array:
     )
 
 
-def reduced_mass(m1: ArrayLike, m2: ArrayLike) -> Scalar:
+def reduced_mass(m1: RealLike, m2: RealLike) -> Scalar:
     """`m = m1 m2/(m1 + m2)`: the two-body problem reduces to one point of this mass moving in the
     central field U(|r1 − r2|) (Zegrya–Parshin 004)."""
     m1 = check_positive(as_float(m1, "m1"), "m1")
@@ -73,8 +72,8 @@ class OrbitalElements(eqx.Module):
     """
 
     energy: Scalar
-    angular_momentum: Vec
-    lrl: Vec
+    angular_momentum: Vec3
+    lrl: Vec3
     p: Scalar
     eccentricity: Scalar
     alpha: Scalar
@@ -128,11 +127,11 @@ class OrbitalElements(eqx.Module):
         e = self.eccentricity
         return jnp.where(e > 1, 2 * jnp.arcsin(1 / jnp.where(e > 1, e, 2.0)), jnp.nan)
 
-    def radius(self, phi: ArrayLike) -> Scalar:
+    def radius(self, phi: RealLike) -> Scalar:
         """`r(φ)`, φ the polar angle from the LRL vector (true anomaly); see `orbit_radius`."""
         return orbit_radius(phi, self.p, self.eccentricity, repulsive=None, alpha=self.alpha)
 
-    def true_anomaly(self, r: ArrayLike) -> Scalar:
+    def true_anomaly(self, r: RealLike) -> Scalar:
         """Polar angle φ of the position `r` measured from the LRL vector A in the sense of M
         (`φ ∈ (−π, π]`; undefined for a circular orbit, where A = 0)."""
         r = vector(r, 3, "r")
@@ -141,14 +140,14 @@ class OrbitalElements(eqx.Module):
         return jnp.arctan2(y, jnp.sum(A * r, axis=-1))
 
 
-def energy(r: ArrayLike, v: ArrayLike, mass: ArrayLike, alpha: ArrayLike) -> Scalar:
+def energy(r: RealLike, v: RealLike, mass: RealLike, alpha: RealLike) -> Scalar:
     """`E = m v²/2 − α/r`."""
     r, v = vector(r, 3, "r"), vector(v, 3, "v")
     m, alpha = as_float(mass, "mass"), as_float(alpha, "alpha")
     return 0.5 * m * jnp.sum(v * v, axis=-1) - alpha / jnp.linalg.norm(r, axis=-1)
 
 
-def lrl_vector(r: ArrayLike, v: ArrayLike, mass: ArrayLike, alpha: ArrayLike) -> Vec:
+def lrl_vector(r: RealLike, v: RealLike, mass: RealLike, alpha: RealLike) -> Vec3:
     """Laplace–Runge–Lenz vector `A = v × M − α r/r`, `M = m r × v` (004 (10.10));
     `|A| = |α| ε`, pointing to the pericentre. Multiply by m for the `p × M − mα r̂` form."""
     r, v = vector(r, 3, "r"), vector(v, 3, "v")
@@ -158,7 +157,7 @@ def lrl_vector(r: ArrayLike, v: ArrayLike, mass: ArrayLike, alpha: ArrayLike) ->
 
 
 def elements(
-    r: ArrayLike, v: ArrayLike, mass: ArrayLike = 1.0, alpha: ArrayLike = 1.0
+    r: RealLike, v: RealLike, mass: RealLike = 1.0, alpha: RealLike = 1.0
 ) -> OrbitalElements:
     """Orbital elements of the state `(r, v)` (shapes `(..., 3)`) of a point of mass `mass` in
     `U = −α/r` (α signed: > 0 attraction, < 0 repulsion). Formulas of Zegrya–Parshin 004 §10:
@@ -195,12 +194,12 @@ def elements(
 
 
 def orbit_radius(
-    phi: ArrayLike,
-    p: ArrayLike,
-    eccentricity: ArrayLike,
+    phi: RealLike,
+    p: RealLike,
+    eccentricity: RealLike,
     repulsive: bool | None = False,
     *,
-    alpha: ArrayLike | None = None,
+    alpha: RealLike | None = None,
 ) -> Scalar:
     """Conic in polar form about the centre, φ measured from the pericentre:
     `r = p/(1 + ε cos φ)` (attraction, 004 (10.23)) or `r = p/(ε cos φ − 1)` (repulsion, (10.51)).
@@ -219,7 +218,7 @@ def orbit_radius(
 
 
 def rutherford_impact_parameter(
-    chi: ArrayLike, mass: ArrayLike, v_inf: ArrayLike, alpha: ArrayLike
+    chi: RealLike, mass: RealLike, v_inf: RealLike, alpha: RealLike
 ) -> Scalar:
     """Rutherford's formula `ρ = (|α|/(m v∞²)) cot(χ/2)` (004 (10.57)): the impact parameter that
     gives the deflection χ ∈ (0, π); the same for attraction and repulsion."""
@@ -228,7 +227,7 @@ def rutherford_impact_parameter(
     return k / jnp.tan(chi / 2)
 
 
-def rutherford_angle(rho: ArrayLike, mass: ArrayLike, v_inf: ArrayLike, alpha: ArrayLike) -> Scalar:
+def rutherford_angle(rho: RealLike, mass: RealLike, v_inf: RealLike, alpha: RealLike) -> Scalar:
     """Deflection angle from the impact parameter, the inverse of Rutherford's formula:
     `χ = 2 arctan(|α|/(m v∞² ρ))` (χ → π as ρ → 0, χ → 0 as ρ → ∞)."""
     rho = as_float(rho, "rho")
@@ -237,7 +236,7 @@ def rutherford_angle(rho: ArrayLike, mass: ArrayLike, v_inf: ArrayLike, alpha: A
 
 
 def rutherford_cross_section(
-    chi: ArrayLike, mass: ArrayLike, v_inf: ArrayLike, alpha: ArrayLike
+    chi: RealLike, mass: RealLike, v_inf: RealLike, alpha: RealLike
 ) -> Scalar:
     """Differential cross-section `dσ/do = (α/(2 m v∞²))² / sin⁴(χ/2)`, which follows from
     `dσ = 2πρ |dρ/dχ| dχ` and `do = 2π sin χ dχ` with Rutherford's ρ(χ)."""
@@ -307,7 +306,7 @@ class TwoBodyTrajectory(AbstractTrajectory):
         """`(r1 − r2, v1 − v2)`: the coordinate of the reduced problem."""
         return self.r1 - self.r2, self.v1 - self.v2
 
-    def centre_of_mass(self, m1: ArrayLike, m2: ArrayLike) -> tuple[Array, Array]:
+    def centre_of_mass(self, m1: RealLike, m2: RealLike) -> tuple[Array, Array]:
         """`(R, V)` of the centre of mass: `(m1 r1 + m2 r2)/(m1 + m2)`."""
         m1, m2 = as_float(m1, "m1"), as_float(m2, "m2")
         M = m1 + m2
@@ -328,12 +327,12 @@ def _field_args(alpha, potential, dtype):
 
 
 def simulate_central(
-    r0: ArrayLike,
-    v0: ArrayLike,
-    ts: ArrayLike,
+    r0: RealLike,
+    v0: RealLike,
+    ts: RealLike,
     *,
-    mass: ArrayLike = 1.0,
-    alpha: ArrayLike | None = None,
+    mass: RealLike = 1.0,
+    alpha: RealLike | None = None,
     potential: Potential | None = None,
     options: SolveOptions | None = None,
     **solve_kwargs: Unpack[SolveKwargs],
@@ -368,15 +367,15 @@ def simulate_central(
 
 
 def simulate_two_body(
-    r1: ArrayLike,
-    v1: ArrayLike,
-    r2: ArrayLike,
-    v2: ArrayLike,
-    ts: ArrayLike,
+    r1: RealLike,
+    v1: RealLike,
+    r2: RealLike,
+    v2: RealLike,
+    ts: RealLike,
     *,
-    m1: ArrayLike,
-    m2: ArrayLike,
-    alpha: ArrayLike | None = None,
+    m1: RealLike,
+    m2: RealLike,
+    alpha: RealLike | None = None,
     potential: Potential | None = None,
     options: SolveOptions | None = None,
     **solve_kwargs: Unpack[SolveKwargs],

@@ -44,24 +44,23 @@ from typing import Unpack
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, Float
 
 from .._checks import as_float, check_positive, is_concrete, validate, vector
+from .._custom_types import RealLike, Vec3
 from .._integrate import SolveKwargs, SolveOptions
 from ..rotations import quat, so3
 from .body import RigidBody
 from .sixdof import SixDofTrajectory, Wrench, simulate_6dof
 
-Vec = Float[Array, "*batch 3"]
 
-
-def mean_motion(mu: ArrayLike, a: ArrayLike) -> Array:
+def mean_motion(mu: RealLike, a: RealLike) -> Array:
     """`n = √(μ/a³)` (Kepler's third law `T²/a³ = 4π²/μ` of 004 with α/m = μ)."""
     mu = check_positive(as_float(mu, "mu"), "mu")
     return jnp.sqrt(mu / check_positive(as_float(a, "a"), "a") ** 3)
 
 
-def circular_orbit(mu: ArrayLike, radius: ArrayLike) -> tuple[Vec, Vec]:
+def circular_orbit(mu: RealLike, radius: RealLike) -> tuple[Vec3, Vec3]:
     """`(R0, V0)` of a circular orbit in the space XY plane: `R0 = (r, 0, 0)`,
     `V0 = (0, √(μ/r), 0)` (orbit normal +Z)."""
     mu = check_positive(as_float(mu, "mu"), "mu")
@@ -70,7 +69,7 @@ def circular_orbit(mu: ArrayLike, radius: ArrayLike) -> tuple[Vec, Vec]:
     return jnp.stack([r, z, z], -1), jnp.stack([z, jnp.sqrt(mu / r), z], -1)
 
 
-def gravity_gradient_torque(mu: ArrayLike, R: ArrayLike, q: ArrayLike, inertia: ArrayLike) -> Vec:
+def gravity_gradient_torque(mu: RealLike, R: RealLike, q: RealLike, inertia: RealLike) -> Vec3:
     """`K = (3μ/R³) n × (I n)` in body axes, `n = Pᵀ R/R` the Earth→satellite direction in body
     axes, `R` the satellite position in space axes, `q` the attitude (body → space) and `inertia`
     the tensor `(3, 3)` (or principal moments `(3,)` along the body axes) about the COM."""
@@ -84,7 +83,7 @@ def gravity_gradient_torque(mu: ArrayLike, R: ArrayLike, q: ArrayLike, inertia: 
     return 3 * as_float(mu, "mu")[..., None] / r2**1.5 * jnp.cross(n, In)
 
 
-def lvlh_matrix(R: ArrayLike, V: ArrayLike) -> Float[Array, "*batch 3 3"]:
+def lvlh_matrix(R: RealLike, V: RealLike) -> Float[Array, "*batch 3 3"]:
     """LVLH frame as a rotation `L` (columns: along-track x, negative orbit normal y, nadir z, in
     space axes), so `L` maps LVLH → space components."""
     R, V = vector(R, 3, "R"), vector(V, 3, "V")
@@ -95,7 +94,7 @@ def lvlh_matrix(R: ArrayLike, V: ArrayLike) -> Float[Array, "*batch 3 3"]:
     return jnp.stack([x, y, z], axis=-1)
 
 
-def lvlh_rate(R: ArrayLike, V: ArrayLike) -> Vec:
+def lvlh_rate(R: RealLike, V: RealLike) -> Vec3:
     """Angular velocity of the LVLH frame in space axes on a Kepler orbit: `h/R²`, h = R × V (the
     frame turns about the fixed orbit normal with the polar-angle rate φ̇ = |h|/R²)."""
     R, V = vector(R, 3, "R"), vector(V, 3, "V")
@@ -103,11 +102,11 @@ def lvlh_rate(R: ArrayLike, V: ArrayLike) -> Vec:
 
 
 def lvlh_state(
-    R: ArrayLike,
-    V: ArrayLike,
-    rotvec: ArrayLike | None = None,
-    omega_rel: ArrayLike | None = None,
-) -> tuple[Float[Array, "*batch 4"], Vec]:
+    R: RealLike,
+    V: RealLike,
+    rotvec: RealLike | None = None,
+    omega_rel: RealLike | None = None,
+) -> tuple[Float[Array, "*batch 4"], Vec3]:
     """Initial attitude `(q, Ω)` of a body whose axes are turned by the rotation vector `rotvec`
     (roll, pitch, yaw; LVLH axes) from LVLH: `P = L exp(rotvec × E)`, and whose body angular
     velocity is that of LVLH plus `omega_rel` (body axes): `Ω = Cᵀ Lᵀ ω_o + Ω_rel`.
@@ -123,7 +122,7 @@ def lvlh_state(
     return quat.from_matrix(P), w_o
 
 
-def lvlh_angles(R: ArrayLike, V: ArrayLike, q: ArrayLike) -> Vec:
+def lvlh_angles(R: RealLike, V: RealLike, q: RealLike) -> Vec3:
     """Rotation vector `(φ, θ, ψ)` of the body relative to LVLH, `C = Lᵀ P(q)`: roll, pitch,
     yaw to first order (the pitch angle exactly for motion in the orbit plane)."""
     L = lvlh_matrix(R, V)
@@ -153,7 +152,7 @@ def _moments(inertia) -> Array:
     return jnp.diagonal(I)
 
 
-def pitch_frequency(inertia: ArrayLike | RigidBody, n: ArrayLike) -> Array:
+def pitch_frequency(inertia: RealLike | RigidBody, n: RealLike) -> Array:
     """Small pitch libration frequency on a circular orbit of mean motion n:
     `ω_pitch = n √(3 (I_x − I_z)/I_y)` (x along-track, y orbit normal, z nadir). Raises for a
     concrete inertia with `I_x ≤ I_z` (the pitch equilibrium is then unstable)."""
@@ -170,7 +169,7 @@ def pitch_frequency(inertia: ArrayLike | RigidBody, n: ArrayLike) -> Array:
     return as_float(n, "n") * jnp.sqrt(3 * (Ix - Iz) / Iy)
 
 
-def roll_yaw_frequencies(inertia: ArrayLike | RigidBody, n: ArrayLike) -> tuple[Array, Array]:
+def roll_yaw_frequencies(inertia: RealLike | RigidBody, n: RealLike) -> tuple[Array, Array]:
     """The two coupled roll/yaw libration frequencies (ascending), the roots of
     `ω⁴ − ω² n² (1 + 3k₁ + k₁k₃) + 4k₁k₃ n⁴ = 0`, `k₁ = (I_y − I_z)/I_x`, `k₃ = (I_y − I_x)/I_z`.
     NaN where the roll/yaw motion is unstable (complex roots)."""
@@ -208,12 +207,12 @@ class _SatelliteLoads(eqx.Module):
 
 def simulate_satellite(
     body: RigidBody,
-    R0: ArrayLike,
-    V0: ArrayLike,
-    q0: ArrayLike | None,
-    omega0: ArrayLike,
-    ts: ArrayLike,
-    mu: ArrayLike,
+    R0: RealLike,
+    V0: RealLike,
+    q0: RealLike | None,
+    omega0: RealLike,
+    ts: RealLike,
+    mu: RealLike,
     *,
     gravity_gradient: bool = True,
     options: SolveOptions | None = None,

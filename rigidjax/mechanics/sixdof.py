@@ -32,13 +32,12 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
 from .._checks import as_float, check_times, check_unit_norm, initial_vector, vector
+from .._custom_types import RealLike, Vec3
 from .._integrate import SolveKwargs, SolveOptions, solve_saved
 from .._trajectory import AbstractTrajectory
 from ..kinematics.formulations import Quaternion
 from ..rotations import quat
 from .body import RigidBody, euler_rhs
-
-Vec = Float[Array, "*batch 3"]
 
 
 class RigidState(eqx.Module):
@@ -57,7 +56,7 @@ class RigidState(eqx.Module):
         return quat.to_matrix(self.q)
 
     @property
-    def omega_space(self) -> Vec:
+    def omega_space(self) -> Vec3:
         """Angular velocity in space axes `ω = P Ω`."""
         return quat.rotate(self.q, self.omega)
 
@@ -81,9 +80,9 @@ class Wrench(eqx.Module):
 
 
 def wrench_at_point(
-    force: ArrayLike,
-    point: ArrayLike,
-    q: ArrayLike,
+    force: RealLike,
+    point: RealLike,
+    q: RealLike,
     *,
     force_frame: Literal["space", "body"] = "space",
 ) -> Wrench:
@@ -108,7 +107,7 @@ def wrench_at_point(
 
 
 def pure_torque(
-    torque: ArrayLike, q: ArrayLike, *, frame: Literal["space", "body"] = "body"
+    torque: RealLike, q: RealLike, *, frame: Literal["space", "body"] = "body"
 ) -> Wrench:
     """A couple (zero net force; 004: its moment is the same about every origin), given in
     `frame` axes."""
@@ -120,13 +119,13 @@ def pure_torque(
     return Wrench(jnp.zeros_like(K), K)
 
 
-def point_position(state: RigidState, point: ArrayLike) -> Vec:
+def point_position(state: RigidState, point: RealLike) -> Vec3:
     """Space position of the body point with body coordinates `point` (relative to the COM):
     `R + P r`."""
     return state.R + quat.rotate(state.q, vector(point, 3, "point"))
 
 
-def point_velocity(state: RigidState, point: ArrayLike) -> Vec:
+def point_velocity(state: RigidState, point: RealLike) -> Vec3:
     """Space velocity of a body point: `v = V + Ω × r` (004 (11.3)), i.e.
     `V + P (Ω × r_body)` with Ω and r in body axes."""
     r = vector(point, 3, "point")
@@ -134,14 +133,14 @@ def point_velocity(state: RigidState, point: ArrayLike) -> Vec:
     return state.V + quat.rotate(state.q, jnp.cross(omega, r))
 
 
-def linear_momentum(body: RigidBody, state: RigidState) -> Vec:
+def linear_momentum(body: RigidBody, state: RigidState) -> Vec3:
     """`P = m V` (space axes)."""
     return body.mass[..., None] * state.V
 
 
 def angular_momentum(
     body: RigidBody, state: RigidState, *, frame: Literal["space", "body"] = "space"
-) -> Vec:
+) -> Vec3:
     """Angular momentum about the COM: `M = I Ω` in body axes, `P I Ω` in space axes."""
     M = jnp.einsum("...ij,...j->...i", body.inertia, state.omega)
     return quat.rotate(state.q, M) if frame == "space" else M
@@ -227,11 +226,11 @@ class SixDofTrajectory(AbstractTrajectory):
 
 def simulate_6dof(
     body: RigidBody,
-    R0: ArrayLike,
-    V0: ArrayLike,
-    q0: ArrayLike | None,
-    omega0: ArrayLike,
-    ts: ArrayLike,
+    R0: RealLike,
+    V0: RealLike,
+    q0: RealLike | None,
+    omega0: RealLike,
+    ts: RealLike,
     wrench: WrenchFn | None = None,
     *,
     options: SolveOptions | None = None,
