@@ -5,7 +5,7 @@ parameter convention `m = k²`. Usable on their own: `jit`, `vmap`, `grad` work,
 keep their dtype, leading batch dimensions broadcast, loops have a fixed number of steps.
 
 Sources: Abramowitz & Stegun (A&S) 16.4 (arithmetic–geometric mean, descending Landen), 16.17
-(addition theorems), 17.6 (AGM for K and F); THEORY.md §6.
+(addition theorems), 17.6 (AGM for K and F); THEORY §6.
 """
 
 from __future__ import annotations

@@ -3,10 +3,10 @@ functions in every regime (polhodes about the largest and the smallest axis, the
 symmetric tops, the sphere), the attitude, the flip period and the time of the first flip.
 
 Pure JAX (`jit`, `vmap`, `grad`/`jacfwd`, float32/float64, leading batch dimensions broadcast).
-Conventions (THEORY.md): `P` maps body vectors to space, quaternions scalar-first `(w, x, y, z)`
+Conventions (THEORY): `P` maps body vectors to space, quaternions scalar-first `(w, x, y, z)`
 with the Hamilton product, `Ω` the body angular velocity and `M = I Ω` the body angular momentum.
 
-Sources: Landau & Lifshitz, *Mechanics* §37; Zegrya–Parshin lectures (seed 004, THEORY.md §6).
+Sources: Landau & Lifshitz, *Mechanics* §37; Zegrya–Parshin lectures (004, THEORY §6).
 The separatrix, sign and phase handling, and the attitude were derived here (Celledoni et al. 2008
 has sign errors, see Principia's `documentation/Celledoni.tex`); every formula is checked against
 direct integration in the tests.
@@ -132,6 +132,17 @@ class _Plan(NamedTuple):
     bs: Array
 
 
+def _gaps_and_p(I: Array, w: Array) -> tuple[Array, Array, Array, Array]:
+    """`a = (I2 − I1)/(I3 − I1)`, `b = (I3 − I2)/(I3 − I1)`, `P1 = I1 Ω1² + b I2 Ω2²` and
+    `P3 = a I2 Ω2² + I3 Ω3²` for relabelled moments `I` and components `w` (the derivation
+    above)."""
+    I1, I2, I3 = I
+    w1, w2, w3 = w
+    a = (I2 - I1) / (I3 - I1)
+    b = (I3 - I2) / (I3 - I1)
+    return a, b, I1 * w1**2 + b * I2 * w2**2, a * I2 * w2**2 + I3 * w3**2
+
+
 def _plan(I: Array, w: Array) -> _Plan:
     dtype = I.dtype
     dI = jnp.asarray(_DUMMY_I, dtype)
@@ -161,10 +172,7 @@ def _plan(I: Array, w: Array) -> _Plan:
     wp = jnp.where(sep, jnp.asarray((0.5, 0.5, 1.0), dtype), w[pp])
     I1, I2, I3 = Ip
     w1, w2, w3 = wp
-    a = (I2 - I1) / (I3 - I1)
-    b = (I3 - I2) / (I3 - I1)
-    P1 = I1 * w1**2 + b * I2 * w2**2
-    P3 = a * I2 * w2**2 + I3 * w3**2
+    a, b, P1, P3 = _gaps_and_p(Ip, wp)
     bQ = b * I3 * w3**2 - a * I1 * w1**2
     m = a * P1 / (b * P3)
     m1 = jnp.maximum(bQ / (b * P3), jnp.finfo(dtype).tiny)
@@ -177,10 +185,7 @@ def _plan(I: Array, w: Array) -> _Plan:
     ws = jnp.where(sep, w[ps], jnp.ones((3,), dtype))
     J1, J2, J3 = Is
     v1, v2, v3 = ws
-    bs = (J3 - J2) / (J3 - J1)
-    as_ = (J2 - J1) / (J3 - J1)
-    P1s = J1 * v1**2 + bs * J2 * v2**2
-    P3s = as_ * J2 * v2**2 + J3 * v3**2
+    _, bs, P1s, P3s = _gaps_and_p(Is, ws)
     A = jnp.stack([jnp.sqrt(P1s / J1), jnp.sqrt(P1s / (bs * J2)), safe_sqrt(P3s / J3)])
     c0 = safe_sqrt((J1 * v1**2 + J3 * v3**2) / (P1s + P3s))
     has_c = c0 > 0
@@ -380,7 +385,7 @@ _Q_CYCLIC = ((0.5, 0.5, 0.5, 0.5), (0.5, -0.5, -0.5, -0.5), (1.0, 0.0, 0.0, 0.0)
 
 def _euler_zxz_quat(psi: Array, n: Array) -> Array:
     """Quaternion of `Rz(ψ) Rx(θ) Rz(φ)` with θ, φ the polar angles of the unit vector
-    `n = (sin θ sin φ, sin θ cos φ, cos θ)` (THEORY.md §3 Euler-angle formula:
+    `n = (sin θ sin φ, sin θ cos φ, cos θ)` (THEORY §3 Euler-angle formula:
     `λ0 = cos(θ/2) cos((ψ+φ)/2)`, `λ1 = sin(θ/2) cos((ψ−φ)/2)`, `λ2 = sin(θ/2) sin((ψ−φ)/2)`,
     `λ3 = cos(θ/2) sin((ψ+φ)/2)`)."""
     half_t = 0.5 * jnp.arctan2(jnp.sqrt(n[..., 0] ** 2 + n[..., 1] ** 2), n[..., 2])

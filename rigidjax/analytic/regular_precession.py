@@ -1,6 +1,6 @@
 """The free symmetric top (regular precession) and rotation about a fixed axis, in closed form.
 
-Sources: Landau & Lifshitz, *Mechanics* §33, §35; THEORY.md §6. Conventions as in
+Sources: Landau & Lifshitz, *Mechanics* §33, §35; THEORY §6. Conventions as in
 `rigidjax.analytic.euler_poinsot`.
 """
 
@@ -29,7 +29,7 @@ from .._numerics import safe_sqrt
 from ..rotations import quat
 
 # ----------------------------------------------------------------------------------------------
-# Free symmetric top (Zegrya–Parshin 004 (12.7)–(12.8), (12.34)–(12.39); THEORY.md §6)
+# Free symmetric top (Zegrya–Parshin 004 (12.7)–(12.8), (12.34)–(12.39); THEORY §6)
 # ----------------------------------------------------------------------------------------------
 
 

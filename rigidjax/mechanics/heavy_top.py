@@ -1,6 +1,6 @@
 """The heavy rigid body about a fixed point: Euler–Poisson equations, integrals, classical cases.
 
-Variables (Borisov–Mamaev, seed 001, "Euler–Poisson variables"; THEORY.md conventions): the body
+Variables (Borisov–Mamaev, 001, "Euler–Poisson variables"; THEORY conventions): the body
 angular velocity Ω, the angular momentum `M = IΩ` about the fixed point O, and
 `γ = Pᵀ e_Z` — the space vertical (the fixed Z axis, pointing UP) in body axes, the third row of
 P (P maps body to space). `I` is the inertia tensor about O (Steiner: `I_O = I_C + m(a²E − aa)`,
@@ -32,9 +32,9 @@ system is integrable:
   constant. (Any other ν — e.g. `m g x0 / I1` — is not.) For a general equatorial
   `r_c = (x0, y0, 0)` (the axes turned about e3) `K = |z² − (m g / I3)(x0 + i y0) w|²`.
 
-Sources: Borisov & Mamaev, seed 001 (Euler–Poisson variables, quaternions); Zegrya & Parshin,
-seed 004 (Euler's equations, inertia about a point); the Lagrange/Kovalevskaya integrals and the
-Maievskii criterion are the classical ones (not in the seeds; verified numerically in
+Sources: Borisov & Mamaev, 001 (Euler–Poisson variables, quaternions); Zegrya & Parshin,
+004 (Euler's equations, inertia about a point); the Lagrange/Kovalevskaya integrals and the
+Maievskii criterion are the classical ones (not in the sources; verified numerically in
 tests/test_heavy_top.py).
 """
 

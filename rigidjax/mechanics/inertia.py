@@ -1,6 +1,6 @@
 """Inertia tensors: point masses, primitive bodies, Steiner's theorem, principal axes, checks.
 
-Source: Zegrya–Parshin lectures (seed 004, THEORY.md §6). The inertia tensor about a point O is
+Source: Zegrya–Parshin lectures (004, THEORY §6). The inertia tensor about a point O is
 `I_ik = Σ m (x_l² δ_ik − x_i x_k)` (an integral for a continuum), symmetric and positive
 semi-definite; its eigenvalues are the principal moments, its eigenvectors the principal axes.
 Each principal moment is at most the sum of the other two (equality for a planar body,
@@ -19,7 +19,7 @@ from typing import Annotated, Any
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Bool, DTypeLike
+from jaxtyping import Array, Bool, DTypeLike
 
 from .._checks import as_float, check_shape, floats, is_concrete, matrix, vector
 from .._custom_types import (
@@ -72,6 +72,16 @@ def _sym(a: Vec3) -> Mat33:
 # --------------------------------------------------------------------------- point masses
 
 
+def _points(masses: RealLike, positions: RealLike) -> tuple[Array, Array]:
+    """`masses (..., N)` and `positions (..., N, 3)` checked and broadcast together."""
+    m, x = floats((masses, "masses"), (positions, "positions"))
+    check_shape(x, (3,), "positions")
+    if x.ndim < 2:
+        raise ValueError(f"positions must have shape (..., N, 3), got {tuple(x.shape)}")
+    shape = jnp.broadcast_shapes(m.shape, x.shape[:-1])
+    return jnp.broadcast_to(m, shape), jnp.broadcast_to(x, (*shape, 3))
+
+
 def point_masses(
     masses: Annotated[RealLike, "*#batch N"], positions: Annotated[RealLike, "*#batch N 3"]
 ) -> Mat33:
@@ -81,13 +91,7 @@ def point_masses(
     `masses` (..., N) (broadcast against `positions[..., 0]`, so a scalar means equal masses),
     `positions` (..., N, 3). Returns (..., 3, 3).
     """
-    m, x = floats((masses, "masses"), (positions, "positions"))
-    check_shape(x, (3,), "positions")
-    if x.ndim < 2:
-        raise ValueError(f"positions must have shape (..., N, 3), got {tuple(x.shape)}")
-    shape = jnp.broadcast_shapes(m.shape, x.shape[:-1])
-    m = jnp.broadcast_to(m, shape)
-    x = jnp.broadcast_to(x, (*shape, 3))
+    m, x = _points(masses, positions)
     r2 = jnp.sum(x * x, axis=-1)
     eye = jnp.eye(3, dtype=x.dtype)
     return jnp.sum(m * r2, axis=-1)[..., None, None] * eye - jnp.einsum(
@@ -99,13 +103,7 @@ def center_of_mass(
     masses: Annotated[RealLike, "*#batch N"], positions: Annotated[RealLike, "*#batch N 3"]
 ) -> Vec3:
     """`R = Σ m x / Σ m` for `masses` (..., N), `positions` (..., N, 3)."""
-    m, x = floats((masses, "masses"), (positions, "positions"))
-    check_shape(x, (3,), "positions")
-    if x.ndim < 2:
-        raise ValueError(f"positions must have shape (..., N, 3), got {tuple(x.shape)}")
-    shape = jnp.broadcast_shapes(m.shape, x.shape[:-1])
-    m = jnp.broadcast_to(m, shape)
-    x = jnp.broadcast_to(x, (*shape, 3))
+    m, x = _points(masses, positions)
     return jnp.einsum("...n,...ni->...i", m, x) / jnp.sum(m, axis=-1)[..., None]
 
 
@@ -126,14 +124,19 @@ def spherical_shell(mass: ScalarLike, radius: ScalarLike) -> Mat33:
     return _diag(i, i, i)
 
 
+def _pairwise_squares(mass: ScalarLike, lengths: Vec3Like, name: str, divisor: float) -> Mat33:
+    """`diag(b² + c², a² + c², a² + b²) m/divisor` for `lengths = (a, b, c)` (..., 3)."""
+    m, s = floats((mass, "mass"), (lengths, name))
+    check_shape(s, (3,), name)
+    a2, b2, c2 = s[..., 0] ** 2, s[..., 1] ** 2, s[..., 2] ** 2
+    k = m / divisor
+    return _diag(k * (b2 + c2), k * (a2 + c2), k * (a2 + b2))
+
+
 def box(mass: ScalarLike, size: Vec3Like) -> Mat33:
     """Homogeneous rectangular box with full edge lengths `size = (a, b, c)` (..., 3) along
     x, y, z, about its centre: `diag(b² + c², a² + c², a² + b²) m/12`."""
-    m, s = floats((mass, "mass"), (size, "size"))
-    check_shape(s, (3,), "size")
-    a2, b2, c2 = s[..., 0] ** 2, s[..., 1] ** 2, s[..., 2] ** 2
-    k = m / 12.0
-    return _diag(k * (b2 + c2), k * (a2 + c2), k * (a2 + b2))
+    return _pairwise_squares(mass, size, "size", 12.0)
 
 
 def solid_cylinder(mass: ScalarLike, radius: ScalarLike, height: ScalarLike) -> Mat33:
@@ -155,11 +158,7 @@ def rod(mass: ScalarLike, length: ScalarLike) -> Mat33:
 def ellipsoid(mass: ScalarLike, semi_axes: Vec3Like) -> Mat33:
     """Homogeneous solid ellipsoid with semi-axes `(a, b, c)` (..., 3) along x, y, z:
     `diag(b² + c², a² + c², a² + b²) m/5`."""
-    m, s = floats((mass, "mass"), (semi_axes, "semi_axes"))
-    check_shape(s, (3,), "semi_axes")
-    a2, b2, c2 = s[..., 0] ** 2, s[..., 1] ** 2, s[..., 2] ** 2
-    k = m / 5.0
-    return _diag(k * (b2 + c2), k * (a2 + c2), k * (a2 + b2))
+    return _pairwise_squares(mass, semi_axes, "semi_axes", 5.0)
 
 
 def solid_cone(mass: ScalarLike, radius: ScalarLike, height: ScalarLike) -> Mat33:
@@ -351,30 +350,40 @@ def check_inertia(I: Mat33Like, name: str = "inertia", rtol: float | None = None
     if not finite.all():
         _, at = first(~finite)
         problems.append(f"has non-finite entries{at}")
-    if (bad_sym & finite).any():
-        idx, at = first(bad_sym & finite)
-        problems.append(
-            f"is not symmetric: max|I - I^T| = {asym[idx]:.3g} > rtol*max|I| = "
-            f"{tol * size[idx]:.3g}{at}; symmetrize it with (I + I^T)/2"
-        )
-    if (bad_pd & ~bad_sym).any():
-        idx, at = first(bad_pd & ~bad_sym)
+
+    def pd(idx: tuple[int, ...]) -> tuple[str, str]:
         wi = w[idx]
-        problems.append(
+        return (
             f"is not positive definite: smallest principal moment {wi[0]:.6g} <= rtol*largest "
-            f"= {tol * np.max(np.abs(wi)):.3g} (moments {wi}){at}; a rotator/collinear "
-            f"body (I3 = 0) is a physical limit but not invertible, as needed for dynamics: "
-            f"give the body some thickness"
+            f"= {tol * np.max(np.abs(wi)):.3g} (moments {wi})"
+        ), (
+            "; a rotator/collinear body (I3 = 0) is a physical limit but not invertible, as "
+            "needed for dynamics: give the body some thickness"
         )
-    if (bad_tri & ~bad_sym).any():
-        idx, at = first(bad_tri & ~bad_sym)
+
+    def tri(idx: tuple[int, ...]) -> tuple[str, str]:
         wi = w[idx]
-        problems.append(
+        return (
             f"violates the triangle inequality: largest principal moment I3 = {wi[2]:.6g} "
             f"exceeds I1 + I2 = {wi[0] + wi[1]:.6g} by {excess[idx]:.3g} "
             f"(relative {excess[idx] / np.max(np.abs(wi)):.3g} > rtol = {tol:g})"
-            f"{at}; no mass distribution has such moments: check the values/units"
-        )
+        ), "; no mass distribution has such moments: check the values/units"
+
+    def sym(idx: tuple[int, ...]) -> tuple[str, str]:
+        return (
+            f"is not symmetric: max|I - I^T| = {asym[idx]:.3g} > rtol*max|I| = "
+            f"{tol * size[idx]:.3g}"
+        ), "; symmetrize it with (I + I^T)/2"
+
+    for mask, describe in (
+        (bad_sym & finite, sym),
+        (bad_pd & ~bad_sym, pd),
+        (bad_tri & ~bad_sym, tri),
+    ):
+        if mask.any():
+            idx, at = first(mask)
+            what, fix = describe(idx)
+            problems.append(what + at + fix)
     if problems:
         raise ValueError(f"{name} " + f"; and {name} ".join(problems))
     return I

@@ -1,7 +1,7 @@
 """Stationary rotations of the free rigid body and their linear stability.
 
-Sources: Zegrya–Parshin lectures (seed 004, §12, (12.41)–(12.50)); exercises (seed 002:
-stationary solutions of Euler's equations and their first-approximation systems); THEORY.md §6.
+Sources: Zegrya–Parshin lectures (004, §12, (12.41)–(12.50)); exercises (002:
+stationary solutions of Euler's equations and their first-approximation systems); THEORY §6.
 
 **Stationary rotations.** Euler's equations without torque, `I Ω̇ + Ω × IΩ = 0`, have `Ω̇ = 0`
 exactly when `Ω × IΩ = 0`, i.e. Ω is a principal axis: `Ω = Ω0 e_k` (in principal axes).

@@ -1,6 +1,6 @@
 """Andoyer–Deprit canonical variables `(L, G, H, l, g, h)` of a rotating rigid body.
 
-Source: Borisov–Mamaev, *Rigid body dynamics*, ch. 1 §4 (seed 001); THEORY §5.
+Source: Borisov–Mamaev, *Rigid body dynamics*, ch. 1 §4 (001); THEORY §5.
 
 - `L = M3`: projection of the angular momentum M on the body axis Oz;
 - `G = |M|`;
@@ -19,13 +19,13 @@ Source: Borisov–Mamaev, *Rigid body dynamics*, ch. 1 §4 (seed 001); THEORY §
     M_body  = (√(G² − L²) sin l, √(G² − L²) cos l, L),
     M_space = P M_body = G (sin I sin h, −sin I cos h, cos I).
 
-The third row of `P`, γ (the space axis OZ in body components), is the seed's
+The third row of `P`, γ (the space axis OZ in body components), is the source's
 
     γ1 = (sin ζ cos τ + sin τ cos ζ cos g) sin l + cos ζ sin g cos l,
     γ2 = (sin ζ cos τ + sin τ cos ζ cos g) cos l − cos ζ sin g sin l,
     γ3 = sin ζ sin τ − cos τ cos ζ cos g,          sin τ = L/G, sin ζ = H/G.
 
-(The seed's printed α and β are corrupted, α·γ ≠ 0; this module derives everything from `P`.)
+(The source's printed α and β are corrupted, α·γ ≠ 0; this module derives everything from `P`.)
 
 Singular sets of the inverse map `to_andoyer`: J ∈ {0, π} (M ∥ body Oz, `|L| = G`: the body node
 line and `l` are undefined) and I ∈ {0, π} (M ∥ space OZ, `|H| = G`: `h` is undefined). There the
@@ -216,7 +216,7 @@ def to_andoyer(M_body: Vec3Like, P: Mat33Like) -> AndoyerVariables:
     where n_s = (cos h, sin h, 0) is the space node line of Σ ⊥ M (the unit vector along OZ × M)
     and n_b = (cos l, −sin l, 0) the body one (along M × Oz): g is the angle from n_s to P n_b about
     M. Equivalently `g = atan2(G (γ1 M2 − γ2 M1), H L − G² γ3)`, both arguments carrying the factor
-    G² sin I sin J; the seed's `g = arcsin((M2γ1 − M1γ2)/√(M1² + M2²))` misses the factor
+    G² sin I sin J; the source's `g = arcsin((M2γ1 − M1γ2)/√(M1² + M2²))` misses the factor
     1/sin I and loses the quadrant. Angles are in (−π, π].
 
     Singular sets (the map is discontinuous there): M ∥ body Oz (`|L| = G`, J ∈ {0, π}) leaves l
@@ -273,7 +273,7 @@ def to_andoyer(M_body: Vec3Like, P: Mat33Like) -> AndoyerVariables:
 
 
 def gamma(L: ScalarLike, G: ScalarLike, H: ScalarLike, l: ScalarLike, g: ScalarLike) -> Vec3:
-    """γ, the space axis OZ in body components (third row of P; Poisson variable), by the seed's
+    """γ, the space axis OZ in body components (third row of P; Poisson variable), by the source's
     formulas (Borisov–Mamaev (001); THEORY §5), `sin τ = L/G`, `sin ζ = H/G`:
 
         γ1 = (sin ζ cos τ + sin τ cos ζ cos g) sin l + cos ζ sin g cos l,

@@ -1,6 +1,6 @@
 """Angle systems: Euler / Tait–Bryan angles, generalized (Davenport) angles, and their kinematics.
 
-Conventions (THEORY.md §1, §4): `P` maps body vectors to space. Sequence strings are SciPy's
+Conventions (THEORY §1, §4): `P` maps body vectors to space. Sequence strings are SciPy's
 (`Rotation.from_euler`): three letters from `xyz`, all uppercase = intrinsic (rotating axes),
 all lowercase = extrinsic (fixed axes), no two consecutive letters equal. Intrinsic `"ABC"` with
 angles `(α, β, γ)` is `P = R_A(α) R_B(β) R_C(γ)`; extrinsic `"abc"` is `P = R_c(γ) R_b(β) R_a(α)`.

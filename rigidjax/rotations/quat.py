@@ -1,6 +1,6 @@
 """Rodrigues–Hamilton parameters (unit quaternions), scalar-first `(λ0, λ1, λ2, λ3)`.
 
-Conventions (THEORY.md §3): Hamilton product, `λ0 = cos(θ/2)`, `λ = sin(θ/2) m`; `q` and `−q` are
+Conventions (THEORY §3): Hamilton product, `λ0 = cos(θ/2)`, `λ = sin(θ/2) m`; `q` and `−q` are
 the same rotation. Functions that map a quaternion to a rotation accept any non-zero `q` and treat
 it as `q/|q|` (like SciPy); `normalize` raises on a zero quaternion.
 """

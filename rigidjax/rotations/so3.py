@@ -1,6 +1,6 @@
 """Rotation tensor P ∈ SO(3) and rotation vector θ = θ m (Zhilin ch. 3.12–3.14; article 003).
 
-Conventions (THEORY.md): `P` maps a body vector to space, `a' = P a`; `hat(a) = a × E`;
+Conventions (THEORY): `P` maps a body vector to space, `a' = P a`; `hat(a) = a × E`;
 left (space) angular velocity `Ṗ = ω × P`, right (body) `Ṗ = P (Ω × E)`, `Ω = Pᵀ ω`.
 """
 
