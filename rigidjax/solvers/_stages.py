@@ -9,12 +9,13 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import diffrax
+import equinox as eqx
 import jax.numpy as jnp
 import jax.tree_util as jtu
 import numpy as np
 from jaxtyping import Float, PyTree
 
-from .._custom_types import RealScalarLike
+from .._custom_types import Args, RealScalarLike, Y
 
 
 def tableau_of(method: diffrax.AbstractSolver) -> diffrax.ButcherTableau:
@@ -69,3 +70,24 @@ def stages(
 def stacked(h: RealScalarLike, ks: list[PyTree]) -> PyTree:
     """Stage increments `h k_i` stacked on a leading axis, as Diffrax's dense outputs take them."""
     return jtu.tree_map(lambda *leaves: h * jnp.stack(leaves), *ks)
+
+
+class AbstractTableauSolver(diffrax.AbstractSolver[None]):
+    """A solver that runs the stages of the explicit Runge–Kutta `method` itself (`ExplicitRK`,
+    `RKMK`): validation, order and embedded-error order come from `method`; no solver state."""
+
+    method: eqx.AbstractVar[diffrax.AbstractRungeKutta]
+
+    def __check_init__(self) -> None:
+        tableau_of(self.method)
+
+    def order(self, terms: PyTree[diffrax.AbstractTerm]) -> int | None:
+        return self.method.order(terms)
+
+    def error_order(self, terms: PyTree[diffrax.AbstractTerm]) -> RealScalarLike | None:
+        return self.method.error_order(terms)
+
+    def init(
+        self, terms: diffrax.AbstractTerm, t0: RealScalarLike, t1: RealScalarLike, y0: Y, args: Args
+    ) -> None:
+        return None

@@ -7,13 +7,12 @@ from typing import ClassVar
 
 import diffrax
 import jax.tree_util as jtu
-from jaxtyping import PyTree
 
 from .._custom_types import VF, Args, BoolScalarLike, DenseInfo, RealScalarLike, Y
 from . import _stages
 
 
-class ExplicitRK(diffrax.AbstractSolver[None]):
+class ExplicitRK(_stages.AbstractTableauSolver):
     """Any explicit Diffrax Runge–Kutta tableau (`method`, default Tsit5) with its stages unrolled
     into one fused step, its embedded error estimate (for `diffrax.PIDController`) and its own
     dense output. Same numbers as `method` itself (no first-same-as-last reuse: one more
@@ -24,26 +23,12 @@ class ExplicitRK(diffrax.AbstractSolver[None]):
 
     term_structure: ClassVar = diffrax.ODETerm
 
-    def __check_init__(self) -> None:
-        _stages.tableau_of(self.method)
-
     # A property where Diffrax declares a ClassVar, as Diffrax's own wrappers (`HalfSolver`) do.
     @property
     def interpolation_cls(  # pyright: ignore[reportIncompatibleMethodOverride]
         self,
     ) -> Callable[..., diffrax.AbstractLocalInterpolation]:
         return self.method.interpolation_cls
-
-    def order(self, terms: PyTree[diffrax.AbstractTerm]) -> int | None:
-        return self.method.order(terms)
-
-    def error_order(self, terms: PyTree[diffrax.AbstractTerm]) -> RealScalarLike | None:
-        return self.method.error_order(terms)
-
-    def init(
-        self, terms: diffrax.AbstractTerm, t0: RealScalarLike, t1: RealScalarLike, y0: Y, args: Args
-    ) -> None:
-        return None
 
     def func(self, terms: diffrax.AbstractTerm, t0: RealScalarLike, y0: Y, args: Args) -> VF:
         return terms.vf(t0, y0, args)

@@ -105,7 +105,7 @@ class LieTerm(diffrax.AbstractTerm[tuple[Vec3, PyTree], RealScalarLike]):
         return jtu.tree_map(lambda v: control * v, vf)
 
 
-class RKMK(diffrax.AbstractSolver[None]):
+class RKMK(_stages.AbstractTableauSolver):
     """Geometric (Lie-group) Runge–Kutta solver for `y = (R, x)`, R ∈ SO(3), x any PyTree.
     R may carry leading batch dimensions `(..., 3, 3)` (a batch integrated with one step size).
 
@@ -124,7 +124,6 @@ class RKMK(diffrax.AbstractSolver[None]):
     def __check_init__(self) -> None:
         if self.frame not in ("space", "body"):
             raise ValueError(f"frame must be 'space' or 'body', got {self.frame!r}")
-        _stages.tableau_of(self.method)
 
     # A property where Diffrax declares a ClassVar, as Diffrax's own wrappers (`HalfSolver`) do.
     @property
@@ -134,22 +133,6 @@ class RKMK(diffrax.AbstractSolver[None]):
         return functools.partial(
             _LieInterpolation.build, frame=self.frame, local_cls=self.method.interpolation_cls
         )
-
-    def order(self, terms: PyTree[diffrax.AbstractTerm]) -> int | None:
-        return self.method.order(terms)
-
-    def error_order(self, terms: PyTree[diffrax.AbstractTerm]) -> RealScalarLike | None:
-        return self.method.error_order(terms)
-
-    def init(
-        self,
-        terms: diffrax.AbstractTerm,
-        t0: RealScalarLike,
-        t1: RealScalarLike,
-        y0: tuple[Mat33, Y],
-        args: Args,
-    ) -> None:
-        return None
 
     def func(
         self, terms: diffrax.AbstractTerm, t0: RealScalarLike, y0: tuple[Mat33, Y], args: Args
