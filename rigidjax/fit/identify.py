@@ -12,7 +12,6 @@ boundary; only a rank-one Σ (a rod, `I3 = 0`) is singular.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Literal
 
 import diffrax
 import equinox as eqx
@@ -22,7 +21,7 @@ import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .._checks import as_float, check_times, vector
-from .._custom_types import RealLike
+from .._custom_types import Frame, RealLike
 from .._integrate import SolveOptions
 from ..mechanics.body import RigidBody
 from ..mechanics.dynamics import simulate
@@ -94,7 +93,7 @@ def identify_inertia(
     quat_obs: RealLike | None = None,
     torque: Callable | None = None,
     *,
-    torque_frame: Literal["body", "space"] = "body",
+    torque_frame: Frame = "body",
     inertia_guess: RealLike | None = None,
     omega0_guess: RealLike | None = None,
     q0_guess: RealLike | None = None,
@@ -183,7 +182,7 @@ class _Model(eqx.Module):
     """What the fit assumes besides the data: the known torque, the gauge and the noise levels."""
 
     torque: Callable | None
-    torque_frame: Literal["body", "space"] = eqx.field(static=True)
+    torque_frame: Frame = eqx.field(static=True)
     trace: float | None = eqx.field(static=True)
     scale: str = eqx.field(static=True)
     sigma_omega: float

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Literal, Unpack
+from typing import Unpack
 
 import diffrax
 import equinox as eqx
@@ -14,7 +14,7 @@ import jax.tree_util as jtu
 from jaxtyping import Array, Float
 
 from .._checks import as_float, check_finite, check_times, check_unit_norm, vector
-from .._custom_types import RealLike
+from .._custom_types import Frame, RealLike
 from .._integrate import SolveKwargs, SolveOptions, solve_saved
 from .._trajectory import AbstractTrajectory
 from ..kinematics.formulations import AbstractKinematics, Quaternion, lookup
@@ -181,7 +181,7 @@ def simulate(
     torque: Torque | None = None,
     kinematics: str | AbstractKinematics = "quat",
     *,
-    torque_frame: Literal["body", "space"] = "body",
+    torque_frame: Frame = "body",
     options: SolveOptions | None = None,
     **solve_kwargs: Unpack[SolveKwargs],
 ) -> Trajectory:

@@ -20,7 +20,7 @@ Conventions
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Unpack
+from typing import TYPE_CHECKING, Unpack
 
 import diffrax
 import equinox as eqx
@@ -41,7 +41,10 @@ from .._custom_types import RealLike, Scalar, Vec3
 from .._integrate import SolveKwargs, SolveOptions, solve_saved
 from .._trajectory import AbstractTrajectory
 
-Potential = Callable[[Array], Array]
+if TYPE_CHECKING:
+    Potential = Callable[[Array], Array]
+else:  # `simulate_central` checks it itself (a TypeError that names `potential`)
+    Potential = object
 
 
 def _check_alpha(alpha: Array) -> Array:

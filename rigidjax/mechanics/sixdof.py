@@ -24,7 +24,7 @@ is `v = V + Ω × r` (004 (11.3)); in space components `v = V + P (Ω × r_body)
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Literal, Unpack
+from typing import Unpack
 
 import diffrax
 import equinox as eqx
@@ -32,7 +32,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
 from .._checks import as_float, check_times, check_unit_norm, initial_vector, vector
-from .._custom_types import RealLike, Vec3
+from .._custom_types import Frame, RealLike, Vec3
 from .._integrate import SolveKwargs, SolveOptions, solve_saved
 from .._trajectory import AbstractTrajectory
 from ..kinematics.formulations import Quaternion
@@ -84,7 +84,7 @@ def wrench_at_point(
     point: RealLike,
     q: RealLike,
     *,
-    force_frame: Literal["space", "body"] = "space",
+    force_frame: Frame = "space",
 ) -> Wrench:
     """Wrench of a force applied at a body point: `F = f` (space axes) and
     `K = a × f` about the COM in body axes (004 (12.19), `K = K' + a × F`), where `point` a is the
@@ -106,9 +106,7 @@ def wrench_at_point(
     return Wrench(f_space, jnp.cross(a, f_body))
 
 
-def pure_torque(
-    torque: RealLike, q: RealLike, *, frame: Literal["space", "body"] = "body"
-) -> Wrench:
+def pure_torque(torque: RealLike, q: RealLike, *, frame: Frame = "body") -> Wrench:
     """A couple (zero net force; 004: its moment is the same about every origin), given in
     `frame` axes."""
     if frame not in ("space", "body"):
@@ -138,9 +136,7 @@ def linear_momentum(body: RigidBody, state: RigidState) -> Vec3:
     return body.mass[..., None] * state.V
 
 
-def angular_momentum(
-    body: RigidBody, state: RigidState, *, frame: Literal["space", "body"] = "space"
-) -> Vec3:
+def angular_momentum(body: RigidBody, state: RigidState, *, frame: Frame = "space") -> Vec3:
     """Angular momentum about the COM: `M = I Ω` in body axes, `P I Ω` in space axes."""
     M = jnp.einsum("...ij,...j->...i", body.inertia, state.omega)
     return quat.rotate(state.q, M) if frame == "space" else M

@@ -14,43 +14,19 @@ from scipy.integrate import solve_ivp
 from scipy.spatial.transform import Rotation
 
 import rigidjax as rj
-import rigidjax.analytic as analytic
-
-RTOL_IVP = dict(method="DOP853", rtol=1e-13, atol=1e-13)
-
+from rigidjax import analytic
+from tests.helpers import DOP853_TIGHT as RTOL_IVP
+from tests.helpers import rigid_body_dop853, scalar_first
+from tests.helpers import rigid_body_rhs as _rhs
 
 # ---------------------------------------------------------------------------------------------
 # references
 # ---------------------------------------------------------------------------------------------
 
 
-def _rhs(I):
-    I = np.asarray(I, float)
-
-    def f(t, y):
-        w, q = y[:3], y[3:]
-        dw = np.cross(I * w, w) / I  # I Ω̇ = IΩ × Ω
-        dq = 0.5 * np.concatenate([[-q[1:] @ w], q[0] * w + np.cross(q[1:], w)])  # ½ q∘(0, Ω)
-        return np.concatenate([dw, dq])
-
-    return f
-
-
 def ivp(I, w0, ts, q0=(1.0, 0, 0, 0), t0=0.0):
     """Euler's equations + q̇ = ½ q∘(0,Ω) by DOP853 at rtol = atol = 1e-13; (Ω (T,3), q (T,4))."""
-    ts = np.asarray(ts, float)
-    y0 = np.concatenate([np.asarray(w0, float), np.asarray(q0, float)])
-    out = np.empty((len(ts), 7))
-    fwd, bwd = ts >= t0, ts < t0
-    for mask in (fwd, bwd):
-        if mask.any():
-            tt = ts[mask]
-            end = tt.max() if mask is fwd else tt.min()
-            order = np.argsort(tt) if mask is fwd else np.argsort(-tt)
-            sol = solve_ivp(_rhs(I), (t0, end), y0, t_eval=tt[order], **RTOL_IVP)
-            assert sol.success
-            out[np.flatnonzero(mask)[order]] = sol.y.T
-    return out[:, :3], out[:, 3:]
+    return rigid_body_dop853(I, w0, q0, ts, t0=t0)
 
 
 def qdist(a, b):
@@ -60,7 +36,7 @@ def qdist(a, b):
 
 
 def random_quat(rng, n):
-    return Rotation.random(n, random_state=rng).as_quat()[:, [3, 0, 1, 2]]
+    return scalar_first(Rotation.random(n, random_state=rng))
 
 
 # ---------------------------------------------------------------------------------------------

@@ -4,14 +4,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import rigid_body_dop853
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
-from rigidjax.inertia import check_inertia
 from scipy.spatial.transform import Rotation
 
 from rigidjax import identify_inertia
 from rigidjax.fit.identify import inertia_from_params, params_from_inertia
+from rigidjax.mechanics.inertia import check_inertia
+from tests.helpers import rigid_body_dop853
 
 TS = np.linspace(0.0, 8.0, 81)
 R = Rotation.from_rotvec([0.3, -0.5, 0.2]).as_matrix()
@@ -43,6 +43,7 @@ def test_gyro_data_full_tensor():
     np.testing.assert_allclose(est.principal_moments, np.array([1.0, 2.0, 2.6]) / 5.6, atol=2e-3)
 
 
+@pytest.mark.slow  # ~35 s: compiling the attitude-only fit
 def test_attitude_data_only():
     rng = np.random.default_rng(1)
     noisy = Rotation.from_quat(QUAT, scalar_first=True) * Rotation.from_rotvec(
@@ -56,6 +57,7 @@ def test_attitude_data_only():
     assert abs(abs(float(jnp.dot(est.q0, Q0))) - 1) < 1e-5
 
 
+@pytest.mark.slow  # ~50 s: compiling the fit with a torque model and both data kinds
 def test_known_torque_gives_absolute_inertia():
     omega, quat_ = scipy_data(K)
     est = identify_inertia(

@@ -5,11 +5,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import rigid_body_dop853
-from rigidjax.invariants import drift
 from scipy.spatial.transform import Rotation
 
 from rigidjax import RK4, RigidBody, angular_momentum, energy, simulate
+from rigidjax.mechanics.invariants import drift
+from tests.helpers import rigid_body_dop853
 
 TS = jnp.linspace(0.0, 5.0, 6)
 TIGHT = dict(rtol=1e-12, atol=1e-12)

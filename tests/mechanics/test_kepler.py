@@ -6,7 +6,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-import rigidjax.kepler as kepler
+
+from rigidjax.mechanics import kepler
 
 # a generic, tilted ellipse (not in a coordinate plane)
 M_, ALPHA = 2.0, 3.0

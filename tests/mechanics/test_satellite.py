@@ -3,11 +3,11 @@ frequency measured from the simulation, roll/yaw against the linearised equation
 
 import numpy as np
 import pytest
-import rigidjax.satellite as sat
 from scipy.linalg import expm
 from scipy.spatial.transform import Rotation
 
 from rigidjax import RigidBody
+from rigidjax.mechanics import satellite as sat
 
 MU, RADIUS = 1.0, 1.0
 N_ORB = 1.0  # √(μ/r³)

@@ -6,11 +6,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-import rigidjax.sixdof as sixdof
 from scipy.integrate import solve_ivp
 from scipy.spatial.transform import Rotation
 
 from rigidjax import RigidBody, simulate
+from rigidjax.mechanics import sixdof
 
 MASS = 2.5
 I_TENSOR = (

@@ -4,10 +4,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-import rigidjax.stability as st
 from scipy.spatial.transform import Rotation
 
 from rigidjax import RigidBody, simulate
+from rigidjax.mechanics import stability as st
 
 I123 = np.array([1.0, 2.0, 3.0])
 

@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from rigidjax import euler
+from tests.helpers import zxz_quaternion
 
 pytestmark = pytest.mark.filterwarnings("ignore:Gimbal lock")
 
@@ -99,15 +100,7 @@ def test_classical_angles_borisov_mamaev_quaternion(rng):
     """THEORY §3: λ from (ψ, θ, φ) exactly (no sign change), and P = Rz(ψ) Rx(θ) Rz(φ)."""
     psi, theta, phi = rng.uniform(-4, 4, (3, N))
     q = euler.to_quat(np.stack([psi, theta, phi], -1), "ZXZ")
-    ref = np.stack(
-        [
-            np.cos(theta / 2) * np.cos((psi + phi) / 2),
-            np.sin(theta / 2) * np.cos((psi - phi) / 2),
-            np.sin(theta / 2) * np.sin((psi - phi) / 2),
-            np.cos(theta / 2) * np.sin((psi + phi) / 2),
-        ],
-        -1,
-    )
+    ref = zxz_quaternion(psi, theta, phi)
     np.testing.assert_allclose(q, ref, atol=2e-15)
 
     def rz(t):

@@ -4,10 +4,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import scalar_first as sp
 from scipy.spatial.transform import Rotation
 
 from rigidjax import gibbs
+from tests.helpers import scalar_first as sp
 
 
 def gibbs_ref(r: Rotation) -> np.ndarray:

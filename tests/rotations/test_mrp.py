@@ -3,10 +3,10 @@
 import jax
 import jax.numpy as jnp
 import numpy as np
-from helpers import scalar_first as sp
 from scipy.spatial.transform import Rotation
 
 from rigidjax import mrp
+from tests.helpers import scalar_first as sp
 
 
 def rotations():

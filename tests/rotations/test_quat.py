@@ -4,12 +4,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import scalar_first as sp
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation, Slerp
 
 from rigidjax import quat
+from tests.helpers import scalar_first as sp
+from tests.helpers import zxz_quaternion
 
 SQ3 = np.sqrt(1 / 3)
 AXES = np.array(
@@ -295,15 +296,7 @@ def test_cayley_klein_from_euler_angles(rng):
     )
     # the Euler-angle quaternion of THEORY §3 maps to exactly these entries (sign included)
     psi, th, phi = ang.T
-    lam = np.stack(
-        [
-            np.cos(th / 2) * np.cos((psi + phi) / 2),
-            np.sin(th / 2) * np.cos((psi - phi) / 2),
-            np.sin(th / 2) * np.sin((psi - phi) / 2),
-            np.cos(th / 2) * np.sin((psi + phi) / 2),
-        ],
-        -1,
-    )
+    lam = zxz_quaternion(psi, th, phi)
     np.testing.assert_allclose(quat.to_cayley_klein(lam), ref, atol=1e-15)
     np.testing.assert_allclose(quat.from_cayley_klein(ref), lam, atol=1e-15)
 
