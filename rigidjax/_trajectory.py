@@ -10,11 +10,14 @@ class AbstractTrajectory(eqx.Module):
     `stats` (`num_steps`, `num_accepted_steps`, `num_rejected_steps`, summed over the output
     intervals) and `result` (`diffrax.RESULTS.successful`, or the first failure of the solve
     when it ran with `SolveOptions(throw=False)`; the states after a failure are not valid).
-    Subclasses add the states (`Trajectory.omega`, `HeavyTopTrajectory.gamma`, ...)."""
+    Subclasses add the states (`Trajectory.omega`, `HeavyTopTrajectory.gamma`, ...) as their
+    positional fields; these three are keyword-only."""
 
-    ts: eqx.AbstractVar[Float[Array, " T"]]
-    stats: eqx.AbstractVar[dict[str, Int[Array, ""]]]
-    result: eqx.AbstractVar[diffrax.RESULTS]
+    ts: Float[Array, " T"] = eqx.field(kw_only=True)
+    stats: dict[str, Int[Array, "*batch"]] = eqx.field(kw_only=True)
+    result: diffrax.RESULTS = eqx.field(
+        kw_only=True, default_factory=lambda: diffrax.RESULTS.successful
+    )
 
     @property
     def successful(self) -> bool:

@@ -29,11 +29,8 @@ class Trajectory(AbstractTrajectory):
     """Solution of `simulate`: times `ts (T,)`, body angular velocity `omega (..., T, 3)` and
     attitude `quat (..., T, 4)` (unit, λ0 ≥ 0; P maps body to space); `matrix (..., T, 3, 3)`."""
 
-    ts: Float[Array, " T"]
     omega: Float[Array, "*batch T 3"]
     quat: Float[Array, "*batch T 4"]
-    stats: dict[str, Array]
-    result: diffrax.RESULTS = eqx.field(default_factory=lambda: diffrax.RESULTS.successful)
 
     @property
     def matrix(self) -> Float[Array, "*batch T 3 3"]:

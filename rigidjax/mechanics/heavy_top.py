@@ -281,12 +281,9 @@ class HeavyTopTrajectory(AbstractTrajectory):
     the integrated vertical `gamma (T, 3)` and, when the attitude was integrated, the unit
     quaternion `quat (T, 4)` (λ0 ≥ 0; P body → space), else None."""
 
-    ts: Float[Array, " T"]
     omega: Float[Array, "T 3"]
     gamma: Float[Array, "T 3"]
     quat: Float[Array, "T 4"] | None
-    stats: dict[str, Array]
-    result: diffrax.RESULTS = eqx.field(default_factory=lambda: diffrax.RESULTS.successful)
 
     @property
     def gamma_from_quat(self) -> Float[Array, "T 3"]:

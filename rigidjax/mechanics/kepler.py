@@ -286,23 +286,17 @@ class CentralTrajectory(AbstractTrajectory):
     """Solution of `simulate_central`: times `ts (T,)`, positions `r (T, 3)` and velocities
     `v (T, 3)` relative to the centre of the field."""
 
-    ts: Float[Array, " T"]
     r: Float[Array, "T 3"]
     v: Float[Array, "T 3"]
-    stats: dict[str, Array]
-    result: diffrax.RESULTS = eqx.field(default_factory=lambda: diffrax.RESULTS.successful)
 
 
 class TwoBodyTrajectory(AbstractTrajectory):
     """Solution of `simulate_two_body`: `r1, v1, r2, v2 (T, 3)` in the inertial frame."""
 
-    ts: Float[Array, " T"]
     r1: Float[Array, "T 3"]
     v1: Float[Array, "T 3"]
     r2: Float[Array, "T 3"]
     v2: Float[Array, "T 3"]
-    stats: dict[str, Array]
-    result: diffrax.RESULTS = eqx.field(default_factory=lambda: diffrax.RESULTS.successful)
 
     @property
     def relative(self) -> tuple[Array, Array]:

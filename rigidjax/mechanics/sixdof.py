@@ -203,13 +203,10 @@ class SixDofTrajectory(AbstractTrajectory):
     velocity `V (T, 3)` (space axes), attitude `quat (T, 4)` (unit, λ0 ≥ 0) and body angular
     velocity `omega (T, 3)`; `state` bundles them as a `RigidState` with a leading time axis."""
 
-    ts: Float[Array, " T"]
     R: Float[Array, "T 3"]
     V: Float[Array, "T 3"]
     quat: Float[Array, "T 4"]
     omega: Float[Array, "T 3"]
-    stats: dict[str, Array]
-    result: diffrax.RESULTS = eqx.field(default_factory=lambda: diffrax.RESULTS.successful)
 
     @property
     def state(self) -> RigidState:
