@@ -15,7 +15,7 @@ The package is layered; each layer uses only the ones above it:
 import sys as _sys
 
 from . import analytic, fit, kinematics, mechanics, rotations, solvers
-from ._integrate import SolveOptions
+from ._integrate import IntegrationError, SolveOptions
 from .fit import InertiaEstimate, identify_inertia
 from .kinematics import (
     AbstractKinematics,
@@ -83,6 +83,7 @@ __all__ = [
     "Quaternion",
     "RigidBody",
     "RotationVector",
+    "IntegrationError",
     "SolveOptions",
     "StepEndMap",
     "Trajectory",

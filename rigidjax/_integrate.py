@@ -5,6 +5,7 @@ top, 6-DOF bodies, Kepler, the satellite, identification) goes through `solve_sa
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from collections.abc import Callable
 from typing import TypedDict, cast
 
@@ -15,6 +16,7 @@ import jax.numpy as jnp
 import optimistix as optx
 from jaxtyping import Array, PyTree
 
+from ._checks import is_concrete
 from ._custom_types import Frame
 from .solvers.explicit_rk import unrolled
 from .solvers.rkmk import RKMK
@@ -27,6 +29,74 @@ def default_tolerances(dtype, *, tight: bool = False) -> tuple[float, float]:
     if jnp.finfo(dtype).eps < 1e-10:
         return (1e-12, 1e-12) if tight else (1e-10, 1e-10)
     return (1e-6, 1e-6)
+
+
+class IntegrationError(RuntimeError):
+    """A solve that failed (its state became non-finite, or an output interval needed more than
+    `max_steps` steps). The message names the output interval, the cause and the remedy; run
+    with `throw=False` to get the trajectory up to the failure instead."""
+
+
+_CAUSES = (
+    (
+        diffrax.RESULTS.nonfinite,
+        "the state became non-finite (NaN or inf): the step is too large for this angular "
+        "velocity (lower dt0, or use an adaptive controller: stepsize_controller="
+        "diffrax.PIDController(rtol, atol)), or the motion itself blows up there",
+    ),
+    (
+        diffrax.RESULTS.max_steps_reached,
+        "the maximum number of solver steps (max_steps = {max_steps} per output interval) was "
+        "reached: raise max_steps, loosen rtol/atol, or give output times closer together",
+    ),
+)
+
+
+def _cause(result: diffrax.RESULTS, max_steps: int) -> str:
+    for known, text in _CAUSES:
+        if result == known:
+            return text.format(max_steps=max_steps)
+    return diffrax.RESULTS[result]
+
+
+def _raise_failure(
+    result: diffrax.RESULTS, num_valid: Array, ts: Array, ys: PyTree, max_steps: int
+) -> PyTree:
+    """Raise `IntegrationError` for a failed solve, naming the output interval (concrete
+    results), or attach the same check with `equinox.error_if` (traced results); returns `ys`."""
+    if is_concrete(num_valid):
+        if result == diffrax.RESULTS.successful:
+            return ys
+        k = int(num_valid)
+        raise IntegrationError(
+            f"integration failed between t = {float(ts[k - 1]):.6g} and t = {float(ts[k]):.6g}"
+            f" (output times {k - 1} and {k}): {_cause(result, max_steps)}. With throw=False the"
+            f" trajectory comes back with its result; its states are valid up to ts[{k - 1}]."
+        )
+    causes = [r for r, _ in _CAUSES]
+    messages = [
+        f"integration failed: {_cause(r, max_steps)} (call it outside jit to see where, or run "
+        "with throw=False and read the trajectory's result)"
+        for r in causes
+    ] + ["integration failed (call it outside jit for the details, or run with throw=False)"]
+    index = jnp.asarray(len(causes))
+    for i, r in enumerate(causes):
+        index = jnp.where(result == r, i, index)
+    return eqx.branched_error_if(ys, result != diffrax.RESULTS.successful, index, messages)
+
+
+def _warn_unattainable(dtype, rtol: float | None, atol: float | None) -> None:
+    """Warn when a tolerance asks for more than `dtype` can give (a few ulps)."""
+    attainable = 4 * float(jnp.finfo(dtype).eps)
+    for name, value in (("rtol", rtol), ("atol", atol)):
+        if isinstance(value, int | float) and value < attainable:
+            warnings.warn(
+                f"{name} = {value:g} is below what {jnp.dtype(dtype).name} can reach (about "
+                f"{attainable:.1g}); the solver will take tiny steps and may not converge. Use "
+                f"{name} >= {attainable:.1g}, or float64 (jax.config.update('jax_enable_x64', "
+                "True) and float64 inputs)",
+                stacklevel=4,
+            )
 
 
 class SolveKwargs(TypedDict, total=False):
@@ -54,11 +124,14 @@ class SolveOptions(eqx.Module):
     - `rtol`, `atol`: default `default_tolerances(dtype)` (1e-10 in float64, 1e-6 in float32).
     - `dt0`: the (initial) step; default Diffrax's initial-step heuristic for adaptive steps.
     - `max_steps`: bound on the steps of each output interval.
-    - `adjoint`: default `diffrax.RecursiveCheckpointAdjoint()`; `diffrax.ForwardMode()` for
-      `jax.jacfwd`.
+    - `adjoint`: default `diffrax.RecursiveCheckpointAdjoint()` (reverse mode: `jax.grad`,
+      `jax.jacrev`); `diffrax.ForwardMode()` for `jax.jacfwd` and `jax.jvp`.
     - `progress_meter`: default none; e.g. `diffrax.TqdmProgressMeter()`.
-    - `throw`: raise when the solve fails (default); with `False` the trajectory comes back
-      with its `result` set to the failure (e.g. `diffrax.RESULTS.max_steps_reached`).
+    - `throw`: raise `IntegrationError` when the solve fails (default); with `False` the
+      trajectory comes back with its `result` set to the first failure
+      (`diffrax.RESULTS.max_steps_reached`, `diffrax.RESULTS.nonfinite`) and
+      `stats["num_valid"]`, the number of leading output times whose states are valid (later
+      intervals start from the state reached, unless it is non-finite).
     """
 
     solver: diffrax.AbstractSolver | None = None
@@ -115,8 +188,11 @@ def solve_saved(
     tight: bool = False,
 ) -> tuple[PyTree, dict[str, Array], diffrax.RESULTS]:
     """Integrate `term` from `ts[0]` through every output time `ts[k]` with `options`; returns
-    `(ys (T, ...), stats, result)`: step counts summed over the intervals and the first failure
-    (`diffrax.RESULTS.successful` if none; failures raise unless `options.throw` is False).
+    `(ys (T, ...), stats, result)`: step counts summed over the intervals, `num_valid` (the
+    leading output times reached) and the first failure (`diffrax.RESULTS.successful` if none;
+    a state that becomes non-finite is `diffrax.RESULTS.nonfinite`). A failure raises
+    `IntegrationError` naming the interval, unless `options.throw` is False; the intervals after
+    a failure start from the state reached, and are not integrated once it is non-finite.
 
     One `diffrax.diffeqsolve` per output interval `[ts[k], ts[k+1]]`, all in one `lax.scan`:
     steps end exactly at the output times, so the saved values are step-end states (after
@@ -159,26 +235,31 @@ def solve_saved(
     if not adaptive and dt0 is None:
         raise ValueError("dt0 (the step size) is required with diffrax.ConstantStepSize")
     dt0 = None if dt0 is None else jnp.asarray(dt0, ts.dtype)  # traced: no recompiling per value
-    return _solve_intervals(
-        term,
-        solver,
-        controller,
-        ts,
-        y0,
-        args,
-        dt0,
-        options.max_steps,
-        adjoint,
-        meter,
-        options.throw,
-    )
+    _warn_unattainable(ts.dtype, options.rtol, options.atol)
+    try:
+        ys, stats, result = _solve_intervals(
+            term, solver, controller, ts, y0, args, dt0, options.max_steps, adjoint, meter
+        )
+    except TypeError as e:
+        if "forward-mode autodiff" not in str(e):
+            raise
+        raise TypeError(
+            "jax.jacfwd / jax.jvp through an integration needs adjoint=diffrax.ForwardMode() "
+            "(e.g. simulate(..., adjoint=diffrax.ForwardMode())): the default "
+            "RecursiveCheckpointAdjoint differentiates in reverse mode only (jax.grad, jax.jacrev)"
+        ) from e
+    if options.throw:
+        ys = _raise_failure(result, stats["num_valid"], ts, ys, options.max_steps)
+    return ys, stats, result
 
 
 @eqx.filter_jit  # one compilation per problem structure, as `diffrax.diffeqsolve` itself
 def _solve_intervals(
-    term, solver, stepsize_controller, ts, y0, args, dt0, max_steps, adjoint, meter, throw
+    term, solver, stepsize_controller, ts, y0, args, dt0, max_steps, adjoint, meter
 ):
-    """The `lax.scan` over output intervals of `solve_saved`."""
+    """The `lax.scan` over output intervals of `solve_saved`. Each interval starts from the state
+    the previous one reached (also after it hit `max_steps`); once the state is non-finite the
+    remaining intervals are empty (`t1 = t0`: no steps) and repeat it."""
     adaptive = isinstance(stepsize_controller, diffrax.AbstractAdaptiveStepSizeController)
     if adaptive and dt0 is None:
         t_next, _ = stepsize_controller.init(
@@ -188,13 +269,20 @@ def _solve_intervals(
     span = ts[-1] - ts[0]
     keys = ("num_steps", "num_accepted_steps", "num_rejected_steps")
 
+    def finite(y):
+        return jnp.all(jnp.stack([jnp.all(jnp.isfinite(a)) for a in jax.tree.leaves(y)]))
+
     def interval(carry, t01):
         y, h, meter_state, result = carry
+        ok = result == diffrax.RESULTS.successful
+        alive = finite(y)  # a non-finite state is not integrated further (no wasted steps)
+        t01 = jnp.stack([t01[0], jnp.where(alive, t01[1], t01[0])])
         if not adaptive:  # the fewest equal steps of at most dt0 (to 1e-6, against rounding)
             width = t01[1] - t01[0]
             n = jnp.maximum(jnp.ceil(width / dt0 * (1 - 1e-6)), 1)
-            # a hair above width/n, so that Diffrax's ceil(width/h) is exactly n
-            h = width / n * (1 + 4 * jnp.finfo(width.dtype).eps)
+            # a hair above width/n, so that Diffrax's ceil(width/h) is exactly n (an empty
+            # interval after a failure keeps the step dt0)
+            h = jnp.where(alive, width / n * (1 + 4 * jnp.finfo(width.dtype).eps), dt0)
         sol = diffrax.diffeqsolve(
             term,
             solver,
@@ -207,21 +295,29 @@ def _solve_intervals(
             stepsize_controller=stepsize_controller,
             max_steps=max_steps,
             adjoint=adjoint,
-            throw=throw,
+            throw=False,  # `solve_saved` raises, naming the interval
         )
         y1 = jax.tree_util.tree_map(lambda a: a[-1], sol.ys)
+        step_result = diffrax.RESULTS.where(
+            finite(y1) | (sol.result != diffrax.RESULTS.successful),
+            sol.result,
+            diffrax.RESULTS.nonfinite,
+        )
         if adaptive:  # the next interval starts at this one's mean accepted step
-            h = (t01[1] - t01[0]) / jnp.maximum(sol.stats["num_accepted_steps"], 1)
+            h_next = (t01[1] - t01[0]) / jnp.maximum(sol.stats["num_accepted_steps"], 1)
+            h = jnp.where(alive, h_next, h)
         meter_state = meter.step(meter_state, (t01[1] - ts[0]) / span)
-        ok = result == diffrax.RESULTS.successful
-        result = diffrax.RESULTS.where(ok, sol.result, result)  # keep the first failure
-        return (y1, h, meter_state, result), (y1, jnp.stack([sol.stats[k] for k in keys]))
+        result = diffrax.RESULTS.where(ok, step_result, result)  # keep the first failure
+        counts = jnp.stack([sol.stats[k] for k in keys])
+        valid = result == diffrax.RESULTS.successful
+        return (y1, h, meter_state, result), (y1, counts, valid)
 
     init = (y0, dt0, meter.init(), diffrax.RESULTS.successful)
-    (_, _, meter_state, result), (ys, counts) = jax.lax.scan(
+    (_, _, meter_state, result), (ys, counts, valid) = jax.lax.scan(
         interval, init, jnp.stack([ts[:-1], ts[1:]], axis=1)
     )
     meter.close(meter_state)
     ys = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), y0, ys)
     stats: dict[str, Array] = dict(zip(keys, jnp.sum(counts, axis=0), strict=True))
+    stats["num_valid"] = 1 + jnp.sum(valid)
     return ys, stats, result
