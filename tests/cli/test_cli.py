@@ -29,6 +29,6 @@ def test_cli_writes_trajectory(tmp_path, capsys):
 def test_cli_bad_inertia_writes_nothing(tmp_path, capsys):
     out = tmp_path / "bad"
     rc = main(["--inertia", "1", "1", "5", "--out", str(out), "--no-progress"])
-    assert rc == 1
+    assert rc == 2  # a user error: status 2, like argparse's (was 1 before the CLI checks)
     assert "triangle" in capsys.readouterr().err
     assert not out.exists() or not any(out.iterdir())
