@@ -94,8 +94,16 @@ def _got(v: np.ndarray) -> str:
 
 
 def check_finite(x: Array, name: str) -> Array:
-    """`x`, checked to be finite everywhere (see `validate`)."""
-    return validate(x, lambda xp, v: ~xp.isfinite(v), f"{name} must be finite", _got)
+    """`x`, checked to be finite everywhere (see `validate`); the error shows the first
+    non-finite entry."""
+
+    def detail(v: np.ndarray) -> str:
+        if v.ndim == 0:
+            return f", got {v}"
+        k = np.unravel_index(int(np.flatnonzero(~np.isfinite(v))[0]), v.shape)
+        return f": {name}[{', '.join(map(str, k))}] = {v[k]}"
+
+    return validate(x, lambda xp, v: ~xp.isfinite(v), f"{name} must be finite", detail)
 
 
 def check_positive(x: Array, name: str) -> Array:
@@ -144,15 +152,24 @@ def initial_vector(x: RealLike, n: int, name: str, dtype: DTypeLike) -> Float[Ar
     return check_finite(x, name)
 
 
-def check_times(ts: Array) -> Float[Array, " T"]:
-    """`ts` as a 1-D strictly increasing array of at least two times (clear error otherwise)."""
+def check_times(ts: Array, name: str = "ts") -> Float[Array, " T"]:
+    """`ts` as a 1-D, finite, strictly increasing array of at least two times (clear error
+    otherwise)."""
     if ts.ndim != 1 or ts.shape[0] < 2:
-        raise ValueError(f"ts must be a 1-D array of at least 2 times, got shape {tuple(ts.shape)}")
+        raise ValueError(
+            f"{name} must be a 1-D array of at least 2 times, got shape {tuple(ts.shape)}"
+        )
 
     def detail(t: np.ndarray) -> str:
+        if not np.all(np.isfinite(t)):
+            k = int(np.flatnonzero(~np.isfinite(t))[0])
+            return f": {name}[{k}] = {t[k]}"
         k = int(np.flatnonzero(~(np.diff(t) > 0))[0])
-        return f": ts[{k + 1}] = {t[k + 1]} follows ts[{k}] = {t[k]}"
+        return f": {name}[{k + 1}] = {t[k + 1]} follows {name}[{k}] = {t[k]}"
 
     return validate(
-        ts, lambda xp, t: ~(xp.diff(t) > 0), "ts must be strictly increasing and finite", detail
+        ts,
+        lambda xp, t: ~xp.isfinite(t[1:]) | ~(xp.diff(t) > 0),
+        f"{name} must be strictly increasing and finite",
+        detail,
     )

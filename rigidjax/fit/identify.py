@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-from .._checks import as_float, check_times, vector
+from .._checks import as_float, check_finite, check_times, validate, vector
 from .._custom_types import Frame, RealLike
 from .._integrate import SolveOptions
 from ..mechanics.body import RigidBody
@@ -36,7 +36,9 @@ class InertiaEstimate(eqx.Module):
     one unless attitude data were fitted); `residuals` (weighted, at the solution); `cost` =
     ½ Σ r²; `covariance` (Gauss–Newton `s² (JᵀJ)⁻¹` of the parameter vector) and `inertia_std`
     (its propagation to the 3×3 entries); `converged` (solver success with a finite cost);
-    `scale`: how the unobservable scale was fixed.
+    `identifiable` (the Jacobian of the residuals has full rank, up to the scale gauge: the data
+    fix every inertia parameter; `identify_inertia` raises when they do not); `scale`: how the
+    unobservable scale was fixed.
     """
 
     inertia: Float[Array, "3 3"]
@@ -47,6 +49,7 @@ class InertiaEstimate(eqx.Module):
     covariance: Float[Array, "p p"]
     inertia_std: Float[Array, "3 3"]
     converged: Bool[Array, ""]
+    identifiable: Bool[Array, ""]
     num_steps: Array
     scale: str = eqx.field(static=True)
 
@@ -128,13 +131,19 @@ def identify_inertia(
     dtype = ts.dtype
     T = ts.shape[0]
     if omega_obs is not None:
-        omega_obs = vector(omega_obs, 3, "omega_obs").astype(dtype)
+        omega_obs = check_finite(vector(omega_obs, 3, "omega_obs").astype(dtype), "omega_obs")
         if omega_obs.shape != (T, 3):
             raise ValueError(f"omega_obs must have shape ({T}, 3), got {tuple(omega_obs.shape)}")
     if quat_obs is not None:
-        quat_obs = vector(quat_obs, 4, "quat_obs").astype(dtype)
+        quat_obs = check_finite(vector(quat_obs, 4, "quat_obs").astype(dtype), "quat_obs")
         if quat_obs.shape != (T, 4):
             raise ValueError(f"quat_obs must have shape ({T}, 4), got {tuple(quat_obs.shape)}")
+        quat_obs = validate(
+            quat_obs,
+            lambda xp, q: ~(xp.sum(q * q, axis=-1) > 0),
+            "quat_obs must hold non-zero quaternions (they are normalised)",
+            hint="; drop the samples without attitude",
+        )
         quat_obs = quat.normalize(quat_obs)
     if torque is None and trace is None:
         trace = 1.0
@@ -175,7 +184,16 @@ def identify_inertia(
     sim = SolveOptions(rtol=rtol, atol=atol, max_steps=sim_max_steps, adjoint=diffrax.ForwardMode())
     lm = optx.LevenbergMarquardt(rtol=solver_rtol, atol=solver_atol)
     start = (params_from_inertia(I_guess, trace), w_guess, q_ref)
-    return _fit(ts, omega_obs, quat_obs, start, model, sim, lm, max_steps)
+    est = _fit(ts, omega_obs, quat_obs, start, model, sim, lm, max_steps)
+    identifiable = validate(
+        est.identifiable,
+        lambda xp, ok: ~ok,
+        "the inertia is not identifiable from these data: the fitted motion does not depend on "
+        "every inertia parameter (e.g. Ω is constant: a spin about a principal axis, or too "
+        "short a record)",
+        hint="; use data of a tumbling (non-steady) motion, a longer record, or a known torque",
+    )
+    return eqx.tree_at(lambda e: e.identifiable, est, identifiable)
 
 
 class _Model(eqx.Module):
@@ -254,6 +272,9 @@ def _fit(
     # with `trace` fixed the scale of L is not identifiable: one parameter fewer
     s2 = 2 * cost / (r.shape[0] - p.shape[0] + (trace is not None))
     cov = s2 * jnp.linalg.pinv(J.T @ J)
+    # rank of the (weighted) Jacobian: every parameter but the scale gauge must be fixed
+    sv = jnp.linalg.svd(J, compute_uv=False)
+    rank = jnp.sum(sv > jnp.sqrt(jnp.finfo(dtype).eps) * sv[0])
     JI = jax.jacfwd(lambda q: inertia_from_params(q, trace))(p[:k]).reshape(9, k)
     I_std = jnp.sqrt(jnp.diagonal(JI @ cov[:k, :k] @ JI.T)).reshape(3, 3)
     I, w0, q0 = unpack(p)
@@ -266,6 +287,7 @@ def _fit(
         covariance=cov,
         inertia_std=I_std,
         converged=(sol.result == optx.RESULTS.successful) & jnp.isfinite(cost),
+        identifiable=rank >= p.shape[0] - (trace is not None),
         num_steps=sol.stats["num_steps"],
         scale=model.scale,
     )

@@ -9,9 +9,10 @@ import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from .._checks import as_float, check_times, matrix, norm_tolerance
+from .._checks import as_float, check_finite, check_times, matrix, norm_tolerance, validate
 from .._custom_types import Frame, RealLike
 from .._integrate import SolveKwargs, SolveOptions, solve_saved
 from ..rotations import so3
@@ -21,14 +22,10 @@ from .formulations import AbstractKinematics, check_omega, lookup
 OmegaLike = Callable[[Array], Array] | diffrax.AbstractPath | tuple[ArrayLike, ArrayLike]
 
 
-def omega_path(omega: OmegaLike) -> Callable[[Array], Array]:
-    """A callable `t -> (3,)` from a callable, a Diffrax path, or sampled data `(t_k, ω_k)`.
-
-    Samples (e.g. gyro readings) are interpolated by a C¹ cubic Hermite spline with backward
-    differences (`diffrax.backward_hermite_coefficients`), so the solver can step freely.
-    """
+def _source(omega: OmegaLike) -> Callable[[Array], Array] | diffrax.AbstractPath:
+    """`omega` as a callable or a Diffrax path (samples become a cubic Hermite path)."""
     if isinstance(omega, diffrax.AbstractPath):
-        return omega.evaluate
+        return omega
     if isinstance(omega, tuple):
         if len(omega) != 2:
             raise ValueError("sampled omega must be a pair (t_samples (N,), omega_samples (N, 3))")
@@ -38,12 +35,43 @@ def omega_path(omega: OmegaLike) -> Callable[[Array], Array]:
                 f"sampled omega must be (t (N,), omega (N, 3)) with N ≥ 2, got shapes "
                 f"{tuple(t_s.shape)} and {tuple(w_s.shape)}"
             )
+        t_s = check_times(t_s, "omega t_samples")
+        w_s = check_finite(w_s, "omega samples")
         coeffs = diffrax.backward_hermite_coefficients(t_s, w_s)
-        return diffrax.CubicInterpolation(t_s, coeffs).evaluate
+        return diffrax.CubicInterpolation(t_s, coeffs)
     if callable(omega):
         return omega
     raise TypeError(
         f"omega must be a callable t -> (3,), a diffrax path or (t, omega), got {omega!r}"
+    )
+
+
+def omega_path(omega: OmegaLike) -> Callable[[Array], Array]:
+    """A callable `t -> (3,)` from a callable, a Diffrax path, or sampled data `(t_k, ω_k)`.
+
+    Samples (e.g. gyro readings) are interpolated by a C¹ cubic Hermite spline with backward
+    differences (`diffrax.backward_hermite_coefficients`), so the solver can step freely.
+    """
+    source = _source(omega)
+    return source.evaluate if isinstance(source, diffrax.AbstractPath) else source
+
+
+def _check_span(ts: Array, path: diffrax.AbstractPath) -> Array:
+    """`ts`, checked to lie within the span `[t0, t1]` of a path (sampled ω is not extrapolated)."""
+    t0, t1 = path.t0, path.t1
+
+    def detail(t: np.ndarray) -> str:
+        return (
+            f": ts spans [{t[0]:.6g}, {t[-1]:.6g}], the samples [{float(t0):.6g}, {float(t1):.6g}]"
+        )
+
+    return validate(
+        ts,
+        lambda xp, t: (t[0] < t0) | (t[-1] > t1),
+        "ts must lie within the times of the omega samples (they are interpolated, never "
+        "extrapolated)",
+        detail,
+        hint="; trim ts to the sampled interval",
     )
 
 
@@ -98,7 +126,12 @@ def darboux(
     if P0.shape != (3, 3):
         raise ValueError(f"P0 must have shape (3, 3) (vmap for batches), got {tuple(P0.shape)}")
     P0 = so3.check_rotation(P0.astype(ts.dtype), norm_tolerance(ts.dtype), "P0")
-    w = omega_path(omega)
+    source = _source(omega)
+    if isinstance(source, diffrax.AbstractPath):
+        ts = _check_span(ts, source)
+        w = source.evaluate
+    else:
+        w = source
 
     if method == "geometric":
         solver = options.rkmk(frame)

@@ -27,7 +27,8 @@ Torque = Callable[[Array, Array, Array], Array]
 
 class Trajectory(AbstractTrajectory):
     """Solution of `simulate`: times `ts (T,)`, body angular velocity `omega (..., T, 3)` and
-    attitude `quat (..., T, 4)` (unit, λ0 ≥ 0; P maps body to space); `matrix (..., T, 3, 3)`."""
+    attitude `quat (..., T, 4)` (unit; P maps body to space; its sign is continuous in time and
+    `quat[..., 0, :] = q0`, `quat.canonical` gives λ0 ≥ 0); `matrix (..., T, 3, 3)`."""
 
     omega: Float[Array, "*batch T 3"]
     quat: Float[Array, "*batch T 4"]
@@ -164,6 +165,21 @@ class _BatchFinish(eqx.Module):
         return omega, jax.vmap(jax.vmap(self.kin.to_quat))(att)
 
 
+def _check_torque(torque: Torque, ts: Array, omega0: Array, q0: Array) -> None:
+    """A clear error, before integrating, if `torque(t, Ω, q)` (of one body) does not return
+    a 3-vector (its shape is found by tracing it once, `jax.eval_shape`: nothing is computed)."""
+    if not callable(torque):
+        raise TypeError(f"torque must be a callable torque(t, omega, q) -> (3,), got {torque!r}")
+    out = jax.eval_shape(torque, ts[0], omega0[0], q0[0])
+    shape = getattr(out, "shape", None)
+    if shape != (3,):
+        got = f"shape {shape}" if shape is not None else type(out).__name__
+        raise ValueError(
+            f"torque(t, omega, q) must return the torque of one body, shape (3,), got {got}: it "
+            "is called per body with omega (3,) and q (4,) (the batch is mapped over it)"
+        )
+
+
 def _component_args(I: Array) -> tuple:
     """`(c, J)` of `_QuaternionComponents` from principal moments `I (..., 3)`."""
     I1, I2, I3 = (I[..., i] for i in range(3))
@@ -210,6 +226,13 @@ def simulate(
     q0 = check_unit_norm(q0, "q0")
     batch = jnp.broadcast_shapes(body.batch_shape, omega0.shape[:-1], q0.shape[:-1])
     B = math.prod(batch)
+    if B == 0:
+        raise ValueError(
+            f"the batch is empty: body, omega0 and q0 broadcast to batch shape {batch}; give at "
+            "least one body"
+        )
+    if torque is not None:
+        _check_torque(torque, ts, omega0, q0)
     args = tuple(
         jnp.broadcast_to(a.astype(dtype), (*batch, *a.shape[len(body.batch_shape) :])).reshape(
             B, *a.shape[len(body.batch_shape) :]
@@ -263,7 +286,9 @@ def simulate(
         norm=_BatchMaxRMS(axis),
     )
     omega, q = finish(ys)
-    q = quat.canonical(q)
+    if not components:  # other states give q up to sign: continue the integrated q0
+        q = quat.continuous(jnp.moveaxis(q, 0, 1))  # (B, T, 4)
+        q = jnp.moveaxis(q * jnp.sign(jnp.sum(q[:, :1] * q0[:, None], -1, keepdims=True)), 1, 0)
     T = ts.shape[0]
     return Trajectory(
         ts=ts,

@@ -279,7 +279,8 @@ def sleeping_top_critical_spin(top: HeavyTop, *, check: bool = True) -> Scalar:
 class HeavyTopTrajectory(AbstractTrajectory):
     """Solution of `simulate_heavy_top`: times `ts (T,)`, body angular velocity `omega (T, 3)`,
     the integrated vertical `gamma (T, 3)` and, when the attitude was integrated, the unit
-    quaternion `quat (T, 4)` (λ0 ≥ 0; P body → space), else None."""
+    quaternion `quat (T, 4)` (as integrated: its sign is continuous in time and `quat[0] = q0`;
+    P body → space), else None."""
 
     omega: Float[Array, "T 3"]
     gamma: Float[Array, "T 3"]
@@ -391,7 +392,7 @@ def simulate_heavy_top(
         args=top,
         step_end=None if q0 is None else _normalize_quat,
     )
-    q = None if q0 is None else quat.canonical(ys[2])  # step-end states: already unit
+    q = None if q0 is None else ys[2]  # step-end states: unit, with a continuous sign
     return HeavyTopTrajectory(ts=ts, omega=ys[0], gamma=ys[1], quat=q, stats=stats, result=result)
 
 

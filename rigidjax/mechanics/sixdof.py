@@ -200,8 +200,9 @@ def _renormalise(y: RigidState):
 
 class SixDofTrajectory(AbstractTrajectory):
     """Solution of `simulate_6dof`: times `ts (T,)`, centre-of-mass position `R (T, 3)` and
-    velocity `V (T, 3)` (space axes), attitude `quat (T, 4)` (unit, λ0 ≥ 0) and body angular
-    velocity `omega (T, 3)`; `state` bundles them as a `RigidState` with a leading time axis."""
+    velocity `V (T, 3)` (space axes), attitude `quat (T, 4)` (unit, as integrated: its sign is
+    continuous in time) and body angular velocity `omega (T, 3)`; `state` bundles them as a
+    `RigidState` with a leading time axis."""
 
     R: Float[Array, "T 3"]
     V: Float[Array, "T 3"]
@@ -268,7 +269,7 @@ def simulate_6dof(
         args=(I, I_inv, body.mass.astype(dtype)),
         step_end=_renormalise,
     )
-    q = quat.canonical(ys.q)  # saved values are step-end states: already normalised
+    # step-end states: normalised, with the sign of the integrated solution (continuous)
     return SixDofTrajectory(
-        ts=ts, R=ys.R, V=ys.V, quat=q, omega=ys.omega, stats=stats, result=result
+        ts=ts, R=ys.R, V=ys.V, quat=ys.q, omega=ys.omega, stats=stats, result=result
     )

@@ -93,6 +93,20 @@ def canonical(q: QuatLike) -> Quat:
     return jnp.where(q[..., :1] < 0, -q, q)
 
 
+def continuous(q: Real[ArrayLike, "*#batch T 4"]) -> Float[Array, "*batch T 4"]:
+    """The samples `q (..., T, 4)` of a motion with their signs made continuous along the time
+    axis (−2): `q_k ← s_k q_k` with `s_0 = 1` and `s_k = s_{k−1} sign(q_k · q_{k−1})`, so that
+    consecutive samples are never more than 90° apart on S³ (the representative a continuous
+    solution of `q̇ = ½ q ∘ (0, Ω)` takes, if the body turns by less than 180° between samples)."""
+    q = vector(q, 4, "q")
+    if q.ndim < 2:
+        raise ValueError(f"q must have shape (..., T, 4), samples along axis -2; got {q.shape}")
+    dots = jnp.sum(q[..., 1:, :] * q[..., :-1, :], axis=-1)
+    flips = jnp.cumprod(jnp.where(dots < 0, -1, 1).astype(q.dtype), axis=-1)
+    signs = jnp.concatenate([jnp.ones_like(flips[..., :1]), flips], axis=-1)
+    return q * signs[..., None]
+
+
 def rotate(q: QuatLike, v: Vec3Like) -> Vec3:
     """`P(q) v = v + 2 λ0 λ × v + 2 λ × (λ × v)` for unit `q` (article 003), divided by |q|²."""
     q = vector(q, 4, "q")
