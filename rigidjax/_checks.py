@@ -84,8 +84,9 @@ def validate(
     if not is_concrete(x):
         return eqx.error_if(out, jnp.any(bad(jnp, x)), message + hint)
     xn = np.asarray(x)
-    if np.any(bad(np, xn)):
-        raise ValueError(message + (detail(xn) if detail is not None else "") + hint)
+    with np.errstate(invalid="ignore"):  # inf − inf in a check is a NaN that fails it, quietly
+        if np.any(bad(np, xn)):
+            raise ValueError(message + (detail(xn) if detail is not None else "") + hint)
     return out
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import dataclasses
 import warnings
 from collections.abc import Callable
-from typing import TypedDict, cast
+from typing import Any, TypedDict, cast
 
 import diffrax
 import equinox as eqx
@@ -37,7 +37,7 @@ class IntegrationError(RuntimeError):
     with `throw=False` to get the trajectory up to the failure instead."""
 
 
-_CAUSES = (
+_CAUSES: tuple[tuple[Any, str], ...] = (
     (
         diffrax.RESULTS.nonfinite,
         "the state became non-finite (NaN or inf): the step is too large for this angular "
@@ -301,7 +301,7 @@ def _solve_intervals(
         step_result = diffrax.RESULTS.where(
             finite(y1) | (sol.result != diffrax.RESULTS.successful),
             sol.result,
-            diffrax.RESULTS.nonfinite,
+            cast(diffrax.RESULTS, diffrax.RESULTS.nonfinite),
         )
         if adaptive:  # the next interval starts at this one's mean accepted step
             h_next = (t01[1] - t01[0]) / jnp.maximum(sol.stats["num_accepted_steps"], 1)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Unpack
+from typing import TYPE_CHECKING, Unpack
 
 import diffrax
 import equinox as eqx
@@ -22,7 +22,10 @@ from ..rotations import quat
 from ..solvers.rkmk import LieTerm
 from .body import RigidBody, euler_rhs
 
-Torque = Callable[[Array, Array, Array], Array]
+if TYPE_CHECKING:
+    Torque = Callable[[Array, Array, Array], Array]
+else:  # `simulate` checks it itself (a TypeError that names `torque`)
+    Torque = object
 
 
 class Trajectory(AbstractTrajectory):

@@ -29,10 +29,27 @@ def scipy_data(torque=(0.0, 0.0, 0.0)):
 OMEGA, QUAT = scipy_data()
 
 
+def test_data_that_do_not_fix_the_inertia():
+    """A steady spin (constant Ω) does not determine the inertia: a clear error, not a
+    `converged` estimate with std 0."""
+    for w in ([0.0, 0.0, 1.0], [0.3, 0.2, 1.0]):
+        with pytest.raises(ValueError, match="inertia is not identifiable from these data"):
+            identify_inertia(TS, omega_obs=np.tile(w, (TS.size, 1)))
+
+
+def test_non_finite_data():
+    bad = OMEGA.copy()
+    bad[40, 2] = np.nan
+    with pytest.raises(ValueError, match=r"omega_obs must be finite: omega_obs\[40, 2\] = nan"):
+        identify_inertia(TS, omega_obs=bad)
+    with pytest.raises(ValueError, match="quat_obs must hold non-zero quaternions"):
+        identify_inertia(TS, quat_obs=np.zeros((TS.size, 4)))
+
+
 def test_gyro_data_full_tensor():
     rng = np.random.default_rng(0)
     est = identify_inertia(TS, omega_obs=OMEGA + 1e-3 * rng.normal(size=OMEGA.shape))
-    assert bool(est.converged)
+    assert bool(est.converged) and bool(est.identifiable)
     assert "trace" in est.scale
     ref = I_TRUE / np.trace(I_TRUE)
     err = np.abs(np.asarray(est.inertia) - ref).max()

@@ -1,0 +1,59 @@
+"""Failures during integration are clear errors naming the interval, the cause and the remedy
+(never a NaN trajectory); throw=False keeps the result; reduced precision and forward mode."""
+
+import diffrax
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import rigidjax as rj
+
+TS = jnp.linspace(0.0, 2.0, 5)
+BODY = rj.RigidBody(jnp.array([1.0, 2.0, 2.5]))
+W0 = jnp.array([0.3, 1.0, -0.2])
+# RK4 at h = 0.45 on |Ω| ~ 3000 rad/s: the explicit method blows up in the first interval
+FAST = 1000 * W0
+FIXED = dict(solver=rj.RK4(), stepsize_controller=diffrax.ConstantStepSize(), dt0=0.45)
+
+
+def test_blow_up_names_the_interval_and_the_remedy():
+    with pytest.raises(rj.IntegrationError, match=r"between t = 0 and t = 0.5 .*lower dt0"):
+        rj.simulate(BODY, FAST, None, TS, **FIXED)
+    tr = rj.simulate(BODY, FAST, None, TS, throw=False, **FIXED)
+    assert tr.result == diffrax.RESULTS.nonfinite and not tr.successful
+    assert int(tr.stats["num_valid"]) == 1
+    np.testing.assert_array_equal(tr.omega[0], FAST)  # the state before the failure is kept
+    # the same (static) message under jit, where the time is not known at trace time
+    with pytest.raises(Exception, match="state became non-finite.*lower dt0"):
+        jax.jit(lambda w: rj.simulate(BODY, w, None, TS, **FIXED).quat)(FAST)
+
+
+def test_max_steps_names_the_interval_and_the_remedy():
+    with pytest.raises(rj.IntegrationError, match=r"between t = 0 and t = 0.5.*raise max_steps"):
+        rj.simulate(BODY, W0, None, TS, max_steps=2)
+    tr = rj.simulate(BODY, W0, None, TS, max_steps=2, throw=False)
+    assert tr.result == diffrax.RESULTS.max_steps_reached
+    assert int(tr.stats["num_valid"]) == 1
+
+
+def test_successful_solve_reports_every_time_valid():
+    tr = rj.simulate(BODY, W0, None, TS, **FIXED)
+    assert tr.successful and int(tr.stats["num_valid"]) == TS.shape[0]
+
+
+def test_float32_tolerance_below_reach_warns():
+    w32, ts32 = W0.astype(jnp.float32), TS.astype(jnp.float32)
+    with pytest.warns(UserWarning, match=r"rtol = 1e-09 is below what float32 can reach"):
+        rj.simulate(BODY, w32, None, ts32, rtol=1e-9, max_steps=64, throw=False)
+
+
+def test_forward_mode_needs_forward_adjoint_and_then_works():
+    def final_quat(w, **kw):
+        return rj.simulate(BODY, w, None, TS, **kw).quat[-1]
+
+    with pytest.raises(TypeError, match=r"adjoint=diffrax\.ForwardMode\(\)"):
+        jax.jacfwd(final_quat)(W0)
+    fwd = jax.jacfwd(lambda w: final_quat(w, adjoint=diffrax.ForwardMode()))(W0)
+    rev = jax.jacrev(final_quat)(W0)
+    np.testing.assert_allclose(fwd, rev, atol=1e-8)
