@@ -429,6 +429,27 @@ def _identify(d: dict) -> str:
     return "\n\n".join(out)
 
 
+def _checks(d: dict) -> str:
+    head = ["bodies B", "steps N", "validated", "traced", "host checks", "in-loop checks"]
+    rows = [
+        [
+            _g(r.get("B")),
+            _g(r.get("N")),
+            _ms(_get(r, "validated", "seconds")),
+            _ms(_get(r, "traced", "seconds")),
+            f"{_ms(_get(r, 'checks', 'seconds'))} ({_ratio(r.get('checks_share'))})",
+            f"{_ms(_get(r, 'loop_check', 'seconds'))} ({_ratio(r.get('loop_check_share'))})",
+        ]
+        for r in _list(d.get("results"))
+    ]
+    return (
+        "Cost of the input checks of `simulate` (RK4, an output at every step): the eager, "
+        "validated call; the same program compiled with `jax.jit` (no host checks); the host "
+        "checks alone and the driver's in-loop finiteness checks alone, with their share of the "
+        "call.\n\n" + _table(head, rows)
+    )
+
+
 def _generic(d: dict) -> str:
     s = d.get("summary")
     items = s.items() if isinstance(s, dict) else ()
@@ -441,6 +462,7 @@ SECTIONS: dict[str, tuple[str, Callable[[dict], str]]] = {
     "darboux.json": ("The Darboux problem: work–precision, drift, throughput", _darboux),
     "dynamics.json": ("Batched free-body dynamics", _dynamics),
     "identify.json": ("Inertia identification and gradient cost", _identify),
+    "checks.json": ("What the input checks cost", _checks),
 }
 
 
