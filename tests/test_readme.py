@@ -1,14 +1,26 @@
-"""The README's Python example runs as written."""
+"""The README's Python example runs as written, and the docs repeat it verbatim."""
 
 import re
 from pathlib import Path
 
+ROOT = Path(__file__).parents[1]
+
+
+def _python_blocks(path: Path) -> list[str]:
+    return re.findall(r"```python\n(.*?)```", path.read_text(), flags=re.S)
+
 
 def test_readme_example_runs(capsys):
-    text = (Path(__file__).parents[1] / "README.md").read_text()
-    blocks = re.findall(r"```python\n(.*?)```", text, flags=re.S)
+    blocks = _python_blocks(ROOT / "README.md")
     assert blocks, "README has no python example"
     for code in blocks:
         exec(compile(code, "README.md", "exec"), {})
     out = capsys.readouterr().out
     assert "3.14159" in out  # log at π is exact
+    assert "17.72" in out  # the first tennis-racket flip of I = (1, 2, 2.5), closed form
+
+
+def test_docs_repeat_the_readme_example():
+    assert _python_blocks(ROOT / "docs" / "getting-started.md") == _python_blocks(
+        ROOT / "README.md"
+    )

@@ -296,7 +296,11 @@ def free_rigid_body_parameters(inertia: Vec3Like, omega0: Vec3Like) -> FreeBodyP
     (k = 0) it is the period of the small oscillations around it, `2π/|λ|`.
     """
     inertia, omega0 = _body_inputs(inertia, omega0)
+    return FreeBodyParameters(*_parameters_jit(inertia, omega0))
 
+
+@jax.jit
+def _parameters_jit(inertia, omega0):
     def one(I, w):
         p = _plan(I, w)
         bad = p.sep | p.trivial
@@ -310,48 +314,77 @@ def free_rigid_body_parameters(inertia: Vec3Like, omega0: Vec3Like) -> FreeBodyP
         regime = jnp.where(p.trivial, 0, p.regime)
         return k2, lam, K, period, regime, energy, momentum
 
-    out = jax.jit(jnp.vectorize(one, signature="(3),(3)->(),(),(),(),(),(),()"))(inertia, omega0)
-    return FreeBodyParameters(*out)
+    return jnp.vectorize(one, signature="(3),(3)->(),(),(),(),(),(),()")(inertia, omega0)
 
 
 def flip_period(inertia: Vec3Like, omega0: Vec3Like) -> Scalar:
     """Period of the body angular velocity, `4K(k²)/|λ|` (see `free_rigid_body`); the time
-    between two successive flips (sign changes of the middle-axis component) is half of it.
-    ∞ on the separatrix, for a spherical top and for Ω = 0."""
+    between two successive flips (sign changes of a component of cn or sn type, e.g. the
+    middle-axis one) is half of it. ∞ on the separatrix, for a spherical top and for Ω = 0."""
     return free_rigid_body_parameters(inertia, omega0).period
 
 
-def time_of_first_flip(inertia: Vec3Like, omega0: Vec3Like) -> Scalar:
-    """First time t > 0 at which the middle-axis component of Ω changes sign (the first flip of
-    the tennis-racket effect), in closed form; ∞ if it never does (steady rotations, the
-    separatrix after its single crossing, spheres, Ω = 0). A zero at t = 0 itself is not counted.
+def _first_sn_zero(s: Array, c: Array, p: _Plan) -> Array:
+    """First t > 0 with `sn(v0 + λt) = 0` (periodic branch, λ = `p.lam_p`), given
+    `(s, c) ∝ (sn v0, cn v0)` with a positive factor: the amplitude still to go to the next
+    multiple of π is `φ = atan2(|s'|, −sign(s') c)`, `s' = s · sign λ`, and `t = F(φ|k²)/|λ|`;
+    `s' = 0` (a zero at t = 0 itself) gives the next one, `2K/|λ|` later."""
+    s = s * _sign(p.lam_p)
+    at_zero = s == 0
+    c = jnp.where(at_zero & (c == 0), jnp.ones_like(c), c)  # keeps atan2's gradient finite
+    phi = jnp.arctan2(jnp.abs(s), -_sign(s) * c)
+    phi = jnp.where(at_zero, jnp.full_like(phi, math.pi), phi)  # F(π|k²) = 2K
+    return _ellipf(phi, p.m, p.m1) / jnp.abs(p.lam_p)
 
-    Ω_mid = A2 sn(u0 + λt) vanishes where the argument is a multiple of 2K. With
-    `s0 = sn u0 · sign λ` and `c0 = cn u0`, the amplitude of the next zero ahead is
-    `φ = atan2(|s0|, −sign(s0) c0)` and `t = F(φ|k²)/|λ|` (F: `ellipkinc`); if `s0 = 0` the next
-    zero is a half period `2K/|λ|` away. On the separatrix `t = −u0/λ` when positive.
+
+def time_of_first_flip(inertia: Vec3Like, omega0: Vec3Like) -> Scalar:
+    """First time t > 0 at which the body angular-velocity component along the initially
+    dominant axis changes sign, in closed form; ∞ if it never does. Batch dims broadcast.
+
+    The initially dominant axis d is the principal axis with the largest |Ω0_d|; on a tie, the
+    one listed first in `inertia`. With the labels of `free_rigid_body` (axis 3 the one the polhode
+    encircles; Landau–Lifshitz §37) `Ω1 = A1 cn τ`, `Ω2 = A2 sn τ`, `Ω3 = ±A3 dn τ`, `τ = u0 + λt`:
+    - d = 3: dn > 0 never vanishes: ∞ (also steady rotation about any principal axis, the
+      symmetry axis of a symmetric top, a sphere, Ω = 0);
+    - d = 2: the zeros are `sn(u0 + λt) = 0`;
+    - d = 1: `cn(u0 + λt) = −k' sd(u0 + λt − K)` (A&S 16.8.1, `k'² = 1 − k²`), so the zeros are
+      `sn(v0 + λt) = 0` with `(sn v0, cn v0) = (−cn u0, k' sn u0)/dn u0`.
+    With `(s, c) ∝ (sn v0, cn v0)` read off Ω0 (`v0 = u0` for d = 2) and `s' = s · sign λ`, the
+    amplitude to the next zero is `φ = atan2(|s'|, −sign(s') c)` and `t = F(φ|k²)/|λ|` (F:
+    `ellipkinc`, A&S 17.2; `2K/|λ|` if `s' = 0`: a zero at t = 0 itself is not counted). A
+    symmetric top (k = 0, the symmetry axis labelled 3) is the case `F(φ|0) = φ`: a transverse
+    dominant component rotates with the rest of `Ω1 + iΩ2` and vanishes a finite time later.
+    On the separatrix (`Ω2 = A2 tanh u`, `Ω1, Ω3 ∝ sech u`, `u = u0 + λt`) only the middle
+    component can vanish, once, at `t = −u0/λ` if that is positive; otherwise ∞. Derived here
+    from THEORY §6 and the formulas above; checked against `simulate` in the tests.
+    Differentiable: finite gradients wherever the time is finite (on the separatrix itself only
+    the derivative along it is exact), zero where it is ∞.
     """
     inertia, omega0 = _body_inputs(inertia, omega0)
+    return _first_flip_jit(inertia, omega0)
 
+
+@jax.jit
+def _first_flip_jit(inertia, omega0):
     def one(I, w):
         p = _plan(I, w)
-        I1, I2, I3 = p.Ip
+        d = jnp.argmax(jnp.abs(w))  # first of the largest |Ω0_i|
+        jp = jnp.argmax(p.pp == d)  # its place among the (cn, sn, dn) axes of the periodic branch
+        js = jnp.argmax(p.ps == d)  # ... and among (sech, tanh, sech) of the separatrix branch
+        I1, I2, _ = p.Ip
         w1, w2, _ = p.wp
-        still = (w1 == 0) & (w2 == 0)  # rotation about the dn axis: Ω_mid ≡ 0
-        w1 = jnp.where(still, jnp.ones_like(w1), w1)
-        s0 = w2 * _sign(p.lam_p)
-        r12 = jnp.sqrt(p.b * I2 / I1)
-        phi = jnp.arctan2(jnp.abs(s0) * r12, -_sign(s0) * w1)
-        lam = jnp.abs(p.lam_p)
-        t_per = jnp.where(s0 == 0, 2 * p.K, _ellipf(phi, p.m, p.m1)) / lam
-        t_per = jnp.where(still, jnp.inf, t_per)
-        lam_s = jnp.where(p.lam_s == 0, 1.0, p.lam_s)
+        r12w2 = jnp.sqrt(p.b * I2 / I1) * w2  # (A1/A2) Ω2: (r12w2, w1) ∝ (sn u0, cn u0)
+        cn_type = jp == 0
+        s = jnp.where(cn_type, -w1, r12w2)
+        c = jnp.where(cn_type, jnp.sqrt(p.m1) * r12w2, w1)
+        t_per = jnp.where(jp == 2, jnp.inf, _first_sn_zero(s, c, p))
+        lam_s = jnp.where(p.lam_s == 0, jnp.ones_like(p.lam_s), p.lam_s)
         u0 = jnp.where(jnp.isfinite(p.u0), p.u0, _sign(lam_s))  # ±∞: no crossing ahead
         t_sep = -u0 / lam_s
-        t_sep = jnp.where((t_sep > 0) & (p.lam_s != 0), t_sep, jnp.inf)
+        t_sep = jnp.where((t_sep > 0) & (p.lam_s != 0) & (js == 1), t_sep, jnp.inf)
         return jnp.where(p.trivial, jnp.inf, jnp.where(p.sep, t_sep, t_per))
 
-    return jax.jit(jnp.vectorize(one, signature="(3),(3)->()"))(inertia, omega0)
+    return jnp.vectorize(one, signature="(3),(3)->()")(inertia, omega0)
 
 
 # Composite Gauss–Legendre rule on [0, 1]: _GL_PANELS panels of _GL_NODES nodes. The precession
