@@ -14,7 +14,7 @@ class AbstractTrajectory(eqx.Module):
     positional fields; these three are keyword-only."""
 
     ts: Float[Array, " T"] = eqx.field(kw_only=True)
-    stats: dict[str, Int[Array, "*batch"]] = eqx.field(kw_only=True)
+    stats: dict[str, Int[Array, "..."]] = eqx.field(kw_only=True)
     result: diffrax.RESULTS = eqx.field(
         kw_only=True, default_factory=lambda: diffrax.RESULTS.successful
     )
