@@ -12,6 +12,7 @@ Every class can be used on its own inside any `diffrax.ODETerm`:
 from __future__ import annotations
 
 import abc
+from typing import TypeAlias
 
 import equinox as eqx
 import jax
@@ -21,6 +22,7 @@ from jaxtyping import Array, Bool, Float
 from .._checks import matrix, vector
 from .._custom_types import EulerSeq, Frame, Mat33, Mat33Like, Quat, Vec3, Vec3Like
 from ..rotations import euler, quat, so3
+from . import euler_atlas
 
 
 class AbstractKinematics(eqx.Module):
@@ -118,26 +120,142 @@ class Quaternion(AbstractKinematics):
         return y * jax.lax.rsqrt(jnp.sum(y * y, axis=-1, keepdims=True)), jnp.array(False)
 
 
+EulerState: TypeAlias = Float[Array, "*#batch 4"]
+"""State of `EulerAngles`: three angles of the current chart and the chart (0.0 = `seq`,
+1.0 = its partner)."""
+
+
 class EulerAngles(AbstractKinematics):
-    """Kinematic Euler formulas for any sequence: `(α̇, β̇, γ̇) = J⁻¹(angles) ω` (Borisov–Mamaev
-    001; THEORY §4). Singular at gimbal lock: the vector field raises a clear error when
-    |det J| < `gimbal_tol` instead of blowing up — use `RotationVector`, `Quaternion` or the
-    geometric solver for such motions."""
+    """Kinematic Euler formulas `(α̇, β̇, γ̇) = J⁻¹(angles) ω` (Borisov–Mamaev 001; THEORY §4) for
+    any sequence `seq` (`rigidjax.euler`'s strings), integrated in an atlas of two charts so they
+    never lock: `seq` and `partner = euler_atlas.partner(seq)` (e.g. `"ZXZ"` ↔ `"ZXY"`,
+    `"XYZ"` ↔ `"XYX"`, `"zxz"` ↔ `"yxz"`).
+
+    State `(α, β, γ, chart)` (`EulerState`): the angles of the current chart and the chart
+    (0.0 = `seq`, 1.0 = partner), whose rate is zero. The charts' margins `m = |det J|`
+    (`|sin β|` proper, `|cos β|` Tait–Bryan) satisfy `m² + m'² ≥ 1` at every attitude
+    (proof in `euler_atlas`), so `max(m, m') ≥ 1/√2`. After every solver step (`step_end`) the
+    state changes chart when its margin is below `switch` (default 0.5: β within 30° of lock),
+    the angles converted exactly through the rotation (`euler.from_quat` of the quaternion) and
+    the first one turned by 2π if needed so that `to_quat` keeps its sign; the new chart's margin
+    is then ≥ √(1 − switch²) (0.87), so it does not chatter back. `from_matrix` starts in `seq`
+    unless its margin is below `switch` (e.g. `"ZXZ"` at the identity starts in `"ZXY"`).
+    First and third angles are kept within ±3π by 4π turns (the period of the quaternion; the
+    vector field is 2π-periodic, so these are not jumps) so they stay scaled like the
+    tolerances.
+
+    `angles(y)` gives the angles in `seq` wherever they are defined. Inside a step the stages
+    use the chart of the step's start; a trial stage of a step that overshoots into lock (or the
+    first-same-as-last stage at a step end on the lock, just before the switch) sees `|det J|`
+    floored at `gimbal_tol`: finite rates, which the error control rejects or which the switch
+    and the FSAL reset discard. `switch=0` turns the atlas off: one chart, `seq`, the classical
+    formulas, with a clear error where `|det J| < gimbal_tol` (gimbal lock).
+    """
 
     seq: EulerSeq = eqx.field(static=True, default="ZXZ")
+    switch: float = eqx.field(static=True, default=0.5)
     gimbal_tol: float = eqx.field(static=True, default=1e-6)
 
-    def from_matrix(self, P: Mat33Like) -> Vec3:
-        return euler.from_matrix(P, self.seq)
+    def __check_init__(self):
+        euler_atlas.partner(self.seq)  # validates seq
+        if not 0 <= self.switch < 2**-0.5:
+            raise ValueError(
+                "switch (the margin |det J| below which the Euler chart is changed) must be in "
+                f"[0, 1/√2) (0 turns the atlas off), got {self.switch!r}"
+            )
 
-    def to_matrix(self, y: Vec3) -> Mat33:
-        return euler.to_matrix(y, self.seq)
+    @property
+    def partner(self) -> str:
+        """The second chart's sequence (`euler_atlas.partner(seq)`)."""
+        return euler_atlas.partner(self.seq)
 
-    def to_quat(self, y: Vec3) -> Quat:
-        return quat.canonical(euler.to_quat(y, self.seq))
+    @staticmethod
+    def _split(y: EulerState) -> tuple[Vec3, Bool[Array, "*#batch"]]:
+        """Angles and `in_partner` (chart slot 1.0) of a state."""
+        return y[..., :3], y[..., 3] > 0.5
 
-    def vector_field(self, y: Vec3, w: Vec3) -> Vec3:
-        return euler.omega_to_rates(y, w, self.seq, self.frame, check=True, tol=self.gimbal_tol)
+    def from_matrix(self, P: Mat33Like) -> EulerState:
+        q = quat.from_matrix(matrix(P, "P0"))
+        a, b = euler.from_quat(q, self.seq), euler.from_quat(q, self.partner)
+        use_b = euler_atlas.margin(a, self.seq) < self.switch
+        return jnp.concatenate(
+            [jnp.where(use_b[..., None], b, a), use_b[..., None].astype(a.dtype)], axis=-1
+        )
+
+    def to_quat(self, y: EulerState) -> Quat:
+        """Quaternion of the current chart's angles (`euler.to_quat`; unit, either sign)."""
+        a, in_b = self._split(y)
+        qa, qb = euler.to_quat(a, self.seq), euler.to_quat(a, self.partner)
+        return jnp.where(in_b[..., None], qb, qa)
+
+    def to_matrix(self, y: EulerState) -> Mat33:
+        return quat.to_matrix(self.to_quat(y))
+
+    def angles(self, y: EulerState) -> Vec3:
+        """Euler angles in `seq` of states (any batch shape), in `rigidjax.euler`'s ranges: the
+        state's own angles (first and third wrapped to [−π, π]) in the `seq` chart, else
+        `euler.from_quat(to_quat(y), seq)` — near the lock of `seq` the first and third angles are
+        ill-conditioned (only their sum or difference is defined) and at lock (middle angle
+        within `euler.gimbal_tol` of it) the third is 0, `rigidjax.euler`'s (SciPy's) choice."""
+        a, in_b = self._split(y)
+        own = a - 2 * jnp.pi * jnp.round(a / (2 * jnp.pi)) * jnp.array([1.0, 0.0, 1.0], a.dtype)
+        beta = a[..., 1]
+        if euler_atlas.is_proper(self.seq):
+            in_range = (beta >= 0) & (beta <= jnp.pi)
+        else:
+            in_range = jnp.abs(beta) <= jnp.pi / 2
+        converted = euler.from_quat(self.to_quat(y), self.seq)
+        return jnp.where((~in_b & in_range)[..., None], own, converted)
+
+    def vector_field(self, y: EulerState, w: Vec3) -> EulerState:
+        # J of the current chart (both are finite everywhere), then the closed-form inverse
+        # J⁻¹ = (c2×c3, c3×c1, c1×c2)ᵀ / det J of `euler.omega_to_rates`
+        a, in_b = self._split(y)
+        J = euler.jacobian(a, self.seq, self.frame)
+        if self.switch > 0:
+            J = jnp.where(in_b[..., None, None], euler.jacobian(a, self.partner, self.frame), J)
+        c1, c2, c3 = J[..., 0], J[..., 1], J[..., 2]
+        adj = jnp.stack([jnp.cross(c2, c3), jnp.cross(c3, c1), jnp.cross(c1, c2)], axis=-2)
+        det = jnp.sum(c1 * adj[..., 0, :], -1)
+        tol = self.gimbal_tol
+        if self.switch == 0:  # one chart: the classical formulas, singular at lock
+            det = eqx.error_if(
+                det,
+                ~(jnp.abs(det) >= tol),
+                f"gimbal lock: middle angle of seq={self.seq!r} within |det J| < {tol} of its "
+                "singular value (0/π proper Euler, ±π/2 Tait–Bryan) with the atlas off "
+                "(switch=0): use switch > 0 (the default) or quaternion/rotation-vector kinematics",
+            )
+        else:
+            det = jnp.where(jnp.abs(det) >= tol, det, jnp.where(det < 0, -tol, tol))
+        rates = jnp.einsum("...ij,...j->...i", adj, w) / det[..., None]
+        return jnp.concatenate([rates, jnp.zeros_like(y[..., 3:])], axis=-1)
+
+    def step_end(self, y: EulerState) -> tuple[EulerState, Bool[Array, ""]]:
+        """Change chart when the current margin is below `switch` (converting the angles through
+        the quaternion, same sign); otherwise wrap the first and third angles by 4π beyond ±3π."""
+        a, in_b = self._split(y)
+        m = jnp.where(in_b, euler_atlas.margin(a, self.partner), euler_atlas.margin(a, self.seq))
+        switch = m < self.switch
+        q = self.to_quat(y)
+        to_a, to_b = euler.from_quat(q, self.seq), euler.from_quat(q, self.partner)
+        new = jnp.where(in_b[..., None], to_a, to_b)
+        q_new = jnp.where(
+            in_b[..., None], euler.to_quat(new, self.seq), euler.to_quat(new, self.partner)
+        )
+        first = new[..., 0]
+        turn = jnp.where(
+            jnp.sum(q * q_new, -1) < 0, jnp.where(first < 0, 2 * jnp.pi, -2 * jnp.pi), 0
+        )
+        new = new.at[..., 0].add(turn)
+        mask = jnp.array([1.0, 0.0, 1.0], a.dtype)
+        wrapped = (
+            a
+            - jnp.where(jnp.abs(a) > 3 * jnp.pi, 4 * jnp.pi * jnp.round(a / (4 * jnp.pi)), 0) * mask
+        )
+        y_switched = jnp.concatenate([new, 1 - y[..., 3:]], axis=-1)
+        y_kept = jnp.concatenate([wrapped, y[..., 3:]], axis=-1)
+        return jnp.where(switch[..., None], y_switched, y_kept), jnp.any(switch)
 
 
 class CayleyKlein(AbstractKinematics):
