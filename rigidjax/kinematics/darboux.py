@@ -112,8 +112,9 @@ def darboux(
 
     `omega`: a callable `t -> (3,)`, a Diffrax path, or samples `(t_k, ω_k)` (gyro data; see
     `omega_path`). `method`: `"rotvec"` (θ̇ = Z(θ) ω with shadow switching, Zhilin 3.14),
-    `"quat"`, `"matrix"` (Poisson equation, drifts off SO(3)), `"euler"` (sequence `seq`; errors at
-    gimbal lock), `"cayley_klein"`, `"geometric"` (RKMK Lie-group solver, exactly on SO(3)), or an
+    `"quat"`, `"matrix"` (Poisson equation, drifts off SO(3)), `"euler"` (sequence `seq`, with a
+    partner chart it switches to near gimbal lock: `EulerAngles`), `"cayley_klein"`,
+    `"geometric"` (RKMK Lie-group solver, exactly on SO(3)), or an
     `AbstractKinematics` instance. Defaults: Tsit5 with unrolled stages (`ExplicitRK`;
     RKMK-Dopri5 for `"geometric"`) with a PID controller at `rtol = atol = 1e-10` (1e-6 in
     float32). Steps end at every output time and the values at `ts` are step-end states

@@ -47,7 +47,8 @@ class AbstractKinematics(eqx.Module):
         """ẏ for angular velocity `w` (space ω or body Ω per `frame`)."""
 
     def to_quat(self, y: Array) -> Quat:
-        """Unit quaternion (λ0 ≥ 0) of a state."""
+        """Unit quaternion of a state (either sign: the drivers make a trajectory's sign
+        continuous)."""
         return quat.from_matrix(self.to_matrix(y))
 
     def step_end(self, y: Array) -> tuple[Array, Bool[Array, ""]]:
