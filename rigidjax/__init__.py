@@ -13,8 +13,12 @@ The package is layered; each layer uses only the ones above it:
 """
 
 import sys as _sys
+from typing import TYPE_CHECKING
 
 from . import analytic, fit, kinematics, mechanics, rotations, solvers
+
+if TYPE_CHECKING:  # imported on first use: see __getattr__
+    from . import sweep
 from ._integrate import IntegrationError, SolveOptions
 from .fit import InertiaEstimate, identify_inertia
 from .kinematics import (
@@ -112,6 +116,16 @@ __all__ = [
     "sixdof",
     "so3",
     "solvers",
+    "sweep",
     "stability",
 ]
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str):
+    """`rigidjax.sweep` is imported on first use (it brings in xarray and zarr)."""
+    if name == "sweep":
+        import importlib
+
+        return importlib.import_module(".sweep", __name__)
+    raise AttributeError(f"module 'rigidjax' has no attribute {name!r}")

@@ -1,0 +1,116 @@
+"""The Zarr (v3) store of a sweep: one array per observable and `status` over the design's
+dimensions, chunked like the sweep; the factors as coordinates; and a group `_sweep` holding
+the design's fingerprint and one done-flag per chunk, written only after the chunk's data."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from pathlib import Path
+
+import jax
+import numpy as np
+import zarr
+
+from .design import Design
+
+DONE = "_sweep/done"
+
+
+def check_writable(path: Path) -> None:
+    """A ValueError, before any computation, if a store cannot be written at `path`."""
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"store {str(path)!r} is a file; give a directory for the Zarr store")
+    parent = path if path.exists() else path.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+        raise ValueError(f"store {str(path)!r} cannot be written ({str(parent)!r} is not writable)")
+
+
+def trailing_dims(name: str, shape: tuple[int, ...]) -> tuple[str, ...]:
+    """Names of an observable's own dimensions (after the design's)."""
+    return tuple(f"{name}_dim_{i}" for i in range(len(shape)))
+
+
+def fill_value(dtype: np.dtype):
+    return np.nan if np.issubdtype(dtype, np.inexact) else 0
+
+
+def create(
+    path: Path,
+    design: Design,
+    outputs: Mapping[str, jax.ShapeDtypeStruct],
+    chunk: tuple[int, ...],
+    num_chunks: int,
+    meta: dict,
+) -> None:
+    """Lay out an empty store (every chunk missing, nothing done)."""
+    g = zarr.open_group(str(path), mode="w", zarr_format=3)
+    non_dim = [c for c in design.coords if c not in design.dims]
+    coordinates = {"coordinates": " ".join(non_dim)} if non_dim else {}
+    for name, (dims, values) in design.coords.items():
+        a = g.create_array(name, shape=values.shape, dtype=values.dtype, dimension_names=dims)
+        a[...] = values
+    for name, s in outputs.items():
+        dtype = np.dtype(s.dtype)
+        a = g.create_array(
+            name,
+            shape=design.shape + tuple(s.shape),
+            chunks=chunk + tuple(s.shape),
+            dtype=dtype,
+            fill_value=fill_value(dtype),
+            dimension_names=design.dims + trailing_dims(name, tuple(s.shape)),
+        )
+        a.attrs.update(coordinates)
+    status = g.create_array(
+        "status",
+        shape=design.shape,
+        chunks=chunk,
+        dtype="int8",
+        fill_value=-1,
+        dimension_names=design.dims,
+    )
+    status.attrs.update(coordinates)
+    sweep = g.create_group("_sweep")
+    sweep.attrs.update(meta)
+    sweep.create_array("done", shape=(num_chunks,), chunks=(1,), dtype="int8", fill_value=0)
+
+
+def open_existing(path: Path, meta: dict) -> zarr.Group | None:
+    """The store at `path` if it holds a sweep with the same fingerprint, layout and outputs
+    (ValueError if it holds another one), None if there is no store yet."""
+    if not (path / "zarr.json").exists():
+        return None
+    g = zarr.open_group(str(path), mode="r+")
+    if "_sweep" not in g:
+        raise ValueError(f"store {str(path)!r} exists and is not a rigidjax sweep; give a new path")
+    old = dict(g["_sweep"].attrs)
+    for key, what in (
+        ("fingerprint", "another design"),
+        ("outputs", "a model with other observables"),
+        ("chunk", "another chunk_size"),
+    ):
+        if old.get(key) != meta[key]:
+            raise ValueError(
+                f"store {str(path)!r} was written for {what} ({key}: {old.get(key)} here vs "
+                f"{meta[key]}); give a new store path, or delete the old store to start over"
+            )
+    return g
+
+
+def array(g: zarr.Group, name: str) -> zarr.Array:
+    """The array `name` of the store's group."""
+    a = g[name]
+    if not isinstance(a, zarr.Array):
+        raise ValueError(f"the store's {name!r} is not an array: the store is damaged")
+    return a
+
+
+def write_chunk(
+    g: zarr.Group, k: int, block: tuple[slice, ...], values: Mapping[str, np.ndarray]
+) -> None:
+    """Write chunk `k` (its observables and status), then mark it done."""
+    for name, v in values.items():
+        array(g, name)[block] = v
+    array(g, DONE)[k] = 1
