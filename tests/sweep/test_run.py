@@ -194,3 +194,49 @@ def test_bad_models_and_stores(tmp_path):
     # (with the jaxtyping hook on, its TypeCheckError names the parameter and the type)
     with pytest.raises(TypeError, match=r"(?s)design.*Design"):
         sweep.run(model, {"I2": [1.0]}, progress=False)
+
+
+_PROCESS_RUN = """
+import json, sys
+import jax
+jax.config.update("jax_enable_x64", True)
+jax.config.update("jax_cpu_collectives_implementation", "gloo")
+port, pid, store = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+jax.distributed.initialize(f"localhost:{port}", num_processes=2, process_id=pid)
+from rigidjax import sweep
+from tests.sweep._model import design, model
+ds = sweep.run(model, design(), store=store, chunk_size=4, progress=False)
+n = ds.attrs["num_processes"]
+print(json.dumps({"num_processes": n, "min_w2": ds["min_w2"].values.tolist()}))
+"""
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("localhost", 0))
+        return s.getsockname()[1]
+
+
+def test_two_processes_share_the_chunks_and_both_return_everything(in_memory, tmp_path):
+    """jax.distributed on localhost (CPU collectives over gloo): both processes return the
+    complete Dataset, equal to the single-process one, from one store."""
+    store, port = tmp_path / "mp.zarr", str(_free_port())
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", _PROCESS_RUN, port, str(pid), str(store)],
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for pid in (0, 1)
+    ]
+    outs = [p.communicate(timeout=300) for p in procs]
+    for p, (out, err) in zip(procs, outs, strict=True):
+        assert p.returncode == 0, err[-2000:]
+        got = json.loads(out.strip().splitlines()[-1])
+        assert got["num_processes"] == 2
+        np.testing.assert_allclose(got["min_w2"], in_memory["min_w2"].values, rtol=1e-13)
+    xr.testing.assert_identical(xr.open_zarr(store).load().drop_attrs(), in_memory.drop_attrs())
