@@ -15,7 +15,7 @@ The package is layered; each layer uses only the ones above it:
 import sys as _sys
 from typing import TYPE_CHECKING
 
-from . import analytic, fit, kinematics, mechanics, rotations, solvers
+from . import analytic, fit, kinematics, mechanics, observables, rotations, solvers
 
 if TYPE_CHECKING:  # imported on first use: see __getattr__
     from . import sweep
@@ -107,6 +107,7 @@ __all__ = [
     "kinematics",
     "mechanics",
     "mrp",
+    "observables",
     "omega_path",
     "quat",
     "rotations",
