@@ -5,6 +5,7 @@ goes and resumable."""
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import math
 import sys
@@ -105,15 +106,17 @@ def _evaluate(model: Model) -> Callable:
     return one
 
 
-def _compiled(model: Model, n_pad: int, point: dict) -> tuple[Callable, NamedSharding]:
-    """`jit(vmap(model))` for `n_pad` points, sharded over the local devices (one Mesh axis
-    "point"), compiled ahead of time: once per sweep."""
-    mesh = Mesh(np.array(jax.local_devices()), ("point",))
+@functools.lru_cache(maxsize=8)
+def _compiled(
+    model: Model, n_pad: int, factors: tuple[str, ...], dtype: str, devices: tuple
+) -> tuple[Callable, NamedSharding]:
+    """`jit(vmap(model))` for `n_pad` points, sharded over `devices` (one Mesh axis "point"),
+    compiled ahead of time: once per sweep, and kept for the next call with the same model and
+    shapes (e.g. resuming). Returns the program and its input sharding."""
+    mesh = Mesh(np.array(devices), ("point",))
     sharding = NamedSharding(mesh, PartitionSpec("point"))
     fn = jax.jit(jax.vmap(_evaluate(model)), in_shardings=sharding, out_shardings=sharding)
-    batch = {
-        k: jax.ShapeDtypeStruct((n_pad,), v.dtype, sharding=sharding) for k, v in point.items()
-    }
+    batch = {k: jax.ShapeDtypeStruct((n_pad,), dtype, sharding=sharding) for k in factors}
     return fn.lower(batch).compile(), sharding
 
 
@@ -244,12 +247,17 @@ def run(
     n_pad = _layout.padded_size(chunk, jax.local_device_count())
     failures = {code: 0 for code in STATUS if code}
     errors: list[str] = []
+    compile_s = 0.0
     if todo:
         from tqdm.auto import tqdm
 
-        fn, sharding = _compiled(model, n_pad, point)
-        single = None  # point by point, compiled only if a chunk raises
         dtype = next(iter(point.values())).dtype
+        t_compile = time.perf_counter()
+        fn, sharding = _compiled(
+            model, n_pad, tuple(point), np.dtype(dtype).name, tuple(jax.local_devices())
+        )
+        compile_s = time.perf_counter() - t_compile  # ~0 when this call found it compiled
+        single = None  # point by point, compiled only if a chunk raises
         bar = tqdm(
             total=sum(math.prod(s.stop - s.start for s in blocks[k]) for k in todo),
             unit="pt",
@@ -291,7 +299,8 @@ def run(
 
         if pid == 0:
             status = np.asarray(_store.array(group, "status")[...])
-            attrs = _provenance(design, chunk, status, errors, time.perf_counter() - t0)
+            wall = time.perf_counter() - t0
+            attrs = _provenance(design, chunk, status, errors, wall, compile_s)
             group.attrs.update(attrs)
             group["status"].attrs.update(status_attrs)
             with warnings.catch_warnings():  # xarray reads consolidated v3 metadata fine
@@ -303,9 +312,8 @@ def run(
         assert arrays is not None
         ds = _dataset(design, outputs, arrays)
         ds["status"].attrs.update(status_attrs)
-        ds.attrs.update(
-            _provenance(design, chunk, arrays["status"], errors, time.perf_counter() - t0)
-        )
+        wall = time.perf_counter() - t0
+        ds.attrs.update(_provenance(design, chunk, arrays["status"], errors, wall, compile_s))
     if progress and pid == 0:
         failed = ", ".join(f"{n}: {c}" for n, c in ds.attrs["failures"].items() if c) or "none"
         print(
@@ -316,7 +324,12 @@ def run(
 
 
 def _provenance(
-    design: Design, chunk: tuple[int, ...], status: np.ndarray, errors: list[str], wall: float
+    design: Design,
+    chunk: tuple[int, ...],
+    status: np.ndarray,
+    errors: list[str],
+    wall: float,
+    compile_s: float,
 ) -> dict:
     """The attrs of a sweep's results: versions, devices, processes, time, failures by cause."""
     from .. import __version__
@@ -327,6 +340,7 @@ def _provenance(
         "num_devices": jax.device_count(),
         "num_processes": jax.process_count(),
         "wall_time_s": wall,
+        "compile_time_s": compile_s,
         "design": design.method,
         "chunk": list(chunk),
         "failures": {STATUS[c]: int(np.sum(status == c)) for c in STATUS if c},
