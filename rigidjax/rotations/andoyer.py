@@ -43,15 +43,16 @@ come back to ~√eps; the conditioning of the variables, not of the formulas. Ex
 
 from __future__ import annotations
 
-from typing import Annotated, NamedTuple
+from typing import Annotated, Any, NamedTuple
 
-import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from .._checks import floats, matrix, vector
 from .._custom_types import Mat33, Mat33Like, RealLike, Scalar, ScalarLike, Vec3, Vec3Like
 from .._numerics import safe_sqrt
+from . import quat
 
 
 class AndoyerVariables(NamedTuple):
@@ -113,31 +114,93 @@ def _direction(x: Scalar, y: Scalar) -> tuple[Scalar, Scalar, Bool[Array, "*#bat
     return c, s, degenerate
 
 
-def _check_G(G: Scalar, name: str) -> Scalar:
-    return eqx.error_if(
-        G,
-        ~(G > 0),
-        f"{name}: zero (or non-finite) angular momentum; Andoyer–Deprit variables need G = |M| > 0",
-    )
-
-
 def _broadcast(*xs: ScalarLike, names: tuple[str, ...]) -> list[Scalar]:
     return list(jnp.broadcast_arrays(*floats(*zip(xs, names, strict=True))))
 
 
-def _cos_sin(X: Scalar, G: Scalar, name: str) -> tuple[Scalar, Scalar]:
-    """`(cos, sin)` of the angle in [0, π] with cosine `X/G` (X = L or H), checked `|X| ≤ G` to
-    64 eps. The sine is `√((G − X)(G + X))/G`, which keeps its relative accuracy near the poles
-    better than `√(1 − cos²)`; values are clipped to the unit circle."""
-    eps = jnp.finfo(G.dtype).eps
-    X = eqx.error_if(
-        X,
-        jnp.abs(X) > G * (1 + 64 * eps),
-        f"|{name}| must not exceed G = |M| (it is a projection of M)",
+def _checked(*xs: ScalarLike, names: tuple[str, ...]) -> list[Scalar]:
+    """The arguments broadcast together and checked at the cost of one run-time check: each
+    finite, `G > 0` and `|L|, |H| ≤ G` (to 64 eps; they are projections of M) where present. The
+    errors name the argument (ValueError with the value on concrete input)."""
+    x = jnp.stack(_broadcast(*xs, names=names), axis=-1)
+    col = {n: i for i, n in enumerate(names)}
+    checks = [_column_finite(n, i) for n, i in col.items()]
+    iG = col["G"]
+
+    def not_positive(xp: Any, v: Any) -> Any:
+        return ~(v[..., iG] > 0)
+
+    def at_G(v: np.ndarray) -> str:
+        k = quat._first(not_positive(np, v))
+        return f", got {quat._at('G', k)} = {v[k][iG]:.6g}"
+
+    checks.append(
+        quat._Check(
+            not_positive,
+            "G must be positive: G = |M| > 0",
+            at_G,
+            "; Andoyer–Deprit variables need a non-zero angular momentum",
+        )
     )
+    for n in ("L", "H"):
+        if n in col:
+            checks.append(_projection_check(n, col[n], iG))
+    x = quat._validate_all(x, checks)
+    return [x[..., i] for i in range(len(names))]
+
+
+def _column_finite(name: str, i: int) -> quat._Check:
+    def bad(xp: Any, v: Any) -> Any:
+        return ~xp.isfinite(v[..., i])
+
+    def detail(v: np.ndarray) -> str:
+        k = quat._first(bad(np, v))
+        return f", got {quat._at(name, k)} = {v[k][i]}"
+
+    return quat._Check(bad, f"{name} must be finite", detail, quat._NONFINITE_HINT)
+
+
+def _projection_check(name: str, i: int, iG: int) -> quat._Check:
+    def bad(xp: Any, v: Any) -> Any:
+        G = v[..., iG]
+        return xp.abs(v[..., i]) > G * (1 + 64 * xp.finfo(v.dtype).eps)
+
+    def detail(v: np.ndarray) -> str:
+        k = quat._first(bad(np, v))
+        return f": {quat._at(name, k)} = {v[k][i]:.9g}, G = {v[k][iG]:.9g}"
+
+    return quat._Check(
+        bad,
+        f"|{name}| must not exceed G = |M| ({name} is a projection of M)",
+        detail,
+        f"; pass |{name}| ≤ G",
+    )
+
+
+def _cos_sin(X: Scalar, G: Scalar) -> tuple[Scalar, Scalar]:
+    """`(cos, sin)` of the angle in [0, π] with cosine `X/G` (X = L or H, `|X| ≤ G` checked by
+    `_checked`). The sine is `√((G − X)(G + X))/G`, which keeps its relative accuracy near the
+    poles better than `√(1 − cos²)`; values are clipped to the unit circle."""
     c = jnp.clip(X / G, -1, 1)
     s = jnp.minimum(safe_sqrt((G - X) * (G + X)) / G, 1)
     return c, s
+
+
+def _is_zero(xp: Any, M: Any) -> Any:
+    return ~(xp.sum(M * M, axis=-1) > 0)
+
+
+def _at_zero(M: np.ndarray) -> str:
+    k = quat._first(_is_zero(np, M))
+    return f": {quat._at('M_body', k)} = {quat._fmt(M[k])}"
+
+
+_zero_momentum = quat._Check(
+    _is_zero,
+    "M_body is zero",
+    _at_zero,
+    "; Andoyer–Deprit variables need G = |M| > 0",
+)
 
 
 # --- public functions ------------------------------------------------------------------------
@@ -146,9 +209,8 @@ def _cos_sin(X: Scalar, G: Scalar, name: str) -> tuple[Scalar, Scalar]:
 def momentum(L: ScalarLike, G: ScalarLike, l: ScalarLike) -> Vec3:
     """Body angular momentum `M = (√(G² − L²) sin l, √(G² − L²) cos l, L)` (Borisov–Mamaev (001);
     THEORY §5). `L, l` are cylindrical coordinates on the sphere |M| = G."""
-    L, G, l = _broadcast(L, G, l, names=("L", "G", "l"))
-    G = _check_G(G, "G")
-    _, sJ = _cos_sin(L, G, "L")
+    L, G, l = _checked(L, G, l, names=("L", "G", "l"))
+    _, sJ = _cos_sin(L, G)
     rho = G * sJ
     return jnp.stack([rho * jnp.sin(l), rho * jnp.cos(l), L], axis=-1)
 
@@ -156,9 +218,8 @@ def momentum(L: ScalarLike, G: ScalarLike, l: ScalarLike) -> Vec3:
 def space_momentum(G: ScalarLike, H: ScalarLike, h: ScalarLike) -> Vec3:
     """Space angular momentum `P M = G (sin I sin h, −sin I cos h, cos I)`, `cos I = H/G`
     (THEORY §5)."""
-    G, H, h = _broadcast(G, H, h, names=("G", "H", "h"))
-    G = _check_G(G, "G")
-    _, sI = _cos_sin(H, G, "H")
+    G, H, h = _checked(G, H, h, names=("G", "H", "h"))
+    _, sI = _cos_sin(H, G)
     rho = G * sI
     return jnp.stack([rho * jnp.sin(h), -rho * jnp.cos(h), H], axis=-1)
 
@@ -173,14 +234,14 @@ def from_andoyer(
         P = Rz(h) Rx(I) Rz(g) Rx(J) Rz(l),   cos I = H/G, cos J = L/G, I, J ∈ [0, π].
 
     The six arguments broadcast together; `from_andoyer(*av)` for an `AndoyerVariables` av.
-    Raises (also under jit) if `G ≤ 0` or `|L|` or `|H|` exceeds G. Gradients are finite
-    everywhere, including `|L| = G` and `|H| = G` (where √(G² − L²) has an infinite derivative,
-    the one-sided value 0 is returned).
+    Raises (a ValueError naming the argument, or a run-time error under jit) if an argument is
+    not finite, `G ≤ 0` or `|L|` or `|H|` exceeds G. Gradients are finite everywhere, including
+    `|L| = G` and `|H| = G` (where √(G² − L²) has an infinite derivative, the one-sided value 0
+    is returned).
     """
-    L, G, H, l, g, h = _broadcast(L, G, H, l, g, h, names=("L", "G", "H", "l", "g", "h"))
-    G = _check_G(G, "G")
-    cJ, sJ = _cos_sin(L, G, "L")
-    cI, sI = _cos_sin(H, G, "H")
+    L, G, H, l, g, h = _checked(L, G, H, l, g, h, names=("L", "G", "H", "l", "g", "h"))
+    cJ, sJ = _cos_sin(L, G)
+    cI, sI = _cos_sin(H, G)
     rho = G * sJ
     M = jnp.stack([rho * jnp.sin(l), rho * jnp.cos(l), L], axis=-1)
     P = (
@@ -227,24 +288,20 @@ def to_andoyer(M_body: Vec3Like, P: Mat33Like) -> AndoyerVariables:
     have derivatives of order 1/sin J or 1/sin I, as they must.
 
     On a pole, where the in-plane component is ≤ eps G, `|L|` (or `|H|`) is returned as exactly
-    G. `G = 0` (no angular momentum) raises an error naming `M_body`, also under jit.
+    G. A zero or non-finite `M_body` (no angular momentum) and a non-finite `P` or one with
+    det P ≤ 0 raise an error naming the argument, also under jit.
     Arguments broadcast over leading batch dimensions.
     """
     M = vector(M_body, 3, "M_body")
-    P = matrix(P, "P")
+    M = quat._validate_all(M, [quat._finite_check("M_body", 1), _zero_momentum])
+    P = quat._check_matrix(matrix(P, "P"), "P")
     dtype = jnp.result_type(M, P)
     M, P = M.astype(dtype), P.astype(dtype)
     batch = jnp.broadcast_shapes(M.shape[:-1], P.shape[:-2])
     M = jnp.broadcast_to(M, (*batch, 3))
     P = jnp.broadcast_to(P, (*batch, 3, 3))
 
-    G2 = jnp.sum(M * M, axis=-1)
-    G2 = eqx.error_if(
-        G2,
-        ~(G2 > 0),
-        "M_body is zero (or non-finite): Andoyer–Deprit variables need G = |M| > 0",
-    )
-    G = jnp.sqrt(G2)
+    G = jnp.sqrt(jnp.sum(M * M, axis=-1))
     m = M / G[..., None]
     ms = jnp.einsum("...ij,...j->...i", P, m)
 
@@ -282,10 +339,9 @@ def gamma(L: ScalarLike, G: ScalarLike, H: ScalarLike, l: ScalarLike, g: ScalarL
 
     (τ = π/2 − J, ζ = π/2 − I.) Independent of h. `M_body · γ = H`.
     """
-    L, G, H, l, g = _broadcast(L, G, H, l, g, names=("L", "G", "H", "l", "g"))
-    G = _check_G(G, "G")
-    s_tau, c_tau = _cos_sin(L, G, "L")
-    s_zeta, c_zeta = _cos_sin(H, G, "H")
+    L, G, H, l, g = _checked(L, G, H, l, g, names=("L", "G", "H", "l", "g"))
+    s_tau, c_tau = _cos_sin(L, G)
+    s_zeta, c_zeta = _cos_sin(H, G)
     a = s_zeta * c_tau + s_tau * c_zeta * jnp.cos(g)
     b = c_zeta * jnp.sin(g)
     sl, cl = jnp.sin(l), jnp.cos(l)

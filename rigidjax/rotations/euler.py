@@ -18,13 +18,15 @@ gradients stay finite there.
 
 from __future__ import annotations
 
+from typing import Any
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, DTypeLike, Float
 
-from .._checks import as_float, vector
+from .._checks import as_float, matrix, validate, vector
 from .._custom_types import (
     DavenportAxesLike,
     EulerSeq,
@@ -194,9 +196,19 @@ def to_quat(angles: Vec3Like, seq: EulerSeq = "ZXZ") -> Quat:
 
     For `"ZXZ"`, `(ψ, θ, φ)` this is Borisov–Mamaev's (001; THEORY §3)
     `λ0 = cos(θ/2) cos((ψ+φ)/2)`, `λ1 = sin(θ/2) cos((ψ−φ)/2)`, `λ2 = sin(θ/2) sin((ψ−φ)/2)`,
-    `λ3 = cos(θ/2) sin((ψ+φ)/2)`. No sign normalisation (λ0 may be negative).
+    `λ3 = cos(θ/2) sin((ψ+φ)/2)`. No sign normalisation (λ0 may be negative). `angles` must be
+    finite.
     """
-    angles = vector(angles, 3, "angles")
+    return _to_quat(_angles_arg(angles), seq)
+
+
+def _angles_arg(angles: Vec3Like, name: str = "angles") -> Vec3:
+    """Angles `(..., 3)`, checked to be finite."""
+    return quat._check_finite(vector(angles, 3, name), name, 1)
+
+
+def _to_quat(angles: Vec3, seq: EulerSeq) -> Quat:
+    """`to_quat` without the check of `angles`."""
     axes, intrinsic = _parse_seq(seq)
     order = (0, 1, 2) if intrinsic else (2, 1, 0)  # extrinsic "abc": q_c(γ) ∘ q_b(β) ∘ q_a(α)
 
@@ -217,7 +229,8 @@ def to_matrix(angles: Vec3Like, seq: EulerSeq = "ZXZ") -> Mat33:
     `Pᵀ` is the direction-cosine matrix of Borisov–Mamaev 001, remark 2)."""
     # the barrier keeps XLA from fusing the quaternion into each of the nine entries, which
     # recomputed its sines and cosines (1.4× faster for 10⁶ angles; benchmarks/bench_rotations.py)
-    return quat.to_matrix(jax.lax.optimization_barrier(to_quat(angles, seq)))
+    q = jax.lax.optimization_barrier(to_quat(angles, seq))
+    return quat._to_matrix(q, quat.norm2(q))
 
 
 def from_quat(q: QuatLike, seq: EulerSeq = "ZXZ") -> Vec3:
@@ -225,9 +238,12 @@ def from_quat(q: QuatLike, seq: EulerSeq = "ZXZ") -> Vec3:
 
     Bernardes & Viollet (2022), as SciPy's `Rotation.as_euler`: first/third angle in [−π, π],
     middle in [0, π] (proper Euler) or [−π/2, π/2] (Tait–Bryan); at gimbal lock the third angle
-    is 0. Finite values and gradients everywhere.
+    is 0. Finite values and gradients everywhere. `q` must be finite and non-zero.
     """
-    q = quat.normalize(vector(q, 4, "q"))
+    return _from_unit_quat(quat._unit(vector(q, 4, "q"), "q"), seq)
+
+
+def _from_unit_quat(q: Quat, seq: EulerSeq) -> Vec3:
     (n1, n2, n3), intrinsic = _seq_axes(seq, q.dtype)
     if intrinsic:  # P = R1 R2 R3 is the extrinsic sequence (3, 2, 1)
         return _angles(q, n3, n2, n1, True)
@@ -236,8 +252,9 @@ def from_quat(q: QuatLike, seq: EulerSeq = "ZXZ") -> Vec3:
 
 def from_matrix(P: Mat33Like, seq: EulerSeq = "ZXZ") -> Vec3:
     """Euler angles of a rotation matrix (via the largest-component `quat.from_matrix`), with the
-    ranges and gimbal-lock convention of `from_quat`."""
-    return from_quat(quat.from_matrix(P), seq)
+    ranges and gimbal-lock convention of `from_quat`. `P` is checked and orthogonalised as by
+    `quat.from_matrix` (det P ≤ 0 or a non-finite P is an error)."""
+    return _from_unit_quat(quat._from_matrix(matrix(P, "P"), "P"), seq)
 
 
 # --------------------------------------------------------------------------- Davenport angles
@@ -294,8 +311,8 @@ def _davenport_axes(axes: DavenportAxesLike, dtype: DTypeLike) -> tuple[Vec3, Ve
 def davenport_to_quat(angles: Vec3Like, axes: DavenportAxesLike) -> Quat:
     """Quaternion of generalized (Davenport) angles `(ψ, ϑ, φ)`: `q = q(ψ m) ∘ q(ϑ e) ∘ q(φ n)`.
 
-    See `davenport_to_matrix` for `axes`."""
-    angles = vector(angles, 3, "angles")
+    See `davenport_to_matrix` for `axes`; `angles` must be finite."""
+    angles = _angles_arg(angles)
     m, e, n = _davenport_axes(axes, angles.dtype)
     return _compose(angles, m, e, n)
 
@@ -309,12 +326,17 @@ def davenport_to_matrix(angles: Vec3Like, axes: DavenportAxesLike) -> Mat33:
     Equals SciPy `Rotation.from_davenport([m, e, n], "intrinsic", (ψ, ϑ, φ))`. Unsuitable axes
     raise a ValueError (a runtime error if the axes are traced).
     """
-    return quat.to_matrix(davenport_to_quat(angles, axes))
+    q = davenport_to_quat(angles, axes)
+    return quat._to_matrix(q, quat.norm2(q))
 
 
 def davenport_from_quat(q: QuatLike, axes: DavenportAxesLike) -> Vec3:
-    """Generalized angles `(ψ, ϑ, φ)` of a quaternion; see `davenport_from_matrix`."""
-    q = quat.normalize(vector(q, 4, "q"))
+    """Generalized angles `(ψ, ϑ, φ)` of a quaternion (finite, non-zero); see
+    `davenport_from_matrix`."""
+    return _davenport_from_unit_quat(quat._unit(vector(q, 4, "q"), "q"), axes)
+
+
+def _davenport_from_unit_quat(q: Quat, axes: DavenportAxesLike) -> Vec3:
     m, e, n = _davenport_axes(axes, q.dtype)
     return _angles(q, n, e, m, True)
 
@@ -324,9 +346,9 @@ def davenport_from_matrix(P: Mat33Like, axes: DavenportAxesLike) -> Vec3:
 
     As SciPy `Rotation.as_davenport([m, e, n], "intrinsic")`: ψ, φ ∈ [−π, π], ϑ ∈ [−λ, π − λ]
     where λ is the angle from n to m about e; at gimbal lock (ϑ = −λ or π − λ, where m and
-    Q(ϑ e) n are parallel) φ = 0.
+    Q(ϑ e) n are parallel) φ = 0. `P` is checked and orthogonalised as by `quat.from_matrix`.
     """
-    return davenport_from_quat(quat.from_matrix(P), axes)
+    return _davenport_from_unit_quat(quat._from_matrix(matrix(P, "P"), "P"), axes)
 
 
 # --------------------------------------------------------------------------- kinematics
@@ -377,8 +399,10 @@ def rates_to_omega(
     angles: Vec3Like, rates: Vec3Like, seq: EulerSeq = "ZXZ", frame: Frame = "body"
 ) -> Vec3:
     """Angular velocity from Euler-angle rates, `ω = J(angles) rates` (see `jacobian`):
-    body components Ω for `frame="body"`, space components ω = P Ω for `frame="space"`."""
-    rates = vector(rates, 3, "rates")
+    body components Ω for `frame="body"`, space components ω = P Ω for `frame="space"`.
+    `angles`, `rates` must be finite."""
+    angles = _angles_arg(angles)
+    rates = _angles_arg(rates, "rates")
     J = jacobian(angles, seq, frame)
     return jnp.einsum("...ij,...j->...i", J, rates)
 
@@ -395,21 +419,35 @@ def omega_to_rates(
     closed-form inverse `J⁻¹ = (c2×c3, c3×c1, c1×c2)ᵀ / det J` of the columns `c_i` of `jacobian`.
 
     Singular at gimbal lock, `det J = ±sin β` (proper Euler) or `±cos β` (Tait–Bryan), where the
-    rates blow up as 1/det. With `check=True` a runtime error (`equinox.error_if`) is raised
-    where `|det J| < tol`. For aircraft angles (THEORY §4; 002 #148) use `seq="ZYX"` with
-    angles (yaw, pitch, roll) and body ω: it returns (yaw rate, pitch rate, roll rate).
+    rates blow up as 1/det. With `check=True` that is an error naming `angles` (a ValueError on
+    concrete angles, else a run-time `equinox.error_if`) where `|det J| < tol`. For aircraft
+    angles (THEORY §4; 002 #148) use `seq="ZYX"` with angles (yaw, pitch, roll) and body ω: it
+    returns (yaw rate, pitch rate, roll rate). `angles`, `omega` must be finite.
     """
-    omega = vector(omega, 3, "omega")
+    angles = _angles_arg(angles)
+    omega = _angles_arg(omega, "omega")
     J = jacobian(angles, seq, frame)
     c1, c2, c3 = J[..., 0], J[..., 1], J[..., 2]
     adj = jnp.stack([jnp.cross(c2, c3), jnp.cross(c3, c1), jnp.cross(c1, c2)], axis=-2)
     det = jnp.sum(c1 * adj[..., 0, :], -1)
     if check:
-        det = eqx.error_if(
+
+        def locked(xp: Any, d: Any) -> Any:
+            return ~(xp.abs(d) >= tol)
+
+        def detail(d: np.ndarray) -> str:
+            k = quat._first(locked(np, d))
+            a = np.broadcast_to(np.asarray(angles), (*d.shape, 3))[k]
+            return f": {quat._at('angles', k)} = {quat._fmt(a)}, |det J| = {abs(d[k]):.3g}"
+
+        det = validate(
             det,
-            ~(jnp.abs(det) >= tol),
-            f"gimbal lock: middle angle of seq={seq!r} within |det J| = |sin| or |cos| < {tol} "
-            "of its singular value (0/π for proper Euler, ±π/2 for Tait–Bryan); Euler-angle "
-            "rates are singular there: use quaternion/rotation-vector kinematics",
+            locked,
+            f"angles are at gimbal lock: the middle angle of seq={seq!r} is within |det J| = "
+            f"|sin| or |cos| < {tol} of its singular value (0/π for proper Euler, ±π/2 for "
+            "Tait–Bryan)",
+            detail,
+            hint="; Euler-angle rates are singular there: use quaternion or rotation-vector "
+            "kinematics",
         )
     return jnp.einsum("...ij,...j->...i", adj, omega) / det[..., None]

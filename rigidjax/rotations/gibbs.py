@@ -2,14 +2,16 @@
 
 `χ` is the rotation angle about the unit axis `e`. In quaternions `θ_G = 2 λ/λ0`, so `q` and `−q`
 give the same vector. It is infinite at `χ = π`: every function that would produce such a vector
-raises a runtime error instead (use quaternions or `rigidjax.mrp` there). Conventions as
+raises an error instead (use quaternions or `rigidjax.mrp` there). Conventions as
 `rigidjax.quat`: `P` maps body to space, Hamilton product, `P(q1 ∘ q2) = P(q1) P(q2)`.
 """
 
 from __future__ import annotations
 
-import equinox as eqx
+from typing import Any
+
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array
 
 from .._checks import matrix, vector
@@ -17,28 +19,54 @@ from .._custom_types import Mat33, Mat33Like, Quat, QuatLike, Vec3, Vec3Like
 from . import quat
 from .so3 import hat
 
-
-def _finite(g: Vec3, what: str) -> Vec3:
-    return eqx.error_if(
-        g,
-        ~jnp.all(jnp.isfinite(g), axis=-1),
-        f"{what} is a rotation by χ = π (or not finite): its Gibbs vector 2 tan(χ/2) e is "
-        "infinite; use quaternions (rigidjax.quat) or MRPs (rigidjax.mrp) instead",
-    )
+_PI_HINT = (
+    "; its Gibbs vector 2 tan(χ/2) e is infinite: use quaternions (rigidjax.quat) or MRPs "
+    "(rigidjax.mrp) instead"
+)
 
 
 def _ratio(q: Array) -> Vec3:
     return 2 * q[..., 1:] / q[..., :1]
 
 
+def _half_turn_check(name: str) -> quat._Check:
+    """A quaternion `(..., 4)` whose Gibbs vector is finite (not a 180° rotation, λ0 ≠ 0)."""
+
+    def bad(xp: Any, q: Any) -> Any:
+        return ~xp.all(xp.isfinite(2 * q[..., 1:] / q[..., :1]), axis=-1)
+
+    def detail(q: np.ndarray) -> str:
+        k = quat._first(bad(np, q))
+        return f" (λ0 = 0 in the quaternion {quat._fmt(q[k])} of {quat._at(name, k)})"
+
+    return quat._Check(bad, f"{name} is a rotation by χ = π", detail, _PI_HINT)
+
+
+def _finite(g: Vec3, what: str) -> Vec3:
+    """`g`, checked finite: else `what` (the product of two rotations) is a half turn."""
+    return quat._validate_all(
+        g,
+        [
+            quat._Check(
+                lambda xp, v: ~xp.all(xp.isfinite(v), axis=-1),
+                f"{what} is a rotation by χ = π (or not finite)",
+                None,
+                _PI_HINT,
+            )
+        ],
+    )
+
+
 def from_quat(q: QuatLike) -> Vec3:
-    """`θ_G = 2 λ/λ0` (`q` any non-zero quaternion). Raises for a 180° rotation (`λ0 = 0`)."""
-    return _finite(_ratio(vector(q, 4, "q")), "q")
+    """`θ_G = 2 λ/λ0` (`q` any finite non-zero quaternion). Raises for a 180° rotation
+    (`λ0 = 0`)."""
+    q = vector(q, 4, "q")
+    return _ratio(quat._validate_all(q, [*quat._quat_checks("q"), _half_turn_check("q")]))
 
 
 def to_quat(g: Vec3Like) -> Quat:
-    """Unit quaternion `(1, θ_G/2)/√(1 + θ_G²/4)` with λ0 > 0."""
-    g = vector(g, 3, "g")
+    """Unit quaternion `(1, θ_G/2)/√(1 + θ_G²/4)` with λ0 > 0; `g` must be finite."""
+    g = quat._check_finite(vector(g, 3, "g"), "g", 1)
     h = g / 2
     s = 1 / jnp.sqrt(1 + jnp.sum(h * h, axis=-1, keepdims=True))
     return jnp.concatenate([s, s * h], axis=-1)
@@ -46,14 +74,16 @@ def to_quat(g: Vec3Like) -> Quat:
 
 def from_matrix(P: Mat33Like) -> Vec3:
     """Gibbs vector of a rotation matrix (through the largest-component quaternion; equals
-    `4 vee(P)/(1 + tr P)` but loses less accuracy near χ = π). Raises at χ = π."""
-    return _finite(_ratio(quat.from_matrix(matrix(P, "P"))), "P")
+    `4 vee(P)/(1 + tr P)` but loses less accuracy near χ = π). Raises at χ = π, and for a
+    non-finite `P` or det P ≤ 0 (see `quat.from_matrix`)."""
+    q = quat._from_matrix(matrix(P, "P"), "P")
+    return _ratio(quat._validate_all(q, [_half_turn_check("P")]))
 
 
 def to_matrix(g: Vec3Like) -> Mat33:
     """`P = E + (R + ½ R²)/(1 + θ_G²/4)`, `R = θ_G × E` (the Cayley transform
-    `(E − R/2)⁻¹ (E + R/2)`)."""
-    g = vector(g, 3, "g")
+    `(E − R/2)⁻¹ (E + R/2)`); `g` must be finite."""
+    g = quat._check_finite(vector(g, 3, "g"), "g", 1)
     R = hat(g)
     c = 1 / (1 + jnp.sum(g * g, axis=-1) / 4)
     return jnp.eye(3, dtype=g.dtype) + c[..., None, None] * (R + 0.5 * (R @ R))

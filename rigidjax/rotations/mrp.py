@@ -15,37 +15,48 @@ from .._custom_types import Mat33, Mat33Like, Quat, QuatLike, Vec3, Vec3Like
 from . import quat
 
 
-def from_quat(q: QuatLike) -> Vec3:
-    """`p = λ/(1 + λ0)` after choosing λ0 ≥ 0 (`q` treated as `q/|q|`), so `|p| ≤ 1`."""
-    q = quat.canonical(quat.normalize(vector(q, 4, "q")))
+def _from_unit_quat(q: Quat) -> Vec3:
+    q = quat.canonical(q)
     return q[..., 1:] / (1 + q[..., :1])
 
 
-def to_quat(p: Vec3Like) -> Quat:
-    """`(1 − p², 2p)/(1 + p²)`, for any `p` (a shadow `|p| > 1` gives λ0 < 0)."""
-    p = vector(p, 3, "p")
+def from_quat(q: QuatLike) -> Vec3:
+    """`p = λ/(1 + λ0)` of `quat.canonical(q)` (`q` finite, non-zero, treated as `q/|q|`), so
+    `|p| ≤ 1`."""
+    return _from_unit_quat(quat._unit(vector(q, 4, "q"), "q"))
+
+
+def _to_quat(p: Vec3) -> Quat:
     p2 = jnp.sum(p * p, axis=-1, keepdims=True)
     return jnp.concatenate([1 - p2, 2 * p], axis=-1) / (1 + p2)
 
 
+def to_quat(p: Vec3Like) -> Quat:
+    """`(1 − p², 2p)/(1 + p²)`, for any finite `p` (a shadow `|p| > 1` gives λ0 < 0)."""
+    return _to_quat(quat._check_finite(vector(p, 3, "p"), "p", 1))
+
+
 def from_matrix(P: Mat33Like) -> Vec3:
-    """MRP (`|p| ≤ 1`) of a rotation matrix, through the largest-component quaternion."""
-    return from_quat(quat.from_matrix(matrix(P, "P")))
+    """MRP (`|p| ≤ 1`) of a rotation matrix, through the largest-component quaternion; `P` is
+    checked and orthogonalised as by `quat.from_matrix`."""
+    return _from_unit_quat(quat._from_matrix(matrix(P, "P"), "P"))
 
 
 def to_matrix(p: Vec3Like) -> Mat33:
-    """`P = E + (8 S² + 4(1 − p²) S)/(1 + p²)²`, `S = p × E`."""
-    return quat.to_matrix(to_quat(p))
+    """`P = E + (8 S² + 4(1 − p²) S)/(1 + p²)²`, `S = p × E`; `p` must be finite."""
+    q = to_quat(p)
+    return quat._to_matrix(q, quat.norm2(q))
 
 
 def rotate(p: Vec3Like, r: Vec3Like) -> Vec3:
     """`P(p) r`."""
-    return quat.rotate(to_quat(p), r)
+    return quat.rotate(_to_quat(vector(p, 3, "p")), r)
 
 
 def compose(p1: Vec3Like, p2: Vec3Like) -> Vec3:
     """MRP (`|p| ≤ 1`) of `P(p1) P(p2)`, through the Hamilton product."""
-    return from_quat(quat.mul(to_quat(p1), to_quat(p2)))
+    q = quat.mul(_to_quat(vector(p1, 3, "p1")), _to_quat(vector(p2, 3, "p2")))
+    return _from_unit_quat(q / jnp.sqrt(quat.norm2(q))[..., None])
 
 
 def shadow(p: Vec3Like) -> Vec3:

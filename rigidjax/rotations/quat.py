@@ -2,19 +2,28 @@
 
 Conventions (THEORY §3): Hamilton product, `λ0 = cos(θ/2)`, `λ = sin(θ/2) m`; `q` and `−q` are
 the same rotation. Functions that map a quaternion to a rotation accept any non-zero `q` and treat
-it as `q/|q|` (like SciPy); `normalize` raises on a zero quaternion.
+it as `q/|q|` (like SciPy).
+
+Bad input is an error naming the argument: a zero or non-finite quaternion, a non-finite or
+improper (det ≤ 0) matrix passed as a rotation. On concrete input it is a `ValueError` with the
+offending value and the fix; under `jit`/`vmap`/`grad` the same message comes from an
+`equinox.error_if` at run time. The algebra used inside integrators (`mul`, `rotate`,
+`normalize`, `to_matrix`, `inv`) keeps a single check of `|q| > 0`, finite; `from_matrix`,
+`to_rotvec`, `angle` and the other conversions check their arguments fully.
 """
 
 from __future__ import annotations
 
-from typing import Annotated
+from collections.abc import Callable, Sequence
+from typing import Annotated, Any, NamedTuple
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Complex, DTypeLike, Float, PRNGKeyArray, Real
 
-from .._checks import as_float, check_shape, matrix, vector
+from .._checks import as_float, check_shape, is_concrete, matrix, vector
 from .._custom_types import (
     CMat22,
     CMat22Like,
@@ -38,6 +47,155 @@ def _split(q: Quat) -> tuple[Scalar, Vec3]:
 def _join(w: Scalar, v: Vec3) -> Quat:
     w, v = jnp.broadcast_arrays(w[..., None], v)
     return jnp.concatenate([w[..., :1], v], axis=-1)
+
+
+# --------------------------------------------------------------------------- argument checks
+# Shared by the rotation modules (candidates for rigidjax._checks): several checks of one array
+# at the cost of one `equinox` check, each with its own message.
+
+
+class _Check(NamedTuple):
+    """One check: `bad(xp, x)` (xp is NumPy or jax.numpy) is true where `x` fails; the error is
+    `message + detail(x) + hint` (the detail, with the offending value, on concrete `x` only)."""
+
+    bad: Callable[[Any, Any], Any]
+    message: str
+    detail: Callable[[np.ndarray], str] | None = None
+    hint: str = ""
+
+
+def _validate_all(x: Array, checks: Sequence[_Check], on: Array | None = None) -> Array:
+    """`rigidjax._checks.validate` for several checks of `x`: the ValueError of the first check
+    that fails (concrete `x`), or one `equinox.branched_error_if` carrying the message of the
+    first failing check (traced `x`). Returns `on` (default `x`) with the run-time check attached.
+    The predicates see `x` through `stop_gradient`: they add nothing to derivatives."""
+    out = x if on is None else on
+    if is_concrete(x):
+        xn = np.asarray(x)
+        with np.errstate(all="ignore"):
+            for c in checks:
+                if np.any(c.bad(np, xn)):
+                    raise ValueError(c.message + (c.detail(xn) if c.detail else "") + c.hint)
+        return out
+    xs = jax.lax.stop_gradient(x)
+    fails = jnp.stack([jnp.any(c.bad(jnp, xs)) for c in checks])
+    msgs = [c.message + c.hint for c in checks]
+    return eqx.branched_error_if(out, jnp.any(fails), jnp.argmax(fails), msgs)
+
+
+def _first(mask: Any) -> tuple[int, ...]:
+    """Index of the first true entry of a batch mask (`()` for a single element)."""
+    mask = np.asarray(mask)
+    return tuple(int(i) for i in np.unravel_index(int(np.argmax(mask)), mask.shape))
+
+
+def _at(name: str, k: tuple[int, ...]) -> str:
+    return name + (f"[{', '.join(map(str, k))}]" if k else "")
+
+
+def _fmt(v: Any) -> str:
+    """An array on one line, 6 significant digits."""
+    return " ".join(np.array2string(np.asarray(v), precision=6, separator=", ").split())
+
+
+_NONFINITE_HINT = "; replace its NaN/inf entries (they come from an earlier overflow or 0/0)"
+
+
+def _finite_check(name: str, core: int) -> _Check:
+    """`x` finite; `core` trailing dimensions make one element (0 scalar, 1 vector, 2 matrix)."""
+    axes = tuple(range(-core, 0))
+
+    def bad(xp: Any, x: Any) -> Any:
+        return ~xp.all(xp.isfinite(x), axis=axes) if core else ~xp.isfinite(x)
+
+    def detail(x: np.ndarray) -> str:
+        k = _first(bad(np, x))
+        return f", got {_at(name, k)} = {_fmt(x[k])}"
+
+    return _Check(bad, f"{name} must be finite", detail, _NONFINITE_HINT)
+
+
+def _check_finite(x: Array, name: str, core: int) -> Array:
+    """`x`, checked to be finite (see `_finite_check`)."""
+    return _validate_all(x, [_finite_check(name, core)])
+
+
+def _quat_checks(name: str) -> list[_Check]:
+    """A quaternion `(..., 4)` that stands for a rotation: finite and non-zero."""
+
+    def zero(xp: Any, q: Any) -> Any:
+        return ~(xp.sum(q * q, axis=-1) > 0)
+
+    def detail(q: np.ndarray) -> str:
+        k = _first(zero(np, q))
+        return f": {_at(name, k)} = {_fmt(q[k])}"
+
+    return [
+        _Check(
+            _finite_check(name, 1).bad,
+            f"{name} must be a finite quaternion (w, x, y, z)",
+            _finite_check(name, 1).detail,
+            _NONFINITE_HINT,
+        ),
+        _Check(
+            zero,
+            f"{name} is a zero quaternion, which is no rotation",
+            detail,
+            f"; a rotation needs |{name}| > 0 (use rigidjax.quat.identity() for no rotation)",
+        ),
+    ]
+
+
+def _check_quat(q: Quat, name: str, on: Array | None = None) -> Array:
+    """`q` (or `on`), checked to be a finite, non-zero quaternion (one run-time check)."""
+    return _validate_all(q, _quat_checks(name), on)
+
+
+def _unit(q: Quat, name: str) -> Quat:
+    """`q/|q|` of a checked quaternion `q` (see `_check_quat`)."""
+    return q / jnp.sqrt(_check_quat(q, name, norm2(q)))[..., None]
+
+
+def _det(xp: Any, P: Any) -> Any:
+    """`det P = p0 · (p1 × p2)` (rows p_i), the same formula in NumPy and JAX."""
+    return xp.sum(P[..., 0, :] * xp.cross(P[..., 1, :], P[..., 2, :]), axis=-1)
+
+
+def _matrix_checks(name: str) -> list[_Check]:
+    """A matrix `(..., 3, 3)` passed as a rotation: finite, with a positive determinant (relative
+    to its size, `det P > 64 eps (‖P‖_F/√3)³`, so that rounding of a singular frame does not pass).
+    Like SciPy's `Rotation.from_matrix`, nothing more: a matrix with det > 0 that is not quite
+    orthogonal (an integrator's output) is accepted."""
+
+    def improper(xp: Any, P: Any) -> Any:
+        size = xp.sum(P * P, axis=(-2, -1)) / 3
+        return ~(_det(xp, P) > 64 * xp.finfo(P.dtype).eps * size * xp.sqrt(size))
+
+    def detail(P: np.ndarray) -> str:
+        k = _first(improper(np, P))
+        return f": det {_at(name, k)} = {_det(np, P[k]):.6g} for {_at(name, k)} = {_fmt(P[k])}"
+
+    return [
+        _Check(
+            _finite_check(name, 2).bad,
+            f"{name} must be a finite rotation matrix",
+            _finite_check(name, 2).detail,
+            _NONFINITE_HINT,
+        ),
+        _Check(
+            improper,
+            f"{name} is not a rotation matrix: non-positive determinant (a left-handed or "
+            "degenerate frame)",
+            detail,
+            "; a rotation has det = +1: negate one axis (column) of a left-handed frame "
+            "(a matrix with det > 0 that is not quite orthogonal is accepted and orthogonalised)",
+        ),
+    ]
+
+
+def _check_matrix(P: Mat33, name: str) -> Mat33:
+    """`P`, checked to be finite with a positive determinant (see `_matrix_checks`)."""
+    return _validate_all(P, _matrix_checks(name))
 
 
 def identity(shape: tuple[int, ...] = (), dtype: DTypeLike | None = None) -> Quat:
@@ -73,24 +231,23 @@ def norm2(q: Real[ArrayLike, "*#batch 4"]) -> Scalar:
 
 
 def _checked_norm2(q: Quat, name: str) -> Scalar:
-    n2 = norm2(q)
-    return eqx.error_if(
-        n2,
-        ~(n2 > 0),
-        f"{name} is a zero (or non-finite) quaternion; a rotation needs |{name}| > 0",
-    )
+    """`|q|²`, with the one check of the algebra: `q` finite and non-zero."""
+    return _check_quat(q, name, norm2(q))
 
 
 def normalize(q: QuatLike) -> Quat:
     """`q / |q|`; raises a clear error for a zero or non-finite quaternion."""
     q = vector(q, 4, "q")
-    return q / jnp.sqrt(_checked_norm2(q, "q"))[..., None]
+    return _unit(q, "q")
 
 
 def canonical(q: QuatLike) -> Quat:
-    """The representative of ±q with λ0 ≥ 0."""
+    """The representative of ±q that SciPy's `as_quat(canonical=True)` returns: λ0 > 0, or, for
+    a 180° rotation (λ0 = 0), the first non-zero of λ1, λ2, λ3 positive."""
     q = vector(q, 4, "q")
-    return jnp.where(q[..., :1] < 0, -q, q)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    flip = (w < 0) | ((w == 0) & ((x < 0) | ((x == 0) & ((y < 0) | ((y == 0) & (z < 0))))))
+    return jnp.where(flip[..., None], -q, q)
 
 
 def continuous(q: Real[ArrayLike, "*#batch T 4"]) -> Float[Array, "*batch T 4"]:
@@ -117,18 +274,17 @@ def rotate(q: QuatLike, v: Vec3Like) -> Vec3:
     return v + s[..., None] * (w[..., None] * t + jnp.cross(u, t))
 
 
-def from_rotvec(theta: Vec3Like) -> Quat:
-    """`(cos(θ/2), sin(θ/2) θ/|θ|)`; exact and differentiable at θ = 0."""
-    theta = vector(theta, 3, "theta")
+def _from_rotvec(theta: Vec3) -> Quat:
     x2 = jnp.sum(theta * theta, axis=-1)
     return _join(_series.half_cos(x2), _series.half_sin_over(x2)[..., None] * theta)
 
 
-def to_rotvec(q: QuatLike) -> Vec3:
-    """Rotation vector with |θ| ≤ π: `θ = 2 atan2(|λ|, λ0) λ/|λ|` after choosing λ0 ≥ 0.
+def from_rotvec(theta: Vec3Like) -> Quat:
+    """`(cos(θ/2), sin(θ/2) θ/|θ|)`; exact and differentiable at θ = 0. `theta` must be finite."""
+    return _from_rotvec(_check_finite(vector(theta, 3, "theta"), "theta", 1))
 
-    Near θ = 0 uses `atan(y)/y = 1 − y²/3 + y⁴/5 − …`, so values and gradients stay finite.
-    """
+
+def _to_rotvec(q: Quat) -> Vec3:
     q = canonical(q)
     w, v = _split(q)
     n2 = jnp.sum(v * v, axis=-1)
@@ -142,11 +298,18 @@ def to_rotvec(q: QuatLike) -> Vec3:
     return jnp.where(small, series, exact)[..., None] * v
 
 
-def to_matrix(q: QuatLike) -> Mat33:
-    """`P = E + 2(λ0 λ × E + (λ × E)²)/|q|²`; for unit q this is `2{λλ + (λ0² − ½)E + λ0 λ × E}`
-    (Borisov–Mamaev; THEORY §3)."""
-    q = vector(q, 4, "q")
-    s = 2 / _checked_norm2(q, "q")
+def to_rotvec(q: QuatLike) -> Vec3:
+    """Rotation vector with |θ| ≤ π: `θ = 2 atan2(|λ|, λ0) λ/|λ|` of `canonical(q)` (at θ = π
+    the first non-zero component of θ is positive). `q` must be finite and non-zero.
+
+    Near θ = 0 uses `atan(y)/y = 1 − y²/3 + y⁴/5 − …`, so values and gradients stay finite.
+    """
+    return _to_rotvec(_check_quat(vector(q, 4, "q"), "q"))
+
+
+def _to_matrix(q: Quat, n2: Scalar) -> Mat33:
+    """`to_matrix` of a quaternion with `|q|² = n2`."""
+    s = 2 / n2
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     xx, yy, zz = x * x, y * y, z * z
     xy, xz, yz = x * y, x * z, y * z
@@ -159,15 +322,15 @@ def to_matrix(q: QuatLike) -> Mat33:
     return jnp.stack([jnp.stack(r, axis=-1) for r in rows], axis=-2)
 
 
-def from_matrix(P: Mat33Like) -> Quat:
-    """Unit quaternion (λ0 ≥ 0) of a rotation matrix by the largest-component method.
+def to_matrix(q: QuatLike) -> Mat33:
+    """`P = E + 2(λ0 λ × E + (λ × E)²)/|q|²`; for unit q this is `2{λλ + (λ0² − ½)E + λ0 λ × E}`
+    (Borisov–Mamaev; THEORY §3). `q` must be finite and non-zero."""
+    q = vector(q, 4, "q")
+    return _to_matrix(q, _checked_norm2(q, "q"))
 
-    Of the four squared components `4λ0² = 1 + tr P`, `4λi² = 1 + 2Pii − tr P` (THEORY §3), the
-    largest (always ≥ 1/4) fixes the row `4λk λ` built from it and the off-diagonal sums and
-    differences; normalising that row gives λ with no sign or near-π failure. A slightly
-    non-orthogonal input gives the normalised quaternion of this construction.
-    """
-    P = matrix(P, "P")
+
+def _from_orthogonal(P: Mat33) -> Quat:
+    """The largest-component construction of `from_matrix` (no checks)."""
     p00, p11, p22 = P[..., 0, 0], P[..., 1, 1], P[..., 2, 2]
     tr = p00 + p11 + p22
     d21, d02, d10 = (
@@ -196,12 +359,77 @@ def from_matrix(P: Mat33Like) -> Quat:
     return canonical(c / jnp.linalg.norm(c, axis=-1, keepdims=True))
 
 
+def _polar(P: Mat33) -> Mat33:
+    """Orthogonal polar factor `U Vᵀ` of `P = U S Vᵀ` (det P > 0): Newton's iteration
+    `X ← (γX + (γX)⁻ᵀ)/2` with determinant scaling `γ = |det X|^(−1/3)` (Higham 1986), to rounding
+    in 8 steps for condition numbers up to ~1e4 (1e-11 at 1e8). `X⁻ᵀ = cof X / det X`, where the
+    rows of the cofactor matrix are cross products of the rows of X."""
+    return jax.lax.fori_loop(0, 8, _polar_step, P)
+
+
+def _polar_step(_: Any, X: Mat33) -> Mat33:
+    r0, r1, r2 = X[..., 0, :], X[..., 1, :], X[..., 2, :]
+    C = jnp.stack([jnp.cross(r1, r2), jnp.cross(r2, r0), jnp.cross(r0, r1)], axis=-2)
+    d = jnp.sum(r0 * C[..., 0, :], axis=-1)[..., None, None]
+    g = jnp.cbrt(jnp.abs(d))
+    return 0.5 * (X / g + C * (g / d))
+
+
+def _is_orthogonal(P: Mat33) -> Array:
+    """`|P Pᵀ − E| ≤ 100 eps` entrywise (a rotation to rounding)."""
+    G = P @ jnp.swapaxes(P, -1, -2) - jnp.eye(3, dtype=P.dtype)
+    return jnp.all(jnp.abs(G) <= 100 * jnp.finfo(P.dtype).eps, axis=(-2, -1))
+
+
+@jax.custom_jvp
+def _orthogonalised(P: Mat33) -> Mat33:
+    """`P` itself if it is orthogonal to rounding, else its polar factor (as SciPy's
+    `Rotation.from_matrix`, which takes the SVD `U Vᵀ`). The derivative is always that of the
+    polar factor (at a rotation: the projection of `dP` on the tangent space), consistent with the
+    value off SO(3)."""
+    return jnp.where(_is_orthogonal(jax.lax.stop_gradient(P))[..., None, None], P, _polar(P))
+
+
+@_orthogonalised.defjvp
+def _orthogonalised_jvp(primals, tangents):
+    (P,), (dP,) = primals, tangents
+    _, dX = jax.jvp(_polar, (P,), (dP,))
+    return _orthogonalised(P), dX
+
+
+def _from_matrix(P: Mat33, name: str) -> Quat:
+    """`from_matrix` of `P`, checked (errors naming `name`) and orthogonalised."""
+    return _from_orthogonal(_orthogonalised(_check_matrix(P, name)))
+
+
+def from_matrix(P: Mat33Like, *, assume_valid: bool = False) -> Quat:
+    """Unit quaternion (`canonical`: λ0 ≥ 0, SciPy's sign at λ0 = 0) of a rotation matrix by the
+    largest-component method.
+
+    Of the four squared components `4λ0² = 1 + tr P`, `4λi² = 1 + 2Pii − tr P` (THEORY §3), the
+    largest (always ≥ 1/4) fixes the row `4λk λ` built from it and the off-diagonal sums and
+    differences; normalising that row gives λ with no sign or near-π failure.
+
+    As SciPy's `Rotation.from_matrix`: a non-finite `P` or one with det P ≤ 0 (a reflection or a
+    degenerate frame) is an error; a matrix with det > 0 that is not orthogonal to rounding (an
+    integrator's output) is replaced by its nearest rotation, the polar factor `U Vᵀ` of its SVD
+    (computed by a Newton iteration, with finite derivatives). `assume_valid=True` (as in SciPy)
+    skips both for matrices known to be rotations (e.g. inside an integrator's vector field).
+    """
+    P = matrix(P, "P")
+    return _from_orthogonal(P) if assume_valid else _from_matrix(P, "P")
+
+
 def angle(q: QuatLike) -> Scalar:
     """Rotation angle ∈ [0, π] of `q`: `2 atan2(|λ|, |λ0|)`.
 
     The angle has a kink at the identity; there the gradient is the zero subgradient (finite).
+    `q` must be finite and non-zero.
     """
-    q = vector(q, 4, "q")
+    return _angle(_check_quat(vector(q, 4, "q"), "q"))
+
+
+def _angle(q: Quat) -> Scalar:
     n2 = jnp.sum(q[..., 1:] ** 2, axis=-1)
     pos = n2 > 0
     n = jnp.where(pos, jnp.sqrt(jnp.where(pos, n2, jnp.ones_like(n2))), jnp.zeros_like(n2))
@@ -241,17 +469,17 @@ def slerp(a: QuatLike, b: QuatLike, t: ScalarLike) -> Quat:
     `b ∘ exp((t − 1) log(a⁻¹ ∘ b))` is used, so `t = 0` and `t = 1` return `a/|a|` and `±b/|b|`
     exactly. Built from the Taylor-guarded `to_rotvec`/`from_rotvec`: finite values and gradients
     for `a = ±b`. The path is discontinuous where `a·b` changes sign (a 180° relative
-    rotation has two shortest arcs).
+    rotation has two shortest arcs). `a`, `b` must be finite and non-zero, `t` finite.
     """
-    a = normalize(vector(a, 4, "a"))
-    b = normalize(vector(b, 4, "b"))
-    t = as_float(t, "t")
+    a = _unit(vector(a, 4, "a"), "a")
+    b = _unit(vector(b, 4, "b"), "b")
+    t = _check_finite(as_float(t, "t"), "t", 0)
     b = jnp.where(jnp.sum(a * b, axis=-1, keepdims=True) < 0, -b, b)
-    theta = to_rotvec(mul(conj(a), b))
+    theta = _to_rotvec(mul(conj(a), b))
     late = (t > 0.5)[..., None]
     base = jnp.where(late, b, a)
     s = jnp.where(late, t[..., None] - 1, t[..., None])
-    return mul(base, from_rotvec(s * theta))
+    return mul(base, _from_rotvec(s * theta))
 
 
 @jax.custom_jvp
@@ -280,17 +508,66 @@ def mean(
     """Rotation average (Markley et al. 2007, as SciPy `Rotation.mean`): the unit eigenvector of
     the largest eigenvalue of `M = Σ_n w_n q_n q_nᵀ`, returned with λ0 ≥ 0.
 
-    `q` has shape `(..., N, 4)`: the set of N rotations lies along axis −2 (each treated as
-    `q/|q|`, sign-invariant); `weights` `(..., N)`, non-negative, default all 1. Returns
-    `(..., 4)`. Gradients are finite unless the largest eigenvalue is degenerate (mean not unique).
+    `q` has shape `(..., N, 4)`, N ≥ 1: the set of N rotations lies along axis −2 (each finite,
+    non-zero, treated as `q/|q|`, sign-invariant); `weights` `(..., N)`, finite, non-negative and
+    not all zero in a set, default all 1. Returns `(..., 4)`. Gradients are finite unless the
+    largest eigenvalue is degenerate (mean not unique).
     """
     q = vector(q, 4, "q")
     if q.ndim < 2:
         raise ValueError(f"q must have shape (..., N, 4), got {tuple(q.shape)}")
-    q = normalize(q)
-    w = jnp.ones(q.shape[:-1], q.dtype) if weights is None else as_float(weights, "weights")
+    if q.shape[-2] == 0:
+        raise ValueError(
+            f"q must hold at least one rotation (N ≥ 1 along axis -2), got shape {q.shape}: the "
+            "mean of an empty set is undefined"
+        )
+    q = _unit(q, "q")
+    if weights is None:
+        w = jnp.ones(q.shape[:-1], q.dtype)
+    else:
+        w = as_float(weights, "weights")
+        if w.ndim < 1 or w.shape[-1] != q.shape[-2]:
+            raise ValueError(
+                f"weights must have shape (..., N) with N = {q.shape[-2]} (one weight per "
+                f"rotation of q, shape {q.shape}), got {w.shape}"
+            )
+        w = _validate_all(w, _weight_checks("weights"))
     M = jnp.einsum("...n,...ni,...nj->...ij", w, q, q)
     return canonical(_top_eigvec(M))
+
+
+def _weight_checks(name: str) -> list[_Check]:
+    """Weights `(..., N)` of a set: finite, non-negative, not all zero."""
+
+    def negative(xp: Any, w: Any) -> Any:
+        return w < 0
+
+    def all_zero(xp: Any, w: Any) -> Any:
+        return ~(xp.sum(w, axis=-1) > 0)
+
+    def at_negative(w: np.ndarray) -> str:
+        k = _first(negative(np, w))
+        return f", got {_at(name, k)} = {w[k]:.6g}"
+
+    def at_zero(w: np.ndarray) -> str:
+        k = _first(all_zero(np, w))
+        return f", got {_at(name, k)} = {_fmt(w[k])}"
+
+    return [
+        _finite_check(name, 0),
+        _Check(
+            negative,
+            f"{name} must be non-negative",
+            at_negative,
+            "; a weight is the importance of its rotation (0 leaves it out)",
+        ),
+        _Check(
+            all_zero,
+            f"{name} must not all be zero in a set",
+            at_zero,
+            "; the mean of no rotation is undefined: give some rotation of each set a weight > 0",
+        ),
+    ]
 
 
 def _complex_dtype(dtype: DTypeLike) -> jnp.dtype:
@@ -311,9 +588,9 @@ def to_cayley_klein(q: QuatLike) -> CMat22:
     `δ = λ0 − iλ3`, `αδ − βγ = 1` (Borisov–Mamaev (001); `q` treated as `q/|q|`).
 
     It is the complex conjugate of `to_su2(q)`. complex64 for float32 input, complex128 for
-    float64.
+    float64. `q` must be finite and non-zero.
     """
-    q = normalize(vector(q, 4, "q"))
+    q = _unit(vector(q, 4, "q"), "q")
     l0, l1, l2, l3 = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     c = jax.lax.complex
     row0 = jnp.stack([c(l0, l3), c(-l2, l1)], axis=-1)
@@ -325,12 +602,26 @@ def from_cayley_klein(U: CMat22Like) -> Quat:
     """Unit quaternion of a Cayley–Klein matrix (inverse of `to_cayley_klein`, sign kept).
 
     Averages the redundant entries, `λ0 = Re(α + δ)/2`, `λ1 = Im(β + γ)/2`, `λ2 = Re(γ − β)/2`,
-    `λ3 = Im(α − δ)/2` (the orthogonal projection onto such matrices), then normalises.
+    `λ3 = Im(α − δ)/2` (the orthogonal projection onto such matrices), then normalises. `U` must
+    be finite, with a non-zero projection.
     """
-    U = _c2(U, "U")
+    U = _check_finite(_c2(U, "U"), "U", 2)
     a, b, g, d = U[..., 0, 0], U[..., 0, 1], U[..., 1, 0], U[..., 1, 1]
     q = jnp.stack([jnp.real(a + d), jnp.imag(b + g), jnp.real(g - b), jnp.imag(a - d)], axis=-1)
-    return normalize(q / 2)
+    bad = _quat_checks("U")[1].bad
+
+    def detail(qn: np.ndarray) -> str:
+        k = _first(bad(np, qn))
+        return f": {_at('U', k)} = {_fmt(np.asarray(U)[k])}"
+
+    zero = _Check(
+        bad,
+        "U has no rotation part: its projection (λ0, λ1, λ2, λ3) onto Cayley–Klein matrices is "
+        "zero",
+        detail,
+        "; a Cayley–Klein matrix [[α, β], [−β̄, ᾱ]] needs |α|² + |β|² > 0",
+    )
+    return q / jnp.sqrt(_validate_all(q, [zero], norm2(q)))[..., None]
 
 
 def pauli(dtype: DTypeLike | None = None) -> Complex[Array, "3 2 2"]:
@@ -388,10 +679,10 @@ def su2_act(U: CMat22Like, r: Vec3Like) -> Vec3:
 def retract(q: QuatLike, delta: Vec3Like) -> Quat:
     """Move `q` by the body-frame rotation vector `delta`: `q ∘ exp(δ)` (a chart of SO(3) around q;
     a gradient with respect to a rotation lives in this 3-dimensional tangent space)."""
-    return mul(q, from_rotvec(delta))
+    return mul(q, _from_rotvec(vector(delta, 3, "delta")))
 
 
 def local(q_ref: QuatLike, q: QuatLike) -> Vec3:
     """Inverse of `retract`: the body-frame rotation vector `δ = log(q_ref⁻¹ ∘ q)`, |δ| ≤ π."""
     q_ref = vector(q_ref, 4, "q_ref")
-    return to_rotvec(mul(conj(q_ref) / norm2(q_ref)[..., None], q))
+    return _to_rotvec(mul(conj(q_ref) / norm2(q_ref)[..., None], q))

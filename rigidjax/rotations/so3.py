@@ -61,8 +61,11 @@ def exp(theta: Vec3Like) -> Mat33:
 
 def log(P: Mat33Like) -> Vec3:
     """Rotation vector of `P` with |θ| ≤ π, through the largest-component quaternion
-    (exact at θ = π, no loss of accuracy near it, finite gradients at the identity)."""
-    return quat.to_rotvec(quat.from_matrix(matrix(P, "P")))
+    (exact at θ = π, no loss of accuracy near it, finite gradients at the identity).
+
+    As `quat.from_matrix` (and SciPy): a non-finite `P` or det P ≤ 0 is an error naming `P`;
+    a matrix with det > 0 that is not orthogonal is replaced by its nearest rotation."""
+    return quat._to_rotvec(quat._from_matrix(matrix(P, "P"), "P"))
 
 
 def rotate(theta: Vec3Like, a: Vec3Like) -> Vec3:
@@ -105,10 +108,11 @@ def Z(theta: Vec3Like) -> Mat33:
 
 
 def compose(phi: Vec3Like, psi: Vec3Like) -> Vec3:
-    """Rotation vector (|θ| ≤ π) of `exp(phi) @ exp(psi)`, via the quaternion product."""
-    phi = vector(phi, 3, "phi")
-    psi = vector(psi, 3, "psi")
-    return quat.to_rotvec(quat.mul(quat.from_rotvec(phi), quat.from_rotvec(psi)))
+    """Rotation vector (|θ| ≤ π) of `exp(phi) @ exp(psi)`, via the quaternion product. `phi`,
+    `psi` must be finite."""
+    phi = quat._check_finite(vector(phi, 3, "phi"), "phi", 1)
+    psi = quat._check_finite(vector(psi, 3, "psi"), "psi", 1)
+    return quat._to_rotvec(quat.mul(quat._from_rotvec(phi), quat._from_rotvec(psi)))
 
 
 def shadow(theta: Vec3Like) -> Vec3:
@@ -129,9 +133,10 @@ def shadow(theta: Vec3Like) -> Vec3:
 
 
 def angular_velocity(P: Mat33Like, P_dot: Mat33Like, frame: Frame = "space") -> Vec3:
-    """`ω = −½ (Ṗ Pᵀ)_× = vee(Ṗ Pᵀ)` (space, Zhilin 3.12) or `Ω = vee(Pᵀ Ṗ) = Pᵀ ω` (body)."""
-    P = matrix(P, "P")
-    P_dot = matrix(P_dot, "P_dot")
+    """`ω = −½ (Ṗ Pᵀ)_× = vee(Ṗ Pᵀ)` (space, Zhilin 3.12) or `Ω = vee(Pᵀ Ṗ) = Pᵀ ω` (body).
+    `P`, `P_dot` must be finite."""
+    P = quat._check_finite(matrix(P, "P"), "P", 2)
+    P_dot = quat._check_finite(matrix(P_dot, "P_dot"), "P_dot", 2)
     Pt = jnp.swapaxes(P, -1, -2)
     if frame == "space":
         return vee(P_dot @ Pt)
@@ -142,8 +147,8 @@ def angular_velocity(P: Mat33Like, P_dot: Mat33Like, frame: Frame = "space") -> 
 
 def project(A: Mat33Like) -> Mat33:
     """Nearest rotation to a (nearly orthogonal) matrix in the Frobenius norm: `U diag(1,1,det) Vᵀ`
-    from the SVD `A = U S Vᵀ` (orthogonal Procrustes)."""
-    A = matrix(A, "A")
+    from the SVD `A = U S Vᵀ` (orthogonal Procrustes). `A` must be finite."""
+    A = quat._check_finite(matrix(A, "A"), "A", 2)
     U, _, Vt = jnp.linalg.svd(A)
     d = jnp.linalg.det(U @ Vt)
     U = U.at[..., :, 2].multiply(d[..., None])
@@ -151,10 +156,11 @@ def project(A: Mat33Like) -> Mat33:
 
 
 def distance(P1: Mat33Like, P2: Mat33Like) -> Scalar:
-    """Geodesic distance `|log(P1ᵀ P2)|` ∈ [0, π] (the angle of the relative rotation)."""
-    q1 = quat.from_matrix(matrix(P1, "P1"))
-    q2 = quat.from_matrix(matrix(P2, "P2"))
-    return quat.angle(quat.mul(quat.conj(q1), q2))
+    """Geodesic distance `|log(P1ᵀ P2)|` ∈ [0, π] (the angle of the relative rotation); `P1`, `P2`
+    are checked and orthogonalised as by `quat.from_matrix`."""
+    q1 = quat._from_matrix(matrix(P1, "P1"), "P1")
+    q2 = quat._from_matrix(matrix(P2, "P2"), "P2")
+    return quat._angle(quat.mul(quat.conj(q1), q2))
 
 
 def orthogonality_error(P: Mat33Like) -> Scalar:
