@@ -49,7 +49,7 @@ class AbstractKinematics(eqx.Module):
     def to_quat(self, y: Array) -> Quat:
         """Unit quaternion of a state (either sign: the drivers make a trajectory's sign
         continuous)."""
-        return quat.from_matrix(self.to_matrix(y))
+        return quat.from_matrix(self.to_matrix(y), assume_valid=True)  # a state, not user input
 
     def step_end(self, y: Array) -> tuple[Array, Bool[Array, ""]]:
         """Map applied to the state after each solver step: `(y', changed_chart)`."""
@@ -86,7 +86,7 @@ class RotationVector(AbstractKinematics):
         return so3.exp(y)
 
     def to_quat(self, y: Vec3) -> Quat:
-        return quat.from_rotvec(y)
+        return quat._from_rotvec(y)  # a state, not user input: no argument checks
 
     def vector_field(self, y: Vec3, w: Vec3) -> Vec3:
         # Zᵀ(θ) = Z(−θ)
@@ -186,7 +186,7 @@ class EulerAngles(AbstractKinematics):
     def to_quat(self, y: EulerState) -> Quat:
         """Quaternion of the current chart's angles (`euler.to_quat`; unit, either sign)."""
         a, in_b = self._split(y)
-        qa, qb = euler.to_quat(a, self.seq), euler.to_quat(a, self.partner)
+        qa, qb = euler._to_quat(a, self.seq), euler._to_quat(a, self.partner)
         return jnp.where(in_b[..., None], qb, qa)
 
     def to_matrix(self, y: EulerState) -> Mat33:
@@ -242,7 +242,7 @@ class EulerAngles(AbstractKinematics):
         to_a, to_b = euler.from_quat(q, self.seq), euler.from_quat(q, self.partner)
         new = jnp.where(in_b[..., None], to_a, to_b)
         q_new = jnp.where(
-            in_b[..., None], euler.to_quat(new, self.seq), euler.to_quat(new, self.partner)
+            in_b[..., None], euler._to_quat(new, self.seq), euler._to_quat(new, self.partner)
         )
         first = new[..., 0]
         turn = jnp.where(

@@ -64,7 +64,9 @@ class _Dynamics(eqx.Module):
     torque_frame: str = eqx.field(static=True)
 
     def _quat(self, att):
-        return quat.from_matrix(att) if self.kin is None else self.kin.to_quat(att)
+        if self.kin is None:  # the RKMK state: a rotation by construction
+            return quat.from_matrix(att, assume_valid=True)
+        return self.kin.to_quat(att)
 
     def __call__(self, t, att, omega, I, I_inv):
         if self.torque is None:
@@ -155,7 +157,7 @@ def _stack_components(ys) -> tuple[Array, Array]:
 
 def _from_lie(ys) -> tuple[Array, Array]:
     """`(Ω, q)` from the saved RKMK state `(R, Ω)`."""
-    return ys[1], quat.from_matrix(ys[0])
+    return ys[1], quat.from_matrix(ys[0], assume_valid=True)
 
 
 class _BatchFinish(eqx.Module):

@@ -52,7 +52,7 @@ from jaxtyping import Array, Bool, Float
 from .._checks import floats, matrix, vector
 from .._custom_types import Mat33, Mat33Like, RealLike, Scalar, ScalarLike, Vec3, Vec3Like
 from .._numerics import safe_sqrt
-from . import quat
+from . import _validation
 
 
 class AndoyerVariables(NamedTuple):
@@ -131,11 +131,11 @@ def _checked(*xs: ScalarLike, names: tuple[str, ...]) -> list[Scalar]:
         return ~(v[..., iG] > 0)
 
     def at_G(v: np.ndarray) -> str:
-        k = quat._first(not_positive(np, v))
-        return f", got {quat._at('G', k)} = {v[k][iG]:.6g}"
+        k = _validation.first(not_positive(np, v))
+        return f", got {_validation.at('G', k)} = {v[k][iG]:.6g}"
 
     checks.append(
-        quat._Check(
+        _validation.Check(
             not_positive,
             "G must be positive: G = |M| > 0",
             at_G,
@@ -145,31 +145,31 @@ def _checked(*xs: ScalarLike, names: tuple[str, ...]) -> list[Scalar]:
     for n in ("L", "H"):
         if n in col:
             checks.append(_projection_check(n, col[n], iG))
-    x = quat._validate_all(x, checks)
+    x = _validation.validate_all(x, checks)
     return [x[..., i] for i in range(len(names))]
 
 
-def _column_finite(name: str, i: int) -> quat._Check:
+def _column_finite(name: str, i: int) -> _validation.Check:
     def bad(xp: Any, v: Any) -> Any:
         return ~xp.isfinite(v[..., i])
 
     def detail(v: np.ndarray) -> str:
-        k = quat._first(bad(np, v))
-        return f", got {quat._at(name, k)} = {v[k][i]}"
+        k = _validation.first(bad(np, v))
+        return f", got {_validation.at(name, k)} = {v[k][i]}"
 
-    return quat._Check(bad, f"{name} must be finite", detail, quat._NONFINITE_HINT)
+    return _validation.Check(bad, f"{name} must be finite", detail, _validation.NONFINITE_HINT)
 
 
-def _projection_check(name: str, i: int, iG: int) -> quat._Check:
+def _projection_check(name: str, i: int, iG: int) -> _validation.Check:
     def bad(xp: Any, v: Any) -> Any:
         G = v[..., iG]
         return xp.abs(v[..., i]) > G * (1 + 64 * xp.finfo(v.dtype).eps)
 
     def detail(v: np.ndarray) -> str:
-        k = quat._first(bad(np, v))
-        return f": {quat._at(name, k)} = {v[k][i]:.9g}, G = {v[k][iG]:.9g}"
+        k = _validation.first(bad(np, v))
+        return f": {_validation.at(name, k)} = {v[k][i]:.9g}, G = {v[k][iG]:.9g}"
 
-    return quat._Check(
+    return _validation.Check(
         bad,
         f"|{name}| must not exceed G = |M| ({name} is a projection of M)",
         detail,
@@ -191,11 +191,11 @@ def _is_zero(xp: Any, M: Any) -> Any:
 
 
 def _at_zero(M: np.ndarray) -> str:
-    k = quat._first(_is_zero(np, M))
-    return f": {quat._at('M_body', k)} = {quat._fmt(M[k])}"
+    k = _validation.first(_is_zero(np, M))
+    return f": {_validation.at('M_body', k)} = {_validation.fmt(M[k])}"
 
 
-_zero_momentum = quat._Check(
+_zero_momentum = _validation.Check(
     _is_zero,
     "M_body is zero",
     _at_zero,
@@ -293,8 +293,8 @@ def to_andoyer(M_body: Vec3Like, P: Mat33Like) -> AndoyerVariables:
     Arguments broadcast over leading batch dimensions.
     """
     M = vector(M_body, 3, "M_body")
-    M = quat._validate_all(M, [quat._finite_check("M_body", 1), _zero_momentum])
-    P = quat._check_matrix(matrix(P, "P"), "P")
+    M = _validation.validate_all(M, [_validation.finite_check("M_body", 1), _zero_momentum])
+    P = _validation.check_matrix(matrix(P, "P"), "P")
     dtype = jnp.result_type(M, P)
     M, P = M.astype(dtype), P.astype(dtype)
     batch = jnp.broadcast_shapes(M.shape[:-1], P.shape[:-2])

@@ -39,7 +39,7 @@ from .._custom_types import (
     Vec3,
     Vec3Like,
 )
-from . import quat
+from . import _validation, quat
 
 SEQUENCES: tuple[str, ...] = tuple(
     s
@@ -204,7 +204,7 @@ def to_quat(angles: Vec3Like, seq: EulerSeq = "ZXZ") -> Quat:
 
 def _angles_arg(angles: Vec3Like, name: str = "angles") -> Vec3:
     """Angles `(..., 3)`, checked to be finite."""
-    return quat._check_finite(vector(angles, 3, name), name, 1)
+    return _validation.check_finite(vector(angles, 3, name), name, 1)
 
 
 def _to_quat(angles: Vec3, seq: EulerSeq) -> Quat:
@@ -436,9 +436,11 @@ def omega_to_rates(
             return ~(xp.abs(d) >= tol)
 
         def detail(d: np.ndarray) -> str:
-            k = quat._first(locked(np, d))
+            k = _validation.first(locked(np, d))
             a = np.broadcast_to(np.asarray(angles), (*d.shape, 3))[k]
-            return f": {quat._at('angles', k)} = {quat._fmt(a)}, |det J| = {abs(d[k]):.3g}"
+            return (
+                f": {_validation.at('angles', k)} = {_validation.fmt(a)}, |det J| = {abs(d[k]):.3g}"
+            )
 
         det = validate(
             det,

@@ -16,7 +16,7 @@ from jaxtyping import Array
 
 from .._checks import matrix, vector
 from .._custom_types import Mat33, Mat33Like, Quat, QuatLike, Vec3, Vec3Like
-from . import quat
+from . import _validation, quat
 from .so3 import hat
 
 _PI_HINT = (
@@ -29,25 +29,25 @@ def _ratio(q: Array) -> Vec3:
     return 2 * q[..., 1:] / q[..., :1]
 
 
-def _half_turn_check(name: str) -> quat._Check:
+def _half_turn_check(name: str) -> _validation.Check:
     """A quaternion `(..., 4)` whose Gibbs vector is finite (not a 180° rotation, λ0 ≠ 0)."""
 
     def bad(xp: Any, q: Any) -> Any:
         return ~xp.all(xp.isfinite(2 * q[..., 1:] / q[..., :1]), axis=-1)
 
     def detail(q: np.ndarray) -> str:
-        k = quat._first(bad(np, q))
-        return f" (λ0 = 0 in the quaternion {quat._fmt(q[k])} of {quat._at(name, k)})"
+        k = _validation.first(bad(np, q))
+        return f" (λ0 = 0 in the quaternion {_validation.fmt(q[k])} of {_validation.at(name, k)})"
 
-    return quat._Check(bad, f"{name} is a rotation by χ = π", detail, _PI_HINT)
+    return _validation.Check(bad, f"{name} is a rotation by χ = π", detail, _PI_HINT)
 
 
 def _finite(g: Vec3, what: str) -> Vec3:
     """`g`, checked finite: else `what` (the product of two rotations) is a half turn."""
-    return quat._validate_all(
+    return _validation.validate_all(
         g,
         [
-            quat._Check(
+            _validation.Check(
                 lambda xp, v: ~xp.all(xp.isfinite(v), axis=-1),
                 f"{what} is a rotation by χ = π (or not finite)",
                 None,
@@ -61,12 +61,14 @@ def from_quat(q: QuatLike) -> Vec3:
     """`θ_G = 2 λ/λ0` (`q` any finite non-zero quaternion). Raises for a 180° rotation
     (`λ0 = 0`)."""
     q = vector(q, 4, "q")
-    return _ratio(quat._validate_all(q, [*quat._quat_checks("q"), _half_turn_check("q")]))
+    return _ratio(
+        _validation.validate_all(q, [*_validation.quat_checks("q"), _half_turn_check("q")])
+    )
 
 
 def to_quat(g: Vec3Like) -> Quat:
     """Unit quaternion `(1, θ_G/2)/√(1 + θ_G²/4)` with λ0 > 0; `g` must be finite."""
-    g = quat._check_finite(vector(g, 3, "g"), "g", 1)
+    g = _validation.check_finite(vector(g, 3, "g"), "g", 1)
     h = g / 2
     s = 1 / jnp.sqrt(1 + jnp.sum(h * h, axis=-1, keepdims=True))
     return jnp.concatenate([s, s * h], axis=-1)
@@ -77,13 +79,13 @@ def from_matrix(P: Mat33Like) -> Vec3:
     `4 vee(P)/(1 + tr P)` but loses less accuracy near χ = π). Raises at χ = π, and for a
     non-finite `P` or det P ≤ 0 (see `quat.from_matrix`)."""
     q = quat._from_matrix(matrix(P, "P"), "P")
-    return _ratio(quat._validate_all(q, [_half_turn_check("P")]))
+    return _ratio(_validation.validate_all(q, [_half_turn_check("P")]))
 
 
 def to_matrix(g: Vec3Like) -> Mat33:
     """`P = E + (R + ½ R²)/(1 + θ_G²/4)`, `R = θ_G × E` (the Cayley transform
     `(E − R/2)⁻¹ (E + R/2)`); `g` must be finite."""
-    g = quat._check_finite(vector(g, 3, "g"), "g", 1)
+    g = _validation.check_finite(vector(g, 3, "g"), "g", 1)
     R = hat(g)
     c = 1 / (1 + jnp.sum(g * g, axis=-1) / 4)
     return jnp.eye(3, dtype=g.dtype) + c[..., None, None] * (R + 0.5 * (R @ R))

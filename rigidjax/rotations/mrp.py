@@ -12,7 +12,7 @@ import jax.numpy as jnp
 
 from .._checks import matrix, vector
 from .._custom_types import Mat33, Mat33Like, Quat, QuatLike, Vec3, Vec3Like
-from . import quat
+from . import _validation, quat
 
 
 def _from_unit_quat(q: Quat) -> Vec3:
@@ -33,7 +33,7 @@ def _to_quat(p: Vec3) -> Quat:
 
 def to_quat(p: Vec3Like) -> Quat:
     """`(1 − p², 2p)/(1 + p²)`, for any finite `p` (a shadow `|p| > 1` gives λ0 < 0)."""
-    return _to_quat(quat._check_finite(vector(p, 3, "p"), "p", 1))
+    return _to_quat(_validation.check_finite(vector(p, 3, "p"), "p", 1))
 
 
 def from_matrix(P: Mat33Like) -> Vec3:

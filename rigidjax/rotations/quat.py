@@ -14,19 +14,15 @@ offending value and the fix; under `jit`/`vmap`/`grad` the same message comes fr
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from typing import Annotated, Any, NamedTuple
+from typing import Annotated, Any
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Complex, DTypeLike, Float, PRNGKeyArray, Real
+from jaxtyping import Array, ArrayLike, DTypeLike, Float, PRNGKeyArray, Real
 
-from .._checks import as_float, check_shape, is_concrete, matrix, vector
+from .._checks import as_float, matrix, vector
 from .._custom_types import (
-    CMat22,
-    CMat22Like,
     Mat33,
     Mat33Like,
     Quat,
@@ -38,6 +34,7 @@ from .._custom_types import (
     Vec3Like,
 )
 from . import _series
+from . import _validation as _v
 
 
 def _split(q: Quat) -> tuple[Scalar, Vec3]:
@@ -49,153 +46,9 @@ def _join(w: Scalar, v: Vec3) -> Quat:
     return jnp.concatenate([w[..., :1], v], axis=-1)
 
 
-# --------------------------------------------------------------------------- argument checks
-# Shared by the rotation modules (candidates for rigidjax._checks): several checks of one array
-# at the cost of one `equinox` check, each with its own message.
-
-
-class _Check(NamedTuple):
-    """One check: `bad(xp, x)` (xp is NumPy or jax.numpy) is true where `x` fails; the error is
-    `message + detail(x) + hint` (the detail, with the offending value, on concrete `x` only)."""
-
-    bad: Callable[[Any, Any], Any]
-    message: str
-    detail: Callable[[np.ndarray], str] | None = None
-    hint: str = ""
-
-
-def _validate_all(x: Array, checks: Sequence[_Check], on: Array | None = None) -> Array:
-    """`rigidjax._checks.validate` for several checks of `x`: the ValueError of the first check
-    that fails (concrete `x`), or one `equinox.branched_error_if` carrying the message of the
-    first failing check (traced `x`). Returns `on` (default `x`) with the run-time check attached.
-    The predicates see `x` through `stop_gradient`: they add nothing to derivatives."""
-    out = x if on is None else on
-    if is_concrete(x):
-        xn = np.asarray(x)
-        with np.errstate(all="ignore"):
-            for c in checks:
-                if np.any(c.bad(np, xn)):
-                    raise ValueError(c.message + (c.detail(xn) if c.detail else "") + c.hint)
-        return out
-    xs = jax.lax.stop_gradient(x)
-    fails = jnp.stack([jnp.any(c.bad(jnp, xs)) for c in checks])
-    msgs = [c.message + c.hint for c in checks]
-    return eqx.branched_error_if(out, jnp.any(fails), jnp.argmax(fails), msgs)
-
-
-def _first(mask: Any) -> tuple[int, ...]:
-    """Index of the first true entry of a batch mask (`()` for a single element)."""
-    mask = np.asarray(mask)
-    return tuple(int(i) for i in np.unravel_index(int(np.argmax(mask)), mask.shape))
-
-
-def _at(name: str, k: tuple[int, ...]) -> str:
-    return name + (f"[{', '.join(map(str, k))}]" if k else "")
-
-
-def _fmt(v: Any) -> str:
-    """An array on one line, 6 significant digits."""
-    return " ".join(np.array2string(np.asarray(v), precision=6, separator=", ").split())
-
-
-_NONFINITE_HINT = "; replace its NaN/inf entries (they come from an earlier overflow or 0/0)"
-
-
-def _finite_check(name: str, core: int) -> _Check:
-    """`x` finite; `core` trailing dimensions make one element (0 scalar, 1 vector, 2 matrix)."""
-    axes = tuple(range(-core, 0))
-
-    def bad(xp: Any, x: Any) -> Any:
-        return ~xp.all(xp.isfinite(x), axis=axes) if core else ~xp.isfinite(x)
-
-    def detail(x: np.ndarray) -> str:
-        k = _first(bad(np, x))
-        return f", got {_at(name, k)} = {_fmt(x[k])}"
-
-    return _Check(bad, f"{name} must be finite", detail, _NONFINITE_HINT)
-
-
-def _check_finite(x: Array, name: str, core: int) -> Array:
-    """`x`, checked to be finite (see `_finite_check`)."""
-    return _validate_all(x, [_finite_check(name, core)])
-
-
-def _quat_checks(name: str) -> list[_Check]:
-    """A quaternion `(..., 4)` that stands for a rotation: finite and non-zero."""
-
-    def zero(xp: Any, q: Any) -> Any:
-        return ~(xp.sum(q * q, axis=-1) > 0)
-
-    def detail(q: np.ndarray) -> str:
-        k = _first(zero(np, q))
-        return f": {_at(name, k)} = {_fmt(q[k])}"
-
-    return [
-        _Check(
-            _finite_check(name, 1).bad,
-            f"{name} must be a finite quaternion (w, x, y, z)",
-            _finite_check(name, 1).detail,
-            _NONFINITE_HINT,
-        ),
-        _Check(
-            zero,
-            f"{name} is a zero quaternion, which is no rotation",
-            detail,
-            f"; a rotation needs |{name}| > 0 (use rigidjax.quat.identity() for no rotation)",
-        ),
-    ]
-
-
-def _check_quat(q: Quat, name: str, on: Array | None = None) -> Array:
-    """`q` (or `on`), checked to be a finite, non-zero quaternion (one run-time check)."""
-    return _validate_all(q, _quat_checks(name), on)
-
-
 def _unit(q: Quat, name: str) -> Quat:
-    """`q/|q|` of a checked quaternion `q` (see `_check_quat`)."""
-    return q / jnp.sqrt(_check_quat(q, name, norm2(q)))[..., None]
-
-
-def _det(xp: Any, P: Any) -> Any:
-    """`det P = p0 · (p1 × p2)` (rows p_i), the same formula in NumPy and JAX."""
-    return xp.sum(P[..., 0, :] * xp.cross(P[..., 1, :], P[..., 2, :]), axis=-1)
-
-
-def _matrix_checks(name: str) -> list[_Check]:
-    """A matrix `(..., 3, 3)` passed as a rotation: finite, with a positive determinant (relative
-    to its size, `det P > 64 eps (‖P‖_F/√3)³`, so that rounding of a singular frame does not pass).
-    Like SciPy's `Rotation.from_matrix`, nothing more: a matrix with det > 0 that is not quite
-    orthogonal (an integrator's output) is accepted."""
-
-    def improper(xp: Any, P: Any) -> Any:
-        size = xp.sum(P * P, axis=(-2, -1)) / 3
-        return ~(_det(xp, P) > 64 * xp.finfo(P.dtype).eps * size * xp.sqrt(size))
-
-    def detail(P: np.ndarray) -> str:
-        k = _first(improper(np, P))
-        return f": det {_at(name, k)} = {_det(np, P[k]):.6g} for {_at(name, k)} = {_fmt(P[k])}"
-
-    return [
-        _Check(
-            _finite_check(name, 2).bad,
-            f"{name} must be a finite rotation matrix",
-            _finite_check(name, 2).detail,
-            _NONFINITE_HINT,
-        ),
-        _Check(
-            improper,
-            f"{name} is not a rotation matrix: non-positive determinant (a left-handed or "
-            "degenerate frame)",
-            detail,
-            "; a rotation has det = +1: negate one axis (column) of a left-handed frame "
-            "(a matrix with det > 0 that is not quite orthogonal is accepted and orthogonalised)",
-        ),
-    ]
-
-
-def _check_matrix(P: Mat33, name: str) -> Mat33:
-    """`P`, checked to be finite with a positive determinant (see `_matrix_checks`)."""
-    return _validate_all(P, _matrix_checks(name))
+    """`q/|q|` of a checked quaternion `q` (see `_v.check_quat`)."""
+    return q / jnp.sqrt(_v.check_quat(q, name, norm2(q)))[..., None]
 
 
 def identity(shape: tuple[int, ...] = (), dtype: DTypeLike | None = None) -> Quat:
@@ -232,7 +85,7 @@ def norm2(q: Real[ArrayLike, "*#batch 4"]) -> Scalar:
 
 def _checked_norm2(q: Quat, name: str) -> Scalar:
     """`|q|²`, with the one check of the algebra: `q` finite and non-zero."""
-    return _check_quat(q, name, norm2(q))
+    return _v.check_quat(q, name, norm2(q))
 
 
 def normalize(q: QuatLike) -> Quat:
@@ -281,7 +134,7 @@ def _from_rotvec(theta: Vec3) -> Quat:
 
 def from_rotvec(theta: Vec3Like) -> Quat:
     """`(cos(θ/2), sin(θ/2) θ/|θ|)`; exact and differentiable at θ = 0. `theta` must be finite."""
-    return _from_rotvec(_check_finite(vector(theta, 3, "theta"), "theta", 1))
+    return _from_rotvec(_v.check_finite(vector(theta, 3, "theta"), "theta", 1))
 
 
 def _to_rotvec(q: Quat) -> Vec3:
@@ -304,7 +157,7 @@ def to_rotvec(q: QuatLike) -> Vec3:
 
     Near θ = 0 uses `atan(y)/y = 1 − y²/3 + y⁴/5 − …`, so values and gradients stay finite.
     """
-    return _to_rotvec(_check_quat(vector(q, 4, "q"), "q"))
+    return _to_rotvec(_v.check_quat(vector(q, 4, "q"), "q"))
 
 
 def _to_matrix(q: Quat, n2: Scalar) -> Mat33:
@@ -399,7 +252,7 @@ def _orthogonalised_jvp(primals, tangents):
 
 def _from_matrix(P: Mat33, name: str) -> Quat:
     """`from_matrix` of `P`, checked (errors naming `name`) and orthogonalised."""
-    return _from_orthogonal(_orthogonalised(_check_matrix(P, name)))
+    return _from_orthogonal(_orthogonalised(_v.check_matrix(P, name)))
 
 
 def from_matrix(P: Mat33Like, *, assume_valid: bool = False) -> Quat:
@@ -426,7 +279,7 @@ def angle(q: QuatLike) -> Scalar:
     The angle has a kink at the identity; there the gradient is the zero subgradient (finite).
     `q` must be finite and non-zero.
     """
-    return _angle(_check_quat(vector(q, 4, "q"), "q"))
+    return _angle(_v.check_quat(vector(q, 4, "q"), "q"))
 
 
 def _angle(q: Quat) -> Scalar:
@@ -473,7 +326,7 @@ def slerp(a: QuatLike, b: QuatLike, t: ScalarLike) -> Quat:
     """
     a = _unit(vector(a, 4, "a"), "a")
     b = _unit(vector(b, 4, "b"), "b")
-    t = _check_finite(as_float(t, "t"), "t", 0)
+    t = _v.check_finite(as_float(t, "t"), "t", 0)
     b = jnp.where(jnp.sum(a * b, axis=-1, keepdims=True) < 0, -b, b)
     theta = _to_rotvec(mul(conj(a), b))
     late = (t > 0.5)[..., None]
@@ -531,12 +384,12 @@ def mean(
                 f"weights must have shape (..., N) with N = {q.shape[-2]} (one weight per "
                 f"rotation of q, shape {q.shape}), got {w.shape}"
             )
-        w = _validate_all(w, _weight_checks("weights"))
+        w = _v.validate_all(w, _weight_checks("weights"))
     M = jnp.einsum("...n,...ni,...nj->...ij", w, q, q)
     return canonical(_top_eigvec(M))
 
 
-def _weight_checks(name: str) -> list[_Check]:
+def _weight_checks(name: str) -> list[_v.Check]:
     """Weights `(..., N)` of a set: finite, non-negative, not all zero."""
 
     def negative(xp: Any, w: Any) -> Any:
@@ -546,134 +399,28 @@ def _weight_checks(name: str) -> list[_Check]:
         return ~(xp.sum(w, axis=-1) > 0)
 
     def at_negative(w: np.ndarray) -> str:
-        k = _first(negative(np, w))
-        return f", got {_at(name, k)} = {w[k]:.6g}"
+        k = _v.first(negative(np, w))
+        return f", got {_v.at(name, k)} = {w[k]:.6g}"
 
     def at_zero(w: np.ndarray) -> str:
-        k = _first(all_zero(np, w))
-        return f", got {_at(name, k)} = {_fmt(w[k])}"
+        k = _v.first(all_zero(np, w))
+        return f", got {_v.at(name, k)} = {_v.fmt(w[k])}"
 
     return [
-        _finite_check(name, 0),
-        _Check(
+        _v.finite_check(name, 0),
+        _v.Check(
             negative,
             f"{name} must be non-negative",
             at_negative,
             "; a weight is the importance of its rotation (0 leaves it out)",
         ),
-        _Check(
+        _v.Check(
             all_zero,
             f"{name} must not all be zero in a set",
             at_zero,
             "; the mean of no rotation is undefined: give some rotation of each set a weight > 0",
         ),
     ]
-
-
-def _complex_dtype(dtype: DTypeLike) -> jnp.dtype:
-    return jnp.result_type(dtype, jnp.complex64)
-
-
-def _c2(x: CMat22Like, name: str) -> CMat22:
-    x = jnp.asarray(x)
-    if not jnp.issubdtype(x.dtype, jnp.complexfloating):
-        x = as_float(x, name)
-        x = x.astype(_complex_dtype(x.dtype))
-    check_shape(x, (2, 2), name)
-    return x
-
-
-def to_cayley_klein(q: QuatLike) -> CMat22:
-    """Cayley–Klein matrix `[[α, β], [γ, δ]]`, `α = λ0 + iλ3`, `β = −λ2 + iλ1`, `γ = λ2 + iλ1`,
-    `δ = λ0 − iλ3`, `αδ − βγ = 1` (Borisov–Mamaev (001); `q` treated as `q/|q|`).
-
-    It is the complex conjugate of `to_su2(q)`. complex64 for float32 input, complex128 for
-    float64. `q` must be finite and non-zero.
-    """
-    q = _unit(vector(q, 4, "q"), "q")
-    l0, l1, l2, l3 = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    c = jax.lax.complex
-    row0 = jnp.stack([c(l0, l3), c(-l2, l1)], axis=-1)
-    row1 = jnp.stack([c(l2, l1), c(l0, -l3)], axis=-1)
-    return jnp.stack([row0, row1], axis=-2)
-
-
-def from_cayley_klein(U: CMat22Like) -> Quat:
-    """Unit quaternion of a Cayley–Klein matrix (inverse of `to_cayley_klein`, sign kept).
-
-    Averages the redundant entries, `λ0 = Re(α + δ)/2`, `λ1 = Im(β + γ)/2`, `λ2 = Re(γ − β)/2`,
-    `λ3 = Im(α − δ)/2` (the orthogonal projection onto such matrices), then normalises. `U` must
-    be finite, with a non-zero projection.
-    """
-    U = _check_finite(_c2(U, "U"), "U", 2)
-    a, b, g, d = U[..., 0, 0], U[..., 0, 1], U[..., 1, 0], U[..., 1, 1]
-    q = jnp.stack([jnp.real(a + d), jnp.imag(b + g), jnp.real(g - b), jnp.imag(a - d)], axis=-1)
-    bad = _quat_checks("U")[1].bad
-
-    def detail(qn: np.ndarray) -> str:
-        k = _first(bad(np, qn))
-        return f": {_at('U', k)} = {_fmt(np.asarray(U)[k])}"
-
-    zero = _Check(
-        bad,
-        "U has no rotation part: its projection (λ0, λ1, λ2, λ3) onto Cayley–Klein matrices is "
-        "zero",
-        detail,
-        "; a Cayley–Klein matrix [[α, β], [−β̄, ᾱ]] needs |α|² + |β|² > 0",
-    )
-    return q / jnp.sqrt(_validate_all(q, [zero], norm2(q)))[..., None]
-
-
-def pauli(dtype: DTypeLike | None = None) -> Complex[Array, "3 2 2"]:
-    """The Pauli matrices `σ1 = [[0, 1], [1, 0]]`, `σ2 = [[0, −i], [i, 0]]`,
-    `σ3 = [[1, 0], [0, −1]]`, stacked `(3, 2, 2)`."""
-    dtype = _complex_dtype(jnp.result_type(float) if dtype is None else dtype)
-    return jnp.array([[[0, 1], [1, 0]], [[0, -1j], [1j, 0]], [[1, 0], [0, -1]]], dtype)
-
-
-def vec_to_sigma(r: Vec3Like) -> CMat22:
-    """`r·σ = [[r3, r1 − i r2], [r1 + i r2, −r3]]` (Hermitian, traceless)."""
-    r = vector(r, 3, "r")
-    x, y, z = r[..., 0], r[..., 1], r[..., 2]
-    c = jax.lax.complex
-    row0 = jnp.stack([c(z, jnp.zeros_like(z)), c(x, -y)], axis=-1)
-    row1 = jnp.stack([c(x, y), c(-z, jnp.zeros_like(z))], axis=-1)
-    return jnp.stack([row0, row1], axis=-2)
-
-
-def sigma_to_vec(S: CMat22Like) -> Vec3:
-    """`r` with `r·σ` the Hermitian traceless part of `S`: `r_k = Re tr(S σ_k)/2`."""
-    S = _c2(S, "S")
-    return jnp.stack(
-        [
-            jnp.real(S[..., 0, 1] + S[..., 1, 0]) / 2,
-            jnp.imag(S[..., 1, 0] - S[..., 0, 1]) / 2,
-            jnp.real(S[..., 0, 0] - S[..., 1, 1]) / 2,
-        ],
-        axis=-1,
-    )
-
-
-def to_su2(q: QuatLike) -> CMat22:
-    """Physics SU(2) matrix `U = λ0 σ0 − i λ·σ` (`q` treated as `q/|q|`; THEORY §3).
-
-    It acts by `U (r·σ) Uᴴ = (P r)·σ` (see `su2_act`) and is the complex conjugate of
-    `to_cayley_klein(q)`. Exercise 002's `cos φ σ0 + i sin φ (h·σ)` equals `to_su2` of the turn by
-    −2φ about h: with these Pauli matrices it is the inverse (passive) rotation.
-    """
-    return jnp.conj(to_cayley_klein(q))
-
-
-def from_su2(U: CMat22Like) -> Quat:
-    """Unit quaternion (sign kept) of `U = λ0 σ0 − i λ·σ`; inverse of `to_su2`."""
-    return from_cayley_klein(jnp.conj(_c2(U, "U")))
-
-
-def su2_act(U: CMat22Like, r: Vec3Like) -> Vec3:
-    """`r'` with `r'·σ = U (r·σ) Uᴴ`; equals `rotate(from_su2(U), r)` for `U` in SU(2)."""
-    U = _c2(U, "U")
-    S = vec_to_sigma(r)
-    return sigma_to_vec(U @ S @ jnp.conj(jnp.swapaxes(U, -1, -2)))
 
 
 def retract(q: QuatLike, delta: Vec3Like) -> Quat:
@@ -686,3 +433,14 @@ def local(q_ref: QuatLike, q: QuatLike) -> Vec3:
     """Inverse of `retract`: the body-frame rotation vector `δ = log(q_ref⁻¹ ∘ q)`, |δ| ≤ π."""
     q_ref = vector(q_ref, 4, "q_ref")
     return _to_rotvec(mul(conj(q_ref) / norm2(q_ref)[..., None], q))
+
+
+# the Cayley–Klein / SU(2) forms live in their own module; imported last (it uses this one)
+from .cayley_klein import from_cayley_klein as from_cayley_klein  # noqa: E402
+from .cayley_klein import from_su2 as from_su2  # noqa: E402
+from .cayley_klein import pauli as pauli  # noqa: E402
+from .cayley_klein import sigma_to_vec as sigma_to_vec  # noqa: E402
+from .cayley_klein import su2_act as su2_act  # noqa: E402
+from .cayley_klein import to_cayley_klein as to_cayley_klein  # noqa: E402
+from .cayley_klein import to_su2 as to_su2  # noqa: E402
+from .cayley_klein import vec_to_sigma as vec_to_sigma  # noqa: E402

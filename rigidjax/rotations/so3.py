@@ -12,7 +12,7 @@ from jaxtyping import DTypeLike, PRNGKeyArray
 
 from .._checks import matrix, validate, vector
 from .._custom_types import Frame, Mat33, Mat33Like, Scalar, Vec3, Vec3Like
-from . import _series, quat
+from . import _series, _validation, quat
 
 
 def hat(v: Vec3Like) -> Mat33:
@@ -110,8 +110,8 @@ def Z(theta: Vec3Like) -> Mat33:
 def compose(phi: Vec3Like, psi: Vec3Like) -> Vec3:
     """Rotation vector (|θ| ≤ π) of `exp(phi) @ exp(psi)`, via the quaternion product. `phi`,
     `psi` must be finite."""
-    phi = quat._check_finite(vector(phi, 3, "phi"), "phi", 1)
-    psi = quat._check_finite(vector(psi, 3, "psi"), "psi", 1)
+    phi = _validation.check_finite(vector(phi, 3, "phi"), "phi", 1)
+    psi = _validation.check_finite(vector(psi, 3, "psi"), "psi", 1)
     return quat._to_rotvec(quat.mul(quat._from_rotvec(phi), quat._from_rotvec(psi)))
 
 
@@ -135,8 +135,8 @@ def shadow(theta: Vec3Like) -> Vec3:
 def angular_velocity(P: Mat33Like, P_dot: Mat33Like, frame: Frame = "space") -> Vec3:
     """`ω = −½ (Ṗ Pᵀ)_× = vee(Ṗ Pᵀ)` (space, Zhilin 3.12) or `Ω = vee(Pᵀ Ṗ) = Pᵀ ω` (body).
     `P`, `P_dot` must be finite."""
-    P = quat._check_finite(matrix(P, "P"), "P", 2)
-    P_dot = quat._check_finite(matrix(P_dot, "P_dot"), "P_dot", 2)
+    P = _validation.check_finite(matrix(P, "P"), "P", 2)
+    P_dot = _validation.check_finite(matrix(P_dot, "P_dot"), "P_dot", 2)
     Pt = jnp.swapaxes(P, -1, -2)
     if frame == "space":
         return vee(P_dot @ Pt)
@@ -148,7 +148,7 @@ def angular_velocity(P: Mat33Like, P_dot: Mat33Like, frame: Frame = "space") -> 
 def project(A: Mat33Like) -> Mat33:
     """Nearest rotation to a (nearly orthogonal) matrix in the Frobenius norm: `U diag(1,1,det) Vᵀ`
     from the SVD `A = U S Vᵀ` (orthogonal Procrustes). `A` must be finite."""
-    A = quat._check_finite(matrix(A, "A"), "A", 2)
+    A = _validation.check_finite(matrix(A, "A"), "A", 2)
     U, _, Vt = jnp.linalg.svd(A)
     d = jnp.linalg.det(U @ Vt)
     U = U.at[..., :, 2].multiply(d[..., None])

@@ -1,0 +1,156 @@
+"""Argument checks of the rotation maps: several checks of one array at the cost of one
+`equinox` check, each with its own message (`validate_all`); the checks of quaternions and of
+matrices passed as rotations, shared by every rotation module."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any, NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array
+
+from .._checks import is_concrete
+from .._custom_types import Mat33, Quat
+
+
+class Check(NamedTuple):
+    """One check: `bad(xp, x)` (xp is NumPy or jax.numpy) is true where `x` fails; the error is
+    `message + detail(x) + hint` (the detail, with the offending value, on concrete `x` only)."""
+
+    bad: Callable[[Any, Any], Any]
+    message: str
+    detail: Callable[[np.ndarray], str] | None = None
+    hint: str = ""
+
+
+def validate_all(x: Array, checks: Sequence[Check], on: Array | None = None) -> Array:
+    """`rigidjax._checks.validate` for several checks of `x`: the ValueError of the first check
+    that fails (concrete `x`), or one `equinox.branched_error_if` carrying the message of the
+    first failing check (traced `x`). Returns `on` (default `x`) with the run-time check attached.
+    The predicates see `x` through `stop_gradient`: they add nothing to derivatives."""
+    out = x if on is None else on
+    if is_concrete(x):
+        xn = np.asarray(x)
+        with np.errstate(all="ignore"):
+            for c in checks:
+                if np.any(c.bad(np, xn)):
+                    raise ValueError(c.message + (c.detail(xn) if c.detail else "") + c.hint)
+        return out
+    xs = jax.lax.stop_gradient(x)
+    fails = jnp.stack([jnp.any(c.bad(jnp, xs)) for c in checks])
+    msgs = [c.message + c.hint for c in checks]
+    return eqx.branched_error_if(out, jnp.any(fails), jnp.argmax(fails), msgs)
+
+
+def first(mask: Any) -> tuple[int, ...]:
+    """Index of the first true entry of a batch mask (`()` for a single element)."""
+    mask = np.asarray(mask)
+    return tuple(int(i) for i in np.unravel_index(int(np.argmax(mask)), mask.shape))
+
+
+def at(name: str, k: tuple[int, ...]) -> str:
+    return name + (f"[{', '.join(map(str, k))}]" if k else "")
+
+
+def fmt(v: Any) -> str:
+    """An array on one line, 6 significant digits."""
+    return " ".join(np.array2string(np.asarray(v), precision=6, separator=", ").split())
+
+
+NONFINITE_HINT = "; replace its NaN/inf entries (they come from an earlier overflow or 0/0)"
+
+
+def finite_check(name: str, core: int) -> Check:
+    """`x` finite; `core` trailing dimensions make one element (0 scalar, 1 vector, 2 matrix)."""
+    axes = tuple(range(-core, 0))
+
+    def bad(xp: Any, x: Any) -> Any:
+        return ~xp.all(xp.isfinite(x), axis=axes) if core else ~xp.isfinite(x)
+
+    def detail(x: np.ndarray) -> str:
+        k = first(bad(np, x))
+        return f", got {at(name, k)} = {fmt(x[k])}"
+
+    return Check(bad, f"{name} must be finite", detail, NONFINITE_HINT)
+
+
+def check_finite(x: Array, name: str, core: int) -> Array:
+    """`x`, checked to be finite (see `finite_check`)."""
+    return validate_all(x, [finite_check(name, core)])
+
+
+def quat_checks(name: str) -> list[Check]:
+    """A quaternion `(..., 4)` that stands for a rotation: finite and non-zero."""
+
+    def zero(xp: Any, q: Any) -> Any:
+        return ~(xp.sum(q * q, axis=-1) > 0)
+
+    def detail(q: np.ndarray) -> str:
+        k = first(zero(np, q))
+        return f": {at(name, k)} = {fmt(q[k])}"
+
+    return [
+        Check(
+            finite_check(name, 1).bad,
+            f"{name} must be a finite quaternion (w, x, y, z)",
+            finite_check(name, 1).detail,
+            NONFINITE_HINT,
+        ),
+        Check(
+            zero,
+            f"{name} is a zero quaternion, which is no rotation",
+            detail,
+            f"; a rotation needs |{name}| > 0 (use rigidjax.quat.identity() for no rotation)",
+        ),
+    ]
+
+
+def check_quat(q: Quat, name: str, on: Array | None = None) -> Array:
+    """`q` (or `on`), checked to be a finite, non-zero quaternion (one run-time check)."""
+    return validate_all(q, quat_checks(name), on)
+
+
+def det(xp: Any, P: Any) -> Any:
+    """`det P = p0 · (p1 × p2)` (rows p_i), the same formula in NumPy and JAX."""
+    return xp.sum(P[..., 0, :] * xp.cross(P[..., 1, :], P[..., 2, :]), axis=-1)
+
+
+def matrix_checks(name: str) -> list[Check]:
+    """A matrix `(..., 3, 3)` passed as a rotation: finite, with a positive determinant (relative
+    to its size, `det P > 64 eps (‖P‖_F/√3)³`, so that rounding of a singular frame does not pass).
+    Like SciPy's `Rotation.from_matrix`, nothing more: a matrix with det > 0 that is not quite
+    orthogonal (an integrator's output) is accepted."""
+
+    def improper(xp: Any, P: Any) -> Any:
+        size = xp.sum(P * P, axis=(-2, -1)) / 3
+        return ~(det(xp, P) > 64 * xp.finfo(P.dtype).eps * size * xp.sqrt(size))
+
+    def detail(P: np.ndarray) -> str:
+        k = first(improper(np, P))
+        return f": det {at(name, k)} = {det(np, P[k]):.6g} for {at(name, k)} = {fmt(P[k])}"
+
+    return [
+        Check(
+            finite_check(name, 2).bad,
+            f"{name} must be a finite rotation matrix",
+            finite_check(name, 2).detail,
+            NONFINITE_HINT,
+        ),
+        Check(
+            improper,
+            f"{name} is not a rotation matrix: non-positive determinant (a left-handed or "
+            "degenerate frame)",
+            detail,
+            "; a rotation has det = +1: negate one axis (column) of a left-handed frame "
+            "(a matrix with det > 0 that is not quite orthogonal is accepted and orthogonalised)",
+        ),
+    ]
+
+
+def check_matrix(P: Mat33, name: str) -> Mat33:
+    """`P`, checked to be finite with a positive determinant (see `matrix_checks`)."""
+    return validate_all(P, matrix_checks(name))
