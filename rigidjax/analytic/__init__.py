@@ -2,16 +2,16 @@
 (`euler_poinsot`), the free symmetric top and rotation about a fixed axis
 (`regular_precession`)."""
 
-from . import elliptic, euler_poinsot, regular_precession
+from . import elliptic, euler_poinsot, poinsot_attitude, regular_precession
 from .elliptic import am, cn, dn, ellipj, ellipk, ellipkinc, ellipkm1, sn
 from .euler_poinsot import (
     FreeBodyParameters,
     flip_period,
     free_rigid_body,
-    free_rigid_body_attitude,
     free_rigid_body_parameters,
     time_of_first_flip,
 )
+from .poinsot_attitude import free_rigid_body_attitude
 from .regular_precession import (
     SymmetricTopPrecession,
     fixed_axis_rotation,
@@ -32,6 +32,7 @@ __all__ = [
     "ellipkinc",
     "ellipkm1",
     "euler_poinsot",
+    "poinsot_attitude",
     "regular_precession",
     "fixed_axis_rotation",
     "flip_period",
