@@ -175,7 +175,7 @@ def _check_torque(torque: Torque, ts: Array, omega0: Array, q0: Array) -> None:
     a 3-vector (its shape is found by tracing it once, `jax.eval_shape`: nothing is computed)."""
     if not callable(torque):
         raise TypeError(f"torque must be a callable torque(t, omega, q) -> (3,), got {torque!r}")
-    out = jax.eval_shape(torque, ts[0], omega0[0], q0[0])
+    out = jax.eval_shape(torque, ts[0], omega0.reshape(-1, 3)[0], q0.reshape(-1, 4)[0])
     shape = getattr(out, "shape", None)
     if shape != (3,):
         got = f"shape {shape}" if shape is not None else type(out).__name__
