@@ -5,7 +5,8 @@ from pathlib import Path
 import pytest
 
 NOTEBOOKS = sorted((Path(__file__).resolve().parent.parent / "notebooks").glob("*.ipynb"))
-SLOW = {"inertia_identification.ipynb"}  # ~45 s: compiles and runs identification fits
+# ~25-45 s each (they compile and run simulations and fits): with the slow tests
+SLOW = {"inertia_identification.ipynb", "dzhanibekov.ipynb"}
 
 
 @pytest.mark.parametrize(

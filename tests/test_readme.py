@@ -3,6 +3,8 @@
 import re
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).parents[1]
 
 
@@ -10,6 +12,7 @@ def _python_blocks(path: Path) -> list[str]:
     return re.findall(r"```python\n(.*?)```", path.read_text(), flags=re.S)
 
 
+@pytest.mark.slow  # compile-heavy: runs with the slow tests
 def test_readme_example_runs(capsys):
     blocks = _python_blocks(ROOT / "README.md")
     assert blocks, "README has no python example"

@@ -309,6 +309,7 @@ def _crossings(ts, x):
     return np.array(out)
 
 
+@pytest.mark.slow  # compile-heavy: runs with the slow tests
 def test_principia_case_and_flip_period(batch):
     """Principia (documentation/Celledoni.tex): I = (3, 5, 9), M0 = (0, 2, 0.01):
     k² = 0.99996, λ = 0.21774, K = 6.4293, flip half-period 2K/λ = 59.055 s."""
@@ -467,6 +468,7 @@ def _fd(f, x, h=1e-6):
     return g
 
 
+@pytest.mark.slow  # compile-heavy: runs with the slow tests
 def test_gradients_match_finite_differences():
     """jax.grad w.r.t. inertia and omega0 of Ω(t), q(t), the first-flip time and the period,
     against central differences; finite at degenerate points."""
@@ -509,6 +511,7 @@ def test_gradients_match_finite_differences():
         assert np.all(np.isfinite(g)), (x, g)
 
 
+@pytest.mark.slow  # compile-heavy: runs with the slow tests
 def test_float32_and_vmap(batch):
     a = batch["all"]
     f32 = [np.asarray(x, np.float32) for x in (a["I"], a["w"], a["q0"], T_ALL)]

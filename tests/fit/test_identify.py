@@ -29,6 +29,7 @@ def scipy_data(torque=(0.0, 0.0, 0.0)):
 OMEGA, QUAT = scipy_data()
 
 
+@pytest.mark.slow  # compile-heavy: runs with the slow tests
 def test_data_that_do_not_fix_the_inertia():
     """A steady spin (constant Ω) does not determine the inertia: a clear error, not a
     `converged` estimate with std 0."""

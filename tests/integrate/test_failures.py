@@ -48,12 +48,18 @@ def test_float32_tolerance_below_reach_warns():
         rj.simulate(BODY, w32, None, ts32, rtol=1e-9, max_steps=64, throw=False)
 
 
-def test_forward_mode_needs_forward_adjoint_and_then_works():
-    def final_quat(w, **kw):
-        return rj.simulate(BODY, w, None, TS, **kw).quat[-1]
+def _final_quat(w, **kw):
+    return rj.simulate(BODY, w, None, TS, **kw).quat[-1]
 
+
+def test_forward_mode_needs_forward_adjoint():
     with pytest.raises(TypeError, match=r"adjoint=diffrax\.ForwardMode\(\)"):
-        jax.jacfwd(final_quat)(W0)
+        jax.jacfwd(_final_quat)(W0)
+
+
+@pytest.mark.slow  # ~40 s: compiles forward and reverse mode through the solve
+def test_forward_mode_with_forward_adjoint_matches_reverse_mode():
+    final_quat = _final_quat
     fwd = jax.jacfwd(lambda w: final_quat(w, adjoint=diffrax.ForwardMode()))(W0)
     rev = jax.jacrev(final_quat)(W0)
     np.testing.assert_allclose(fwd, rev, atol=1e-8)

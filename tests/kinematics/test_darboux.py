@@ -119,6 +119,7 @@ def test_theta_dot_identity_and_left_right():
     np.testing.assert_allclose(P_space, P_body, atol=1e-9)
 
 
+@pytest.mark.slow  # compile-heavy: runs with the slow tests
 def test_orthogonality_after_1e5_steps():
     """Rotation-vector, normalised-quaternion and geometric paths stay on SO(3) (≤ 1e-12) after
     10⁵ constant steps; the Poisson matrix equation drifts off it (Zhilin's remark)."""

@@ -99,7 +99,11 @@ def _about_axis(k):
 # at t = π/2, 3π/2.
 @pytest.mark.parametrize(
     ("seq", "frame", "axis"),
-    [("ZXZ", "space", 0), ("XYZ", "body", 1), ("zxz", "body", 0), ("xyz", "space", 1)],
+    [("ZXZ", "space", 0)]
+    + [  # ~20 s each (a compile per sequence and frame): the other three with the slow tests
+        pytest.param(*c, marks=pytest.mark.slow)
+        for c in [("XYZ", "body", 1), ("zxz", "body", 0), ("xyz", "space", 1)]
+    ],
 )
 def test_darboux_through_exact_gimbal_locks(seq, frame, axis):
     ts = jnp.linspace(0.0, 2 * np.pi, 13)
@@ -148,7 +152,10 @@ def test_darboux_from_the_identity_and_near_miss():
 
 @pytest.mark.parametrize(
     ("kinematics", "seq", "axis"),
-    [("euler", "ZXZ", 0), (EulerAngles(seq="XYZ", frame="body"), "XYZ", 1)],
+    [
+        ("euler", "ZXZ", 0),
+        pytest.param(EulerAngles(seq="XYZ", frame="body"), "XYZ", 1, marks=pytest.mark.slow),
+    ],
 )
 def test_simulate_tumbling_through_gimbal_lock(kinematics, seq, axis):
     """A spin about a principal axis from the identity, through exact locks of both charts at
@@ -171,6 +178,7 @@ def test_simulate_tumbling_through_gimbal_lock(kinematics, seq, axis):
             assert np.count_nonzero(m < 1e-9) >= 6  # the spin is exactly locked every 2 s
 
 
+@pytest.mark.slow  # ~40 s: reverse mode through the solve with chart switches
 def test_jit_and_grad_through_chart_switches():
     """Reverse-mode gradient through a fixed-step simulate from the identity with chart
     switches: finite and equal to that of quaternion kinematics to the discretisation error."""

@@ -164,6 +164,7 @@ def test_progress_meter_and_controllers(capfd):
         simulate(body, W0, Q0, TS, stepsize_controller=diffrax.StepTo(ts=TS), dt0=None)
 
 
+@pytest.mark.slow  # compile-heavy: runs with the slow tests
 def test_invariants_long_run():
     ts = jnp.linspace(0.0, 100.0, 11)
     body = RigidBody(_full_tensor())

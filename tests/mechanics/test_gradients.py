@@ -84,6 +84,7 @@ def test_forward_mode_matches_reverse():
     np.testing.assert_allclose(fwd, rev @ v, rtol=1e-9, atol=1e-11)
 
 
+@pytest.mark.slow  # compile-heavy: runs with the slow tests
 def test_long_horizon_gradient_10k_steps():
     """10⁴ fixed RK4 steps, checkpointed reverse mode (bounded memory): gradient w.r.t. the
     moments and Ω(0) equals finite differences; no blow-up (brax#186)."""

@@ -60,6 +60,7 @@ def test_lvlh_frame():
     np.testing.assert_allclose(w, [0.0, -N_ORB, 0.0], atol=1e-15)  # ω_o = (0, −n, 0) in LVLH
 
 
+@pytest.mark.slow  # compile-heavy: runs with the slow tests
 def test_equilibrium_stays_put():
     tr, ang = _run()
     assert np.max(np.abs(ang)) < 1e-8

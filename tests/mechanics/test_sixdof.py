@@ -82,6 +82,7 @@ def scipy_6dof(ts):
     )  # fmt: skip
 
 
+@pytest.mark.slow  # compile-heavy: runs with the slow tests
 def test_free_flight_uniform_translation_and_rotation_matches_simulate():
     tr = sixdof.simulate_6dof(BODY, R0, V0, Q0, W0, TS, **TIGHT)
     np.testing.assert_allclose(tr.R, R0 + TS[:, None] * V0, atol=1e-12)
@@ -178,6 +179,7 @@ def test_bad_input():
         sixdof.wrench_at_point(F_BODY, A1, Q0, force_frame="world")
 
 
+@pytest.mark.slow  # compile-heavy: runs with the slow tests
 def test_jit_and_gradient():
     """Free flight: ∂R(t)/∂V0 = t E, through reverse-mode differentiation of the solve (jit, with
     constant R0 closed over)."""

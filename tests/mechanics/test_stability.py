@@ -150,6 +150,7 @@ def test_classify_degenerate_is_neutral():
     assert st.classify([1.0, 1.0 + 1e-6, 2.0], 0) == "stable"
 
 
+@pytest.mark.slow  # compile-heavy: runs with the slow tests
 def test_vmap_jit_grad_over_inertias(rng):
     moments = jnp.asarray(_random_moments(rng, 16))
     w0 = jnp.linspace(-2.0, 2.0, 16)

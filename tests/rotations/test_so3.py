@@ -230,6 +230,7 @@ def test_gradients_finite_and_match_finite_differences(angle):
     assert np.all(np.isfinite(Jr))
 
 
+@pytest.mark.slow  # compile-heavy: runs with the slow tests
 def test_float32_and_batch_dims(rng):
     th = rng.normal(size=(2, 5, 3)).astype(np.float32)
     P = so3.exp(th)
