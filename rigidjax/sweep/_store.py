@@ -77,26 +77,33 @@ def create(
     sweep.create_array("done", shape=(num_chunks,), chunks=(1,), dtype="int8", fill_value=0)
 
 
-def open_existing(path: Path, meta: dict) -> zarr.Group | None:
-    """The store at `path` if it holds a sweep with the same fingerprint, layout and outputs
-    (ValueError if it holds another one), None if there is no store yet."""
+def open_existing(
+    path: Path, meta: dict, chunk: tuple[int, ...] | None
+) -> tuple[zarr.Group, tuple[int, ...]] | None:
+    """The store at `path` and its chunk shape, if it holds a sweep with the same fingerprint
+    and outputs and (when `chunk` is given) the same chunks; a ValueError if it holds another
+    one; None if there is no store yet. Without `chunk`, the stored chunking is adopted (a
+    resumed or multi-process sweep with the default chunk size uses the first call's)."""
     if not (path / "zarr.json").exists():
         return None
     g = zarr.open_group(str(path), mode="r+")
     if "_sweep" not in g:
         raise ValueError(f"store {str(path)!r} exists and is not a rigidjax sweep; give a new path")
     old = dict(g["_sweep"].attrs)
+    wanted = {**meta, "chunk": old.get("chunk") if chunk is None else list(chunk)}
     for key, what in (
         ("fingerprint", "another design"),
         ("outputs", "a model with other observables"),
         ("chunk", "another chunk_size"),
     ):
-        if old.get(key) != meta[key]:
+        if old.get(key) != wanted[key]:
             raise ValueError(
                 f"store {str(path)!r} was written for {what} ({key}: {old.get(key)} here vs "
-                f"{meta[key]}); give a new store path, or delete the old store to start over"
+                f"{wanted[key]}); give a new store path, or delete the old store to start over"
             )
-    return g
+    stored = old["chunk"]
+    assert isinstance(stored, list)
+    return g, tuple(int(c) for c in stored)  # type: ignore[arg-type]
 
 
 def array(g: zarr.Group, name: str) -> zarr.Array:

@@ -8,6 +8,7 @@ import contextlib
 import functools
 import logging
 import math
+import numbers
 import sys
 import time
 import warnings
@@ -183,7 +184,7 @@ def run(
     design: Design,
     *,
     store: str | Path | None = None,
-    chunk_size: int | None = None,
+    chunk_size: int | np.integer | None = None,
     progress: bool = True,
 ) -> xr.Dataset:
     """Evaluate `model(point) -> dict[str, array]` (a pure JAX function of ONE point, `point` a
@@ -204,7 +205,11 @@ def run(
     complete Dataset (a store is required then)."""
     t0 = time.perf_counter()
     design = _check_design(design)
-    if chunk_size is not None and not (isinstance(chunk_size, int) and chunk_size > 0):
+    if chunk_size is not None and not (
+        isinstance(chunk_size, numbers.Integral)
+        and not isinstance(chunk_size, bool)
+        and chunk_size > 0
+    ):
         raise ValueError(f"chunk_size must be a positive integer, got {chunk_size!r}")
     path = None if store is None else Path(store)
     if path is not None:
@@ -214,28 +219,32 @@ def run(
         raise ValueError("a multi-process sweep needs store=... (the processes share it)")
     outputs = _outputs(model, design)
     point = _point_struct(design)
-    if chunk_size is None:
-        chunk_size = _layout.default_chunk_size(outputs, point, design.size)
-    chunk = _layout.block_shape(design.shape, chunk_size)
-    blocks = _layout.blocks(design.shape, chunk)
     meta = {
         "fingerprint": design.fingerprint(),
         "outputs": {k: [list(s.shape), np.dtype(s.dtype).name] for k, s in outputs.items()},
-        "chunk": list(chunk),
     }
+    requested = None if chunk_size is None else _layout.block_shape(design.shape, int(chunk_size))
+
+    def new_chunk() -> tuple[int, ...]:
+        default = _layout.default_chunk_size(outputs, point, design.size)
+        return requested or _layout.block_shape(design.shape, default)
 
     group = None
     if path is not None:
-        if pid == 0:
-            group = _store.open_existing(path, meta)
-            if group is None:
-                _store.create(path, design, outputs, chunk, len(blocks), meta)
+        if pid == 0 and _store.open_existing(path, meta, requested) is None:
+            chunk = new_chunk()
+            blocks = _layout.blocks(design.shape, chunk)
+            _store.create(path, design, outputs, chunk, len(blocks), {**meta, "chunk": list(chunk)})
         _barrier("store ready")
-        group = _store.open_existing(path, meta)
-        assert group is not None
+        opened = _store.open_existing(path, meta, requested)
+        assert opened is not None
+        group, chunk = opened  # every process (and a resumed call) uses the stored chunks
+        blocks = _layout.blocks(design.shape, chunk)
         done = np.asarray(_store.array(group, _store.DONE)[:]).astype(bool)
         arrays = None
     else:
+        chunk = new_chunk()
+        blocks = _layout.blocks(design.shape, chunk)
         done = np.zeros(len(blocks), bool)
         arrays: dict[str, np.ndarray] | None = {
             name: np.full(design.shape + s.shape, _store.fill_value(np.dtype(s.dtype)), s.dtype)

@@ -26,7 +26,7 @@ CHUNK = 4  # at most 4 points per chunk: blocks of the 5 × 3 grid are rows of 3
 
 @pytest.fixture(scope="module")
 def in_memory():
-    return sweep.run(model, design(), chunk_size=CHUNK, progress=False)
+    return sweep.run(model, design(), chunk_size=np.int64(CHUNK), progress=False)
 
 
 def test_dataset_contract(in_memory):
@@ -62,6 +62,10 @@ def test_store_equals_in_memory_and_opens_without_rigidjax(in_memory, tmp_path):
     # the same call again finds every chunk done and computes nothing
     again = sweep.run(model, design(), store=store, chunk_size=CHUNK, progress=False)
     xr.testing.assert_equal(again, ds)
+    # without chunk_size the stored chunking is adopted (the default depends on free memory,
+    # which changes between calls and between the processes of one sweep)
+    adopted = sweep.run(model, design(), store=store, progress=False)
+    xr.testing.assert_equal(adopted, ds)
     with pytest.raises(ValueError, match="was written for another design"):
         sweep.run(model, sweep.grid(I2=[1.7, 1.9], offset=[0.01]), store=store, progress=False)
     with pytest.raises(ValueError, match="another chunk_size"):
