@@ -34,6 +34,21 @@ class Design:
     points: Mapping[str, np.ndarray]
     method: str
 
+    def __post_init__(self):
+        """Every design is checked here, however it was made: points for every factor, one per
+        cell of `shape`, all finite (a ValueError naming the factor and the point)."""
+        if not self.points or math.prod(self.shape) == 0:
+            raise ValueError("design is empty: give at least one factor and one point")
+        for name, v in self.points.items():
+            v = np.asarray(v)
+            if v.shape != (math.prod(self.shape),):
+                raise ValueError(
+                    f"design factor {name!r} has {v.shape} values for the design shape {self.shape}"
+                )
+            if not np.all(np.isfinite(v)):
+                k = int(np.flatnonzero(~np.isfinite(v))[0])
+                raise ValueError(f"design factor {name!r} must be finite: point {k} has {v[k]}")
+
     @property
     def size(self) -> int:
         """The number of points."""

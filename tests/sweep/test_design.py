@@ -63,3 +63,13 @@ def test_quasi_random_designs_fill_the_cube_evenly():
 def test_bad_designs(call, match):
     with pytest.raises(ValueError, match=match):
         call()
+
+
+def test_hand_made_designs_are_checked_too():
+    good = sweep.grid(a=[1.0, 2.0])
+    with pytest.raises(ValueError, match=r"design factor 'a' must be finite: point 1 has nan"):
+        sweep.Design(good.dims, good.shape, good.coords, {"a": np.array([1.0, np.nan])}, "grid")
+    with pytest.raises(ValueError, match=r"design factor 'a' has \(3,\) values"):
+        sweep.Design(good.dims, good.shape, good.coords, {"a": np.zeros(3)}, "grid")
+    with pytest.raises(ValueError, match="design is empty"):
+        sweep.Design(("point",), (0,), {}, {"a": np.zeros(0)}, "uniform")
