@@ -4,7 +4,7 @@ ValueError on concrete input and an `equinox.error_if` under tracing, with the s
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import equinox as eqx
 import jax
@@ -63,6 +63,51 @@ def is_concrete(x: object) -> bool:
     return not isinstance(x, jax.core.Tracer)
 
 
+class Check(NamedTuple):
+    """One check: `bad(xp, x)` (xp is NumPy or jax.numpy) is true where `x` fails; the error is
+    `message + detail(x) + hint` (the detail, with the offending value, on concrete `x` only)."""
+
+    bad: Callable[[Any, Any], Any]
+    message: str
+    detail: Callable[[np.ndarray], str] | None = None
+    hint: str = ""
+
+
+def validate_all(x: Array, checks: Sequence[Check], on: Array | None = None) -> Array:
+    """Several checks of `x` at the cost of one: the ValueError of the first check that fails
+    (concrete `x`; the check runs in NumPy, so it works on constants inside a trace as well), or
+    one `equinox.branched_error_if` carrying the message of the first failing check (traced
+    `x`). Returns `on` (default `x`) with the run-time check attached.
+    The predicates see `x` through `stop_gradient`: they add nothing to derivatives."""
+    out = x if on is None else on
+    if is_concrete(x):
+        xn = np.asarray(x)
+        with np.errstate(all="ignore"):
+            for c in checks:
+                if np.any(c.bad(np, xn)):
+                    raise ValueError(c.message + (c.detail(xn) if c.detail else "") + c.hint)
+        return out
+    xs = jax.lax.stop_gradient(x)
+    fails = jnp.stack([jnp.any(c.bad(jnp, xs)) for c in checks])
+    msgs = [c.message + c.hint for c in checks]
+    return eqx.branched_error_if(out, jnp.any(fails), jnp.argmax(fails), msgs)
+
+
+def first(mask: Any) -> tuple[int, ...]:
+    """Index of the first true entry of a batch mask (`()` for a single element)."""
+    mask = np.asarray(mask)
+    return tuple(int(i) for i in np.unravel_index(int(np.argmax(mask)), mask.shape))
+
+
+def at(name: str, k: tuple[int, ...]) -> str:
+    return name + (f"[{', '.join(map(str, k))}]" if k else "")
+
+
+def fmt(v: Any) -> str:
+    """An array on one line, 6 significant digits."""
+    return " ".join(np.array2string(np.asarray(v), precision=6, separator=", ").split())
+
+
 def validate(
     x: Array,
     bad: Callable[[Any, Any], Any],
@@ -74,20 +119,13 @@ def validate(
 ) -> Array:
     """Check `x` with `bad(xp, x) -> bool array` (`xp` is NumPy or `jax.numpy`) and raise a clear
     error if any entry is true: a ValueError `message + detail(x) + hint` at once when `x` is
-    concrete, else an `equinox.error_if` with `message + hint` that raises at run time under
-    jit/vmap. The concrete check runs in NumPy, so it works on constants inside a trace as well.
+    concrete, else an `equinox` run-time error with `message + hint` under jit/vmap (one
+    `Check` of `validate_all`).
 
     Returns `on` (default `x`), to which the run-time check is attached: use the returned value
     (an unused check is removed with the dead code). For a check made only on concrete values
     (e.g. where traced callers expect NaN), guard the call with `is_concrete(x)`."""
-    out = x if on is None else on
-    if not is_concrete(x):
-        return eqx.error_if(out, jnp.any(bad(jnp, x)), message + hint)
-    xn = np.asarray(x)
-    with np.errstate(invalid="ignore"):  # inf − inf in a check is a NaN that fails it, quietly
-        if np.any(bad(np, xn)):
-            raise ValueError(message + (detail(xn) if detail is not None else "") + hint)
-    return out
+    return validate_all(x, [Check(bad, message, detail, hint)], on)
 
 
 def _got(v: np.ndarray) -> str:
@@ -101,8 +139,8 @@ def check_finite(x: Array, name: str) -> Array:
     def detail(v: np.ndarray) -> str:
         if v.ndim == 0:
             return f", got {v}"
-        k = np.unravel_index(int(np.flatnonzero(~np.isfinite(v))[0]), v.shape)
-        return f": {name}[{', '.join(map(str, k))}] = {v[k]}"
+        k = first(~np.isfinite(v))
+        return f": {at(name, k)} = {fmt(v[k])}"
 
     return validate(x, lambda xp, v: ~xp.isfinite(v), f"{name} must be finite", detail)
 

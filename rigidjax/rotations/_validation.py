@@ -1,65 +1,16 @@
-"""Argument checks of the rotation maps: several checks of one array at the cost of one
-`equinox` check, each with its own message (`validate_all`); the checks of quaternions and of
-matrices passed as rotations, shared by every rotation module."""
+"""Argument checks of the rotation maps, shared by every rotation module: finite values, the
+checks of quaternions and of matrices passed as rotations (built on `rigidjax._checks.Check` and
+`validate_all`)."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from typing import Any, NamedTuple
+from typing import Any
 
-import equinox as eqx
-import jax
-import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from .._checks import is_concrete
+from .._checks import Check, at, first, fmt, validate_all
 from .._custom_types import Mat33, Quat
-
-
-class Check(NamedTuple):
-    """One check: `bad(xp, x)` (xp is NumPy or jax.numpy) is true where `x` fails; the error is
-    `message + detail(x) + hint` (the detail, with the offending value, on concrete `x` only)."""
-
-    bad: Callable[[Any, Any], Any]
-    message: str
-    detail: Callable[[np.ndarray], str] | None = None
-    hint: str = ""
-
-
-def validate_all(x: Array, checks: Sequence[Check], on: Array | None = None) -> Array:
-    """`rigidjax._checks.validate` for several checks of `x`: the ValueError of the first check
-    that fails (concrete `x`), or one `equinox.branched_error_if` carrying the message of the
-    first failing check (traced `x`). Returns `on` (default `x`) with the run-time check attached.
-    The predicates see `x` through `stop_gradient`: they add nothing to derivatives."""
-    out = x if on is None else on
-    if is_concrete(x):
-        xn = np.asarray(x)
-        with np.errstate(all="ignore"):
-            for c in checks:
-                if np.any(c.bad(np, xn)):
-                    raise ValueError(c.message + (c.detail(xn) if c.detail else "") + c.hint)
-        return out
-    xs = jax.lax.stop_gradient(x)
-    fails = jnp.stack([jnp.any(c.bad(jnp, xs)) for c in checks])
-    msgs = [c.message + c.hint for c in checks]
-    return eqx.branched_error_if(out, jnp.any(fails), jnp.argmax(fails), msgs)
-
-
-def first(mask: Any) -> tuple[int, ...]:
-    """Index of the first true entry of a batch mask (`()` for a single element)."""
-    mask = np.asarray(mask)
-    return tuple(int(i) for i in np.unravel_index(int(np.argmax(mask)), mask.shape))
-
-
-def at(name: str, k: tuple[int, ...]) -> str:
-    return name + (f"[{', '.join(map(str, k))}]" if k else "")
-
-
-def fmt(v: Any) -> str:
-    """An array on one line, 6 significant digits."""
-    return " ".join(np.array2string(np.asarray(v), precision=6, separator=", ").split())
-
 
 NONFINITE_HINT = "; replace its NaN/inf entries (they come from an earlier overflow or 0/0)"
 
