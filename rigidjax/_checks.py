@@ -191,13 +191,19 @@ def initial_vector(x: RealLike, n: int, name: str, dtype: DTypeLike) -> Float[Ar
     return check_finite(x, name)
 
 
-def check_times(ts: Array, name: str = "ts") -> Float[Array, " T"]:
-    """`ts` as a 1-D, finite, strictly increasing array of at least two times (clear error
-    otherwise)."""
+def check_times_shape(ts: Array, name: str = "ts") -> Float[Array, " T"]:
+    """`ts`, if it is a 1-D array of at least two times (a ValueError otherwise)."""
     if ts.ndim != 1 or ts.shape[0] < 2:
         raise ValueError(
             f"{name} must be a 1-D array of at least 2 times, got shape {tuple(ts.shape)}"
         )
+    return ts
+
+
+def check_times(ts: Array, name: str = "ts") -> Float[Array, " T"]:
+    """`ts` as a 1-D, finite, strictly increasing array of at least two times (clear error
+    otherwise)."""
+    check_times_shape(ts, name)
 
     def detail(t: np.ndarray) -> str:
         if not np.all(np.isfinite(t)):

@@ -13,7 +13,14 @@ import jax.numpy as jnp
 import jax.tree_util as jtu
 from jaxtyping import Array, Float
 
-from .._checks import as_float, check_finite, check_times, check_unit_norm, vector
+from .._checks import (
+    as_float,
+    check_finite,
+    check_times,
+    check_times_shape,
+    check_unit_norm,
+    vector,
+)
 from .._custom_types import Frame, RealLike
 from .._integrate import SolveKwargs, SolveOptions, solve_saved
 from .._trajectory import AbstractTrajectory
@@ -201,6 +208,7 @@ def simulate(
     *,
     torque_frame: Frame = "body",
     options: SolveOptions | None = None,
+    check: bool = True,
     **solve_kwargs: Unpack[SolveKwargs],
 ) -> Trajectory:
     """Integrate Euler's equations `I Ω̇ + Ω × IΩ = K` (body frame, general tensor; Zegrya–Parshin
@@ -220,15 +228,23 @@ def simulate(
     quaternions, no interpolation; `max_steps` bounds each output interval). For large batches
     at fixed steps, `solver=RK4()` with `diffrax.ConstantStepSize()` and `dt0` runs at the rate
     of a hand-written `lax.scan` kernel (benchmarks/bench_dynamics.py).
+
+    `check=False` skips the checks of `ts`, `omega0` and `q0` (like `RigidBody(check=False)`)
+    for inputs validated beforehand: traced inputs then compile without runtime checks, which
+    compiles faster and lets JAX's persistent compilation cache store the program (it refuses
+    programs with host callbacks, which runtime checks are). The shapes are still checked.
     """
     options = SolveOptions.of(options, solve_kwargs)
     if ts is None:
         raise ValueError("ts (the output times) is required")
-    ts = check_times(as_float(ts, "ts"))
+    ts = check_times_shape(as_float(ts, "ts"))
     dtype = ts.dtype
-    omega0 = check_finite(vector(omega0, 3, "omega0").astype(dtype), "omega0")
+    omega0 = vector(omega0, 3, "omega0").astype(dtype)
     q0 = quat.identity(dtype=dtype) if q0 is None else vector(q0, 4, "q0").astype(dtype)
-    q0 = check_unit_norm(q0, "q0")
+    if check:
+        ts = check_times(ts)
+        omega0 = check_finite(omega0, "omega0")
+        q0 = check_unit_norm(q0, "q0")
     batch = jnp.broadcast_shapes(body.batch_shape, omega0.shape[:-1], q0.shape[:-1])
     B = math.prod(batch)
     if B == 0:
