@@ -1,20 +1,22 @@
 """The attitude of the free rigid body in closed form (Euler–Poinsot): the quaternion from the
-body angular momentum's direction and the precession angle ψ(t) about it, ψ by Gauss–Legendre
-quadrature of its rate over at most one period (THEORY §6; Landau & Lifshitz §37; see
-`rigidjax.analytic.euler_poinsot` for Ω(t) and its regimes)."""
+body angular momentum's direction and the precession angle ψ(t) about it, ψ in closed form by the
+elliptic integral of the third kind (THEORY §6; Landau & Lifshitz §37; see
+`rigidjax.analytic.euler_poinsot` for Ω(t) and its regimes). `free_body_flow` is the exact step
+map of (Ω, q) used by `rigidjax.solvers.ExactFreeBody`."""
 
 from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, Float
 
 from .._checks import as_float, vector
 from .._custom_types import Quat, QuatLike, RealScalarLike, TimesLike, Vec3Like
 from ..rotations import quat
+from .elliptic import _ellipf, _ellipj, _ellippi
 from .euler_poinsot import (
     _body_inputs,
+    _omega,
     _omega_periodic,
     _omega_sep,
     _Plan,
@@ -22,30 +24,6 @@ from .euler_poinsot import (
     _sign,
     _unpermute,
 )
-
-# Composite Gauss–Legendre rule on [0, 1]: _GL_PANELS panels of _GL_NODES nodes. The precession
-# rate is analytic in a strip of half-width ~1/|λ| around the real t axis and is integrated over at
-# most one period 2K/|λ| (K ≤ ~20 in float64 off the separatrix); panels of ≤ 2.5/|λ| with 16
-# nodes give ≲1e-12 relative error (measured: 1e-13 at the Principia case k² = 0.99996).
-_GL_PANELS = 16
-_GL_NODES = 16
-
-
-def _gauss_legendre(dtype) -> tuple[Array, Array]:
-    x, wts = np.polynomial.legendre.leggauss(_GL_NODES)
-    x, wts = 0.5 * (x + 1), 0.5 * wts
-    left = np.arange(_GL_PANELS)[:, None] / _GL_PANELS
-    nodes = (left + x[None, :] / _GL_PANELS).reshape(-1)
-    weights = np.tile(wts / _GL_PANELS, _GL_PANELS)
-    return jnp.asarray(nodes, dtype), jnp.asarray(weights, dtype)
-
-
-def _precession_rate(Ip: Array, Om: Array, M: Array) -> Array:
-    """ψ̇ = M (2E − I1 Ω1²)/(M² − I1² Ω1²) with axis 1 (index 0 of the permuted axes) the reference
-    body axis, written as `M (I2Ω2² + I3Ω3²)/(I2²Ω2² + I3²Ω3²)` (no cancellation)."""
-    o2, o3 = Om[..., 1] ** 2, Om[..., 2] ** 2
-    return M * (Ip[1] * o2 + Ip[2] * o3) / (Ip[1] ** 2 * o2 + Ip[2] ** 2 * o3)
-
 
 # Quaternions of the cyclic relabellings C_j = [e_{j+1}, e_{j+2}, e_j] (columns): C_j maps the
 # standard z axis to body axis j (C_2 = E; C_0, C_1: ±120° about (1, 1, 1)).
@@ -62,23 +40,6 @@ def _euler_zxz_quat(psi: Array, n: Array) -> Array:
     ct, st = jnp.cos(half_t), jnp.sin(half_t)
     sp, dp = 0.5 * (psi + phi), 0.5 * (psi - phi)
     return jnp.stack([ct * jnp.cos(sp), st * jnp.cos(dp), st * jnp.sin(dp), ct * jnp.sin(sp)], -1)
-
-
-def _psi_periodic(p: _Plan, t: Array) -> tuple[Array, Array]:
-    """Precession angle ψ(t) = ∫₀ᵗ ψ̇ in the periodic branch: whole periods T_ψ = 2K/|λ| of the
-    rate (which has that period) times their integral, plus a composite Gauss–Legendre integral
-    over the remainder τ ∈ [0, T_ψ). `t` (T,); also returns `_omega_periodic(p, t)` (T, 3),
-    evaluated in the same call as the quadrature nodes."""
-    x, wq = _gauss_legendre(t.dtype)
-    Tpsi = 2 * p.K / jnp.abs(p.lam_p)
-    n = jnp.floor(t / Tpsi)
-    tau = t - n * Tpsi
-    spans = jnp.concatenate([tau, Tpsi[None]])  # (T + 1,)
-    T = t.shape[0]
-    om = _omega_periodic(p, jnp.concatenate([t, (spans[:, None] * x).reshape(-1)]))
-    rate = _precession_rate(p.Ip, om[T:].reshape(T + 1, x.shape[0], 3), p.M)
-    integrals = spans * jnp.sum(wq * rate, axis=-1)
-    return n * integrals[-1] + integrals[:-1], om[:T]
 
 
 def _psi_sep(p: _Plan, t: Array) -> Array:
@@ -99,8 +60,45 @@ def _psi_sep(p: _Plan, t: Array) -> Array:
 def _attitude(p: _Plan, q0: Array, t: Array) -> Array:
     """`P(t) = P0 C B(0)ᵀ R_z(ψ(t)) B(t) Cᵀ`-type construction of `free_rigid_body_attitude`:
     with `n_c` = n in the relabelled axes (reference axis e last) and (θ, φ) its polar angles,
-    `q(t) = q0 ∘ q_C ∘ q_E(0, θ0, φ0)⁻¹ ∘ q_E(ψ(t), θ(t), φ(t)) ∘ q_C⁻¹` (q_E: ZXZ Euler angles)."""
-    psi_p, om_p = _psi_periodic(p, t)
+    `q(t) = q0 ∘ q_C ∘ q_E(0, θ0, φ0)⁻¹ ∘ q_E(ψ(t), θ(t), φ(t)) ∘ q_C⁻¹` (q_E: ZXZ Euler angles),
+    made canonical (λ0 ≥ 0); see `_flow`."""
+    return quat.canonical(_flow(p, q0, t)[1])
+
+
+def _psi_exact(p: _Plan, t: Array) -> Array:
+    """Precession angle ψ(t) = ∫₀ᵗ ψ̇ in the periodic branch in closed form (exact to rounding).
+
+    With axis 1 the reference ("cn") axis, `ψ̇ = M (2E − I1 Ω1²)/(M² − I1² Ω1²)`; since
+    `M² − 2E I1 = (I3 − I1) P3` and `M² − I1² Ω1² = I3 P3 (1 + ν² sn² τ)`, `ν² = I1 P1/(I3 P3)`
+    (`Ω1 = A1 cn τ`, `A1² = P1/I1`, `M² − I1² A1² = I3 P3`):
+        `ψ̇ = M/I1 − (M (I3 − I1)/(I1 I3)) / (1 + ν² sn² τ)`,  τ = u0 + λt,
+    and `∫ du/(1 + ν² sn² u) = Π(−ν²; am u|m)` (A&S 17.2.14, third kind, negative characteristic:
+    no singularity), so
+        `ψ(t) = (M/I1) t − (M (I3 − I1)/(I1 I3 λ)) [Π(−ν²; am(u0 + λt)|m) − Π(−ν²; am u0|m)]`.
+    `am u0 = atan2(sn u0, cn u0)` with `(sn u0, cn u0) ∝ ((A1/A2) Ω2, Ω1)` at t = 0,
+    `u0 = F(am u0|m)` and `am(u0 + λt)` from the descending Landen algorithm (continuous in t);
+    Π by Carlson's R_F, R_J (`elliptic._ellippi`). Cf. Celledoni, Fassò, Säfström, Zanna 2008
+    (with Principia's corrections, `documentation/Celledoni.tex`): the same third-kind integral."""
+    I1, I2, I3 = p.Ip
+    w1, w2, _ = p.wp
+    P1 = I1 * w1**2 + p.b * I2 * w2**2
+    nu2 = I1 * P1 / (I3 * p.P3)
+    s0 = jnp.sqrt(p.b * I2 / I1) * w2
+    flat = (s0 == 0) & (w1 == 0)  # steady rotation about axis 3: ψ does not depend on am u0
+    phi0 = jnp.arctan2(s0, jnp.where(flat, jnp.ones_like(w1), w1))
+    u0 = _ellipf(phi0, p.m, p.m1)
+    phi1 = _ellipj(u0 + p.lam_p * t, p.m, p.m1)[3]
+    n = -nu2
+    d_pi = _ellippi(n, phi1, p.m, p.m1) - _ellippi(n, phi0, p.m, p.m1)
+    return p.M / I1 * t - p.M * (I3 - I1) / (I1 * I3 * p.lam_p) * d_pi
+
+
+def _flow(p: _Plan, q0: Array, t: Array) -> tuple[Array, Array]:
+    """The exact Euler–Poinsot flow from `(Ω0, q0)` (Ω0 in the plan) over times `t (T,)`:
+    `(Ω(t) (T, 3), q(t) (T, 4))`, q continuous in t with `q(0) = q0` to rounding (not made
+    canonical). The attitude construction is that of `free_rigid_body_attitude`, with ψ in closed
+    form (`_psi_exact`, `_psi_sep`) and the trivial case (sphere, Ω = 0) `q0 ∘ exp(tΩ0)`."""
+    om_p = _omega_periodic(p, t)
     # Ω of the (possibly dummy, never zero) non-trivial branches, so that the angles stay regular
     om = jnp.where(p.sep, _unpermute(_omega_sep(p, t), p.ps), _unpermute(om_p, p.pp))  # (T, 3)
     j = jnp.where(p.sep, p.ps[0], p.pp[0])  # reference body axis e
@@ -108,13 +106,24 @@ def _attitude(p: _Plan, q0: Array, t: Array) -> Array:
     n = jnp.take(p.I * om / p.M, cyc, axis=-1)
     n0 = jnp.take(p.I * p.w / p.M, cyc, axis=-1)
     qc = jnp.asarray(_Q_CYCLIC, t.dtype)[j]
-    psi = jnp.where(p.sep, _psi_sep(p, t), psi_p)
+    psi = jnp.where(p.sep, _psi_sep(p, t), _psi_exact(p, t))
     qe = _euler_zxz_quat(psi, n)
     qe0 = _euler_zxz_quat(jnp.zeros((), t.dtype), n0)
     left = quat.mul(quat.mul(q0, qc), quat.conj(qe0))
     q = quat.mul(quat.mul(left, qe), quat.conj(qc))
     q_triv = quat.mul(q0, quat.from_rotvec(t[:, None] * p.w_orig))
-    return quat.canonical(jnp.where(p.trivial, q_triv, q))
+    return _omega(p, t, om_p), jnp.where(p.trivial, q_triv, q)
+
+
+def free_body_flow(inertia: Array, omega0: Array, q0: Array, h: Array) -> tuple[Array, Array]:
+    """One exact step of the torque-free rigid body, for ONE body (use `jnp.vectorize`/`vmap` for
+    batches): principal moments `inertia (3,)`, body angular velocity `omega0 (3,)`, unit
+    quaternion `q0 (4,)` (P body → space) and a time step `h` (any real, scalar) →
+    `(Ω(h) (3,), q(h) (4,))`, exact to rounding in every regime (the Euler–Poinsot solution of
+    `free_rigid_body` and the attitude of `free_rigid_body_attitude` with ψ in closed form),
+    q continuous in h. No input checks: the building block of `rigidjax.solvers.ExactFreeBody`."""
+    om, q = _flow(_plan(inertia, omega0), q0, jnp.reshape(h, (1,)))
+    return om[0], q[0]
 
 
 def free_rigid_body_attitude(
@@ -136,11 +145,10 @@ def free_rigid_body_attitude(
     since n never reaches ±e). Then `P(t) = G R_z(ψ(t)) B(t)` with G constant maps n to the fixed
     direction of M — ZXZ Euler angles (ψ, θ, φ) with space Z along M — and `Ṗ = P (Ω × E)` iff
         `ψ̇ = (Ω·n − (Ω·e)(n·e))/(1 − (n·e)²) = |M| (2E − I_e Ω_e²)/(M² − I_e² Ω_e²)`
-    (Landau–Lifshitz (37.15) for e = axis 3). ψ̇ > 0 and, with period 2K/|λ|, ψ is whole periods
-    of it plus a composite Gauss–Legendre integral (16 panels × 16 nodes) over the remainder —
-    accurate to ~1e-12 relative (the alternative is the incomplete elliptic integral of the third
-    kind). On the separatrix the integral is elementary (see `_psi_sep`). Finally `G = P0 B(0)ᵀ`.
-    Cost: 256 Ω evaluations per output time.
+    (Landau–Lifshitz (37.15) for e = axis 3). ψ̇ > 0, and ψ is in closed form by the incomplete
+    elliptic integral of the third kind with a negative characteristic (`_psi_exact`; Π by
+    Carlson's symmetric integrals), exact to rounding. On the separatrix the integral is
+    elementary (see `_psi_sep`). Finally `G = P0 B(0)ᵀ`.
     """
     inertia, omega0, ts = _body_inputs(inertia, omega0, ts)
     dtype = ts.dtype
