@@ -18,7 +18,8 @@ import pytest
 import rigidjax
 from rigidjax.cli import main
 
-cli = importlib.import_module("rigidjax.cli.main")  # the module (`rigidjax.cli.main` is main)
+cli = importlib.import_module("rigidjax.cli.simulate")  # the default command's module
+common = importlib.import_module("rigidjax.cli._common")
 
 
 @pytest.fixture
@@ -94,15 +95,15 @@ def test_out_unwritable_probe(tmp_path, capsys, monkeypatch, no_jax_work):
     def refuse(*args, **kwargs):
         raise PermissionError(13, "Permission denied")
 
-    monkeypatch.setattr(cli.tempfile, "TemporaryFile", refuse)
+    monkeypatch.setattr(common.tempfile, "TemporaryFile", refuse)
     rc = main(["--out", str(tmp_path / "a" / "b"), "--no-progress"])
     assert_user_error(rc, capsys.readouterr().err, "--out", "cannot write", "Permission denied")
     assert not (tmp_path / "a").exists()  # the check creates nothing
 
 
 def test_out_check_leaves_nothing_behind(tmp_path):
-    cli._check_out(tmp_path / "new" / "run")
-    cli._check_out(tmp_path)
+    common.check_out(tmp_path / "new" / "run")
+    common.check_out(tmp_path)
     assert list(tmp_path.iterdir()) == []
 
 
@@ -164,7 +165,7 @@ def test_malformed_command_lines(capsys, no_jax_work, argv):
     err = capsys.readouterr().err
     assert rc == 2 and "Traceback" not in err
     assert err.startswith("usage: rigidjax")
-    assert err.strip().splitlines()[-1].startswith("rigidjax: error: ")
+    assert re.match(r"rigidjax( simulate)?: error: ", err.strip().splitlines()[-1])
 
 
 def test_bugs_keep_their_traceback(tmp_path, monkeypatch):

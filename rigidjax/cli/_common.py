@@ -1,0 +1,190 @@
+"""What the `rigidjax` subcommands share: user errors, the output folder, atomic writes, the
+persistent compilation cache, precision and plots."""
+
+from __future__ import annotations
+
+import contextlib
+import importlib.util
+import os
+import sys
+import tempfile
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import TypeVar
+
+PROG = "rigidjax"
+T = TypeVar("T")
+
+
+class UsageError(Exception):
+    """A bad command line, config or data file: one `rigidjax: error: ...` line, exit status 2."""
+
+
+class RunError(Exception):
+    """The computation failed or its results could not be written: one line, exit status 1."""
+
+
+def error(message: str) -> None:
+    print(f"{PROG}: error: {message}", file=sys.stderr)
+
+
+def checked(where: str, make: Callable[[], T]) -> T:
+    """`make()`, its ValueError/TypeError turned into a UsageError that names `where`.
+
+    This is where the line between user errors and bugs is drawn: `make` only builds or checks
+    one library object from the user's concrete values (a constructor or a `_checks` helper,
+    run eagerly, never traced), and the library raises ValueError/TypeError exactly for input
+    it rejects. Tracing, compiling, running and writing happen outside any such guard, so an
+    exception there is not mistaken for a user error and keeps its traceback."""
+    try:
+        return make()
+    except (ValueError, TypeError) as e:
+        raise UsageError(f"{where}: {e}") from e
+
+
+def _nearest_existing(path: Path) -> Path:
+    """`path` or its closest ancestor that exists (a dangling link counts as existing)."""
+    for p in (path, *path.absolute().parents):
+        if p.exists() or p.is_symlink():
+            return p
+    return Path(path.absolute().anchor)  # pragma: no cover - the root always exists
+
+
+def check_out(out: Path) -> None:
+    """Raise UsageError unless `out` is, or can be created as, a writable folder. Nothing is
+    left behind: writability is probed with a temporary file in `out` or its closest existing
+    ancestor (the folder itself is made only when the results are written)."""
+    fix = "give a folder path with --out DIR"
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {out}: is an existing file, not a folder; {fix}")
+    existing = _nearest_existing(out)
+    if not existing.is_dir():
+        raise UsageError(f"--out {out}: {existing} exists and is not a folder; {fix}")
+    try:
+        with tempfile.TemporaryFile(dir=existing):
+            pass
+    except OSError as e:
+        raise UsageError(
+            f"--out {out}: cannot write in {existing} ({e.strerror or e}); choose a writable "
+            "folder with --out DIR or change its permissions"
+        ) from e
+
+
+def write_atomic(path: Path, write: Callable[[str], object]) -> None:
+    """Write through a temporary file in the same folder and rename: never a half-written file."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
+    os.close(fd)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def can_plot() -> bool:
+    return importlib.util.find_spec("matplotlib") is not None
+
+
+NO_PLOT = "no plot: matplotlib is not installed (pip install 'rigidjax[plot]')"
+
+
+def pyplot():
+    """matplotlib.pyplot on the file-only Agg backend."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def enable_x64(float32: bool) -> None:
+    """float64 unless `float32`: the application's choice (the library never sets it)."""
+    if not float32:
+        import jax
+
+        jax.config.update("jax_enable_x64", True)
+
+
+def cache_dir() -> Path:
+    """Where the command keeps JAX's persistent compilation cache: `$RIGIDJAX_CACHE_DIR`, else
+    the user's cache folder (`$XDG_CACHE_HOME`, `%LOCALAPPDATA%` on Windows, `~/Library/Caches`
+    on macOS, `~/.cache`), under `rigidjax/jax`."""
+    explicit = os.environ.get("RIGIDJAX_CACHE_DIR")
+    if explicit:
+        return Path(explicit).expanduser()
+    if sys.platform == "win32" and os.environ.get("LOCALAPPDATA"):
+        base = Path(os.environ["LOCALAPPDATA"])
+    elif sys.platform == "darwin":
+        base = Path.home() / "Library" / "Caches"
+    else:
+        base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    return base / "rigidjax" / "jax"
+
+
+@contextlib.contextmanager
+def compilation_cache(enabled: bool) -> Iterator[Path | None]:
+    """JAX's persistent compilation cache in `cache_dir()` while the command runs (programs
+    that compile in ≥ 0.5 s are stored; a second run loads them instead of compiling). The
+    previous settings are restored afterwards, so calling `main` from Python leaves the
+    process as it was. Yields the folder, or None when disabled or not writable."""
+    if not enabled:
+        yield None
+        return
+    import jax
+    from jax.experimental.compilation_cache import compilation_cache as cc
+
+    path = cache_dir()
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        yield None  # an unusable cache folder only costs compile time
+        return
+    settings = {
+        "jax_compilation_cache_dir": str(path),
+        "jax_persistent_cache_min_compile_time_secs": 0.5,
+    }
+    old = {k: getattr(jax.config, k) for k in settings}
+    for k, v in settings.items():
+        jax.config.update(k, v)
+    cc.reset_cache()  # JAX reads the settings when it first compiles: make it read them again
+    try:
+        yield path
+    finally:
+        for k, v in old.items():
+            jax.config.update(k, v)
+        cc.reset_cache()
+
+
+@contextlib.contextmanager
+def checks_as_nan() -> Iterator[None]:
+    """Trace programs whose inputs the command has checked eagerly with Equinox's runtime checks
+    (`eqx.error_if`: the library's, and Diffrax's check of the step size's sign) compiled the
+    way `EQX_ON_ERROR=nan` compiles them: a failing check gives NaN, which the command detects
+    through the solver's `result` or non-finite values, instead of a host callback.
+
+    Why: JAX's persistent compilation cache refuses every program with a host callback, and
+    each runtime check is one. Equinox reads `EQX_ON_ERROR` only when it is imported (before
+    the command starts), so its module setting is switched here, only if it is the default
+    `raise`, and restored afterwards; the traces and compiled programs made meanwhile are
+    dropped (`jax.clear_caches`), so later calls in the same process check as usual."""
+    import jax
+
+    try:
+        from equinox import _errors
+    except ImportError:  # pragma: no cover - another Equinox layout: checks stay callbacks
+        yield
+        return
+    if getattr(_errors, "EQX_ON_ERROR", None) != "raise":
+        yield  # the user chose another mode (nan, breakpoint, off): keep it
+        return
+    _errors.EQX_ON_ERROR = "nan"
+    try:
+        yield
+    finally:
+        _errors.EQX_ON_ERROR = "raise"
+        jax.clear_caches()
+        sweep_run = sys.modules.get("rigidjax.sweep.run")  # its compiled programs, if any
+        if sweep_run is not None:
+            sweep_run._compiled.cache_clear()

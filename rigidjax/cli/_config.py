@@ -1,0 +1,353 @@
+"""The TOML config of `rigidjax sweep`: read, checked key by key, turned into a one-point model
+and a design. Every error names the file, the key and the fix (a `UsageError`)."""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ._common import UsageError
+
+SECTIONS: dict[str, dict[str, str]] = {
+    "body": {"inertia": "principal moments [I1, I2, I3] or a 3×3 tensor (body axes)"},
+    "initial": {
+        "omega0": "initial body angular velocity [Ω1, Ω2, Ω3] in rad/s",
+        "q0": "initial attitude quaternion [w, x, y, z] (default: identity)",
+    },
+    "times": {"t_end": "time span [s]", "num": "number of output times (≥ 2)"},
+    "solver": {
+        "method": "tsit5 (default), dopri5, dopri8 or rk4 (fixed steps: give dt)",
+        "kinematics": "quat (default), rotvec, matrix, euler, cayley_klein or geometric",
+        "rtol": "relative tolerance",
+        "atol": "absolute tolerance",
+        "dt": "step size [s] (rk4: required; adaptive methods: the first step)",
+        "max_steps": "the most steps per output interval",
+    },
+    "design": {
+        "kind": "grid or sample",
+        "factors": "grid: one table per factor, values = [...] or start, stop, num, scale",
+        "n": "sample: the number of points",
+        "method": "sample: sobol (default), latin or uniform",
+        "seed": "sample: the random seed (default 0)",
+        "ranges": "sample: NAME = [low, high] or [low, high, 'log']",
+    },
+    "observables": {"names": "which observables to compute (default: all of OBSERVABLES)"},
+    "run": {
+        "chunk_size": "points per compiled chunk (default: from the memory per point)",
+        "precision": "float64 (default) or float32",
+    },
+}
+REQUIRED = {"body": ("inertia",), "initial": ("omega0",), "times": ("t_end", "num")}
+OBSERVABLES = (
+    "max_nutation",
+    "first_flip_time",
+    "energy_drift",
+    "momentum_drift",
+    "omega_end",
+    "quat_end",
+)
+METHODS = ("tsit5", "dopri5", "dopri8", "rk4")
+KINEMATICS = ("quat", "rotvec", "matrix", "euler", "cayley_klein", "geometric")
+Template = Any  # nested lists of floats and factor names
+
+
+@dataclass(frozen=True)
+class Config:
+    """A checked sweep config."""
+
+    path: Path
+    text: str
+    inertia: Template
+    omega0: Template
+    q0: Template
+    t_end: float
+    num: int
+    method: str
+    kinematics: str
+    rtol: float | None
+    atol: float | None
+    dt: float | None
+    max_steps: int
+    design: dict[str, Any]
+    log_factors: tuple[str, ...]  # plotted on log axes
+    observables: tuple[str, ...]
+    chunk_size: int | None
+    float32: bool
+
+
+def _fail(path: Path, where: str, problem: str) -> UsageError:
+    return UsageError(f"{path}: {where}: {problem}")
+
+
+def _number(path: Path, where: str, v: Any, *, positive: bool = False) -> float:
+    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+        raise _fail(path, where, f"must be a finite number, got {v!r}")
+    if positive and v <= 0:
+        raise _fail(path, where, f"must be positive, got {v!r}")
+    return float(v)
+
+
+def _integer(path: Path, where: str, v: Any, low: int) -> int:
+    if isinstance(v, bool) or not isinstance(v, int) or v < low:
+        raise _fail(path, where, f"must be an integer ≥ {low}, got {v!r}")
+    return v
+
+
+def _template(path: Path, where: str, v: Any, shapes: tuple[tuple[int, ...], ...]) -> Template:
+    """A vector or matrix of numbers and factor names, of one of `shapes`."""
+
+    def walk(x: Any) -> Any:
+        if isinstance(x, list):
+            return [walk(e) for e in x]
+        if isinstance(x, str):
+            if not x.isidentifier():
+                raise _fail(path, where, f"{x!r} is not a factor name (letters, digits, _)")
+            return x
+        return _number(path, where, x)
+
+    t = walk(v)
+    shape = np.shape(np.array(t, dtype=object))
+    if shape not in shapes:
+        want = " or ".join(str(list(s)) for s in shapes)
+        raise _fail(path, where, f"must have shape {want} (numbers or factor names), got {v!r}")
+    return t
+
+
+def _names(t: Template) -> set[str]:
+    if isinstance(t, list):
+        return set().union(*(_names(e) for e in t)) if t else set()
+    return {t} if isinstance(t, str) else set()
+
+
+def fill(t: Template, values: dict[str, Any], xp: Any) -> Any:
+    """The array of template `t` with the factors' `values` (scalars or arrays of one shape:
+    the result then has that shape in front)."""
+    if isinstance(t, list):
+        return xp.stack([fill(e, values, xp) for e in t], axis=-1)
+    if isinstance(t, str):
+        return values[t]
+    first = next(iter(values.values()), None)
+    return xp.full(xp.shape(first) if first is not None else (), t)
+
+
+def _grid_factor(path: Path, name: str, spec: Any) -> tuple[np.ndarray, bool]:
+    where = f"[design.factors.{name}]"
+    if isinstance(spec, list):
+        spec = {"values": spec}
+    if not isinstance(spec, dict):
+        raise _fail(path, where, "give values = [...] or start, stop, num (and scale = 'log')")
+    allowed = {"values", "start", "stop", "num", "scale"}
+    _unknown(path, where, spec, allowed)
+    if "values" in spec:
+        if set(spec) - {"values"}:
+            raise _fail(path, where, "give either values or start/stop/num, not both")
+        v = spec["values"]
+        if not isinstance(v, list) or not v:
+            raise _fail(path, f"{where} values", "must be a non-empty list of numbers")
+        return np.array([_number(path, f"{where} values", x) for x in v]), False
+    missing = [k for k in ("start", "stop", "num") if k not in spec]
+    if missing:
+        raise _fail(path, where, f"missing {', '.join(missing)}; or give values = [...]")
+    start = _number(path, f"{where} start", spec["start"])
+    stop = _number(path, f"{where} stop", spec["stop"])
+    num = _integer(path, f"{where} num", spec["num"], 1)
+    scale = spec.get("scale", "linear")
+    if scale not in ("linear", "log"):
+        raise _fail(path, f"{where} scale", f"must be 'linear' or 'log', got {scale!r}")
+    if scale == "log":
+        if start <= 0 or stop <= 0:
+            raise _fail(path, where, "a log scale needs positive start and stop")
+        return np.geomspace(start, stop, num), True
+    return np.linspace(start, stop, num), False
+
+
+def _design(path: Path, d: dict[str, Any]) -> tuple[dict[str, Any], tuple[str, ...]]:
+    """The design spec (`kind` and its arguments, checked) and the factors on log scales."""
+    kind = d.get("kind", "grid")
+    if kind == "grid":
+        _unknown(path, "[design] (grid)", d, {"kind", "factors"})
+        factors = d.get("factors")
+        if not isinstance(factors, dict) or not factors:
+            raise _fail(path, "[design.factors]", "a grid needs at least one factor table")
+        values, logs = {}, []
+        for name, spec in factors.items():
+            values[name], log = _grid_factor(path, name, spec)
+            if log:
+                logs.append(name)
+        return {"kind": "grid", "factors": values}, tuple(logs)
+    if kind == "sample":
+        _unknown(path, "[design] (sample)", d, {"kind", "n", "method", "seed", "ranges"})
+        if "n" not in d:
+            raise _fail(path, "[design] n", "a sample needs n, the number of points")
+        n = _integer(path, "[design] n", d["n"], 1)
+        method = d.get("method", "sobol")
+        if method not in ("sobol", "latin", "uniform"):
+            raise _fail(path, "[design] method", f"must be sobol, latin or uniform, not {method!r}")
+        seed = _integer(path, "[design] seed", d.get("seed", 0), 0)
+        ranges = d.get("ranges")
+        if not isinstance(ranges, dict) or not ranges:
+            raise _fail(path, "[design.ranges]", "a sample needs NAME = [low, high] ranges")
+        out, logs = {}, []
+        for name, r in ranges.items():
+            where = f"[design.ranges] {name}"
+            log = isinstance(r, list) and len(r) == 3 and r[2] == "log"
+            if not isinstance(r, list) or len(r) not in (2, 3) or (len(r) == 3 and not log):
+                raise _fail(path, where, f"must be [low, high] or [low, high, 'log'], got {r!r}")
+            lo, hi = (_number(path, where, x) for x in r[:2])
+            out[name] = (lo, hi, "log") if log else (lo, hi)
+            if log:
+                logs.append(name)
+        spec = {"kind": "sample", "n": n, "method": method, "seed": seed, "ranges": out}
+        return spec, tuple(logs)
+    raise _fail(path, "[design] kind", f"must be 'grid' or 'sample', got {kind!r}")
+
+
+def _unknown(path: Path, where: str, table: dict, allowed: set[str] | dict) -> None:
+    extra = sorted(set(table) - set(allowed))
+    if extra:
+        raise _fail(
+            path, where, f"unknown key {extra[0]!r}; the keys are {', '.join(sorted(allowed))}"
+        )
+
+
+def load(path: Path) -> Config:
+    """Read and check the config at `path` (a UsageError names the file, key and fix)."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as e:
+        raise UsageError(f"{path}: cannot read the config ({e.strerror or e})") from e
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise UsageError(f"{path}: not valid TOML: {e}; fix the syntax there") from e
+    _unknown(path, "top level", raw, SECTIONS)
+    for section, keys in SECTIONS.items():
+        table = raw.get(section, {})
+        if not isinstance(table, dict):
+            raise _fail(path, f"[{section}]", "must be a table")
+        _unknown(path, f"[{section}]", table, keys)
+        for key in REQUIRED.get(section, ()):
+            if key not in table:
+                raise _fail(path, f"[{section}] {key}", f"missing: {keys[key]}")
+    body, initial, times = raw["body"], raw["initial"], raw["times"]
+    solver, run = raw.get("solver", {}), raw.get("run", {})
+    inertia = _template(path, "[body] inertia", body["inertia"], ((3,), (3, 3)))
+    omega0 = _template(path, "[initial] omega0", initial["omega0"], ((3,),))
+    q0 = _template(path, "[initial] q0", initial.get("q0", [1.0, 0.0, 0.0, 0.0]), ((4,),))
+    design, logs = _design(path, raw.get("design", {}))
+    factors = design["factors"] if design["kind"] == "grid" else design["ranges"]
+    used = _names(inertia) | _names(omega0) | _names(q0)
+    for name in sorted(used - set(factors)):
+        raise _fail(path, "[body]/[initial]", f"factor {name!r} is not defined in [design]")
+    for name in sorted(set(factors) - used):
+        raise _fail(
+            path, "[design]", f"factor {name!r} is not used in [body] or [initial]; remove it"
+        )
+    method = solver.get("method", "tsit5")
+    if method not in METHODS:
+        raise _fail(path, "[solver] method", f"must be one of {', '.join(METHODS)}")
+    kinematics = solver.get("kinematics", "quat")
+    if kinematics not in KINEMATICS:
+        raise _fail(path, "[solver] kinematics", f"must be one of {', '.join(KINEMATICS)}")
+    tol = {
+        k: _number(path, f"[solver] {k}", solver[k], positive=True)
+        for k in ("rtol", "atol")
+        if k in solver
+    }
+    dt = _number(path, "[solver] dt", solver["dt"], positive=True) if "dt" in solver else None
+    if method == "rk4" and dt is None:
+        raise _fail(path, "[solver] dt", "rk4 takes fixed steps: give dt, the step size [s]")
+    names = raw.get("observables", {}).get("names", list(OBSERVABLES[:4]))
+    if not isinstance(names, list) or not names:
+        raise _fail(path, "[observables] names", "must be a non-empty list")
+    for n in names:
+        if n not in OBSERVABLES:
+            raise _fail(path, "[observables] names", f"unknown {n!r}; choose from {OBSERVABLES}")
+    precision = run.get("precision", "float64")
+    if precision not in ("float64", "float32"):
+        raise _fail(path, "[run] precision", f"must be float64 or float32, got {precision!r}")
+    chunk = run.get("chunk_size")
+    return Config(
+        path=path,
+        text=text,
+        inertia=inertia,
+        omega0=omega0,
+        q0=q0,
+        t_end=_number(path, "[times] t_end", times["t_end"], positive=True),
+        num=_integer(path, "[times] num", times["num"], 2),
+        method=method,
+        kinematics=kinematics,
+        rtol=tol.get("rtol"),
+        atol=tol.get("atol"),
+        dt=dt,
+        max_steps=_integer(path, "[solver] max_steps", solver.get("max_steps", 100_000), 1),
+        design=design,
+        log_factors=logs,
+        observables=tuple(names),
+        chunk_size=None if chunk is None else _integer(path, "[run] chunk_size", chunk, 1),
+        float32=precision == "float32",
+    )
+
+
+def make_design(c: Config):
+    """The `rigidjax.sweep` design of the config."""
+    import jax
+
+    from .. import sweep
+
+    d = c.design
+    if d["kind"] == "grid":
+        return sweep.grid(**d["factors"])
+    key = jax.random.PRNGKey(d["seed"])
+    return sweep.sample(d["n"], key=key, method=d["method"], **d["ranges"])
+
+
+def make_model(c: Config) -> Callable[[dict], dict]:
+    """The one-point model: the body and initial state with the point's factor values, the free
+    motion over the config's times, and the chosen observables (plus `result`, so failed
+    integrations get their status). Every point was checked eagerly (`check_points`), so the
+    model skips the runtime checks: it compiles faster and fits the persistent cache."""
+    import diffrax
+    import jax.numpy as jnp
+
+    from .. import observables as obs
+    from .._integrate import SolveOptions
+    from ..mechanics.body import RigidBody
+    from ..mechanics.dynamics import simulate
+    from ..solvers import RK4
+
+    dtype = jnp.float32 if c.float32 else jnp.float64
+    ts = jnp.linspace(0.0, c.t_end, c.num, dtype=dtype)
+    solver = {"tsit5": None, "dopri5": diffrax.Dopri5(), "dopri8": diffrax.Dopri8(), "rk4": RK4()}
+    fixed = c.method == "rk4"
+    options = SolveOptions(
+        solver=solver[c.method],
+        stepsize_controller=diffrax.ConstantStepSize() if fixed else None,
+        rtol=c.rtol,
+        atol=c.atol,
+        dt0=c.dt,
+        max_steps=c.max_steps,
+        throw=False,
+    )
+    compute = {
+        "max_nutation": lambda body, tr: obs.max_nutation(tr),
+        "first_flip_time": lambda body, tr: obs.first_flip_time(tr),
+        "energy_drift": obs.energy_drift,
+        "momentum_drift": obs.momentum_drift,
+        "omega_end": lambda body, tr: tr.omega[-1],
+        "quat_end": lambda body, tr: tr.quat[-1],
+    }
+
+    def model(p: dict) -> dict:
+        body = RigidBody(fill(c.inertia, p, jnp).astype(dtype), check=False)
+        w0, q0 = fill(c.omega0, p, jnp).astype(dtype), fill(c.q0, p, jnp).astype(dtype)
+        tr = simulate(body, w0, q0, ts, kinematics=c.kinematics, options=options, check=False)
+        return {n: compute[n](body, tr) for n in c.observables} | {"result": tr.result}
+
+    return model
