@@ -1,57 +1,68 @@
-"""Gradient-based identification of the inertia tensor from measured rotation.
+"""Identification of the inertia tensor from measured rotation: one or several experiments, gyro
+and/or attitude data, gyro bias and scale factor, robust losses, covariance.
 
-Least squares through the simulator (optimistix Levenberg–Marquardt; Jacobians in forward mode
-through Diffrax with `ForwardMode`). The inertia is parameterised so that EVERY parameter value is
-a physical body: with the second-moment ("pseudo-inertia") matrix Σ = L Lᵀ ⪰ 0 (L lower
-triangular, six free entries), the inertia `I = tr(Σ) E − Σ` has principal moments
-`I_i = σ_j + σ_k ≥ 0` (σ ≥ 0 the eigenvalues of Σ), which satisfy the triangle inequality. Planar
-bodies (one σ = 0, `I3 = I1 + I2`) lie inside the parameter space, not on an unreachable
-boundary; only a rank-one Σ (a rod, `I3 = 0`) is singular.
+Least squares through the model of the motion (`rigidjax.fit.flow`: Euler's equations and the
+quaternion kinematics, fixed RK4 steps), by Levenberg–Marquardt (`rigidjax.fit.levenberg`) with
+forward-mode Jacobians. The unknowns (`rigidjax.fit.parameters`): the inertia (physical for
+every parameter value), one initial state per experiment, and the sensor errors.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
-import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import optimistix as optx
-from jaxtyping import Array, ArrayLike, Bool, Float
+from jaxtyping import Array, Bool, Float, Int
 
-from .._checks import as_float, check_finite, check_times, validate, vector
+from .._checks import validate
 from .._custom_types import Frame, RealLike
-from .._integrate import SolveOptions
-from ..mechanics.body import RigidBody
-from ..mechanics.dynamics import simulate
 from ..mechanics.inertia import as_tensor, principal_axes
 from ..rotations import quat
+from .covariance import METHODS, covariance
+from .experiments import Experiments, angular_rate, experiments, guess, initial_states
+from .flow import flow, substeps_for
+from .levenberg import levenberg_marquardt
+from .losses import Loss, make_loss
+from .parameters import Layout, inertia_from_params, params_from_inertia
+
+__all__ = ["InertiaEstimate", "identify_inertia", "inertia_from_params", "params_from_inertia"]
 
 
 class InertiaEstimate(eqx.Module):
     """Result of `identify_inertia`.
 
-    `inertia` (3×3, body axes); `omega0`, `q0` (fitted initial state; `q0` is the given/identity
-    one unless attitude data were fitted); `residuals` (weighted, at the solution); `cost` =
-    ½ Σ r²; `covariance` (Gauss–Newton `s² (JᵀJ)⁻¹` of the parameter vector) and `inertia_std`
-    (its propagation to the 3×3 entries); `converged` (solver success with a finite cost);
-    `identifiable` (the Jacobian of the residuals has full rank, up to the scale gauge: the data
-    fix every inertia parameter; `identify_inertia` raises when they do not); `scale`: how the
-    unobservable scale was fixed.
+    `inertia` (3×3, body axes) and its entry-wise standard deviation `inertia_std`, the
+    `principal_moments` (ascending) and their std `principal_moments_std` (first-order:
+    `var λ_i = (v_i⊗v_i)ᵀ Cov(I) (v_i⊗v_i)`); `omega0`, `q0`: the fitted initial state of each
+    experiment (`(3,)`, `(4,)` for one experiment, `(E, 3)`, `(E, 4)` for several; `q0` is the
+    given/identity one unless attitude data were fitted); `gyro_bias`, `gyro_scale` (`ω_gyro =
+    (1 + s) ⊙ Ω + b`; zero where not fitted) and their std; `residuals`: the weighted residuals
+    `z` (gyro block `(E, T, 3)`, then attitude, flattened); `cost = Σ ρ(z)`; `covariance` of the
+    parameter vector (`rigidjax.fit.parameters`) by `covariance_method`; `converged`;
+    `identifiable` (the Jacobian has full rank up to the scale gauge; `identify_inertia` raises
+    when it does not); `scale`: how the unobservable scale was fixed; `loss`.
     """
 
     inertia: Float[Array, "3 3"]
-    omega0: Float[Array, "3"]
-    q0: Float[Array, "4"]
+    inertia_std: Float[Array, "3 3"]
+    principal_moments_std: Float[Array, "3"]
+    omega0: Float[Array, "*E 3"]
+    q0: Float[Array, "*E 4"]
+    gyro_bias: Float[Array, "3"]
+    gyro_bias_std: Float[Array, "3"]
+    gyro_scale: Float[Array, "3"]
+    gyro_scale_std: Float[Array, "3"]
     residuals: Float[Array, " n"]
     cost: Float[Array, ""]
     covariance: Float[Array, "p p"]
-    inertia_std: Float[Array, "3 3"]
     converged: Bool[Array, ""]
     identifiable: Bool[Array, ""]
-    num_steps: Array
+    num_steps: Int[Array, ""]
     scale: str = eqx.field(static=True)
+    loss: str = eqx.field(static=True, default="l2")
+    covariance_method: str = eqx.field(static=True, default="gauss_newton")
 
     @property
     def principal_moments(self) -> Float[Array, "3"]:
@@ -62,39 +73,11 @@ class InertiaEstimate(eqx.Module):
         return principal_axes(self.inertia)[1]
 
 
-def _tril(params: Float[Array, "6"]) -> Float[Array, "3 3"]:
-    """L (lower triangular) from (L00, L11, L22, L10, L20, L21)."""
-    L = jnp.diag(params[:3])
-    return L.at[1, 0].set(params[3]).at[2, 0].set(params[4]).at[2, 1].set(params[5])
-
-
-def inertia_from_params(params: Float[ArrayLike, "6"], trace: float | None) -> Float[Array, "3 3"]:
-    """`I = tr(Σ) E − Σ`, Σ = L Lᵀ, rescaled to `trace` if given (physical for every value;
-    with `trace` the overall scale of L is a redundant direction, harmless to Levenberg–Marquardt
-    and removed from the covariance by the pseudo-inverse)."""
-    L = _tril(jnp.asarray(params))
-    S = L @ L.T
-    I = jnp.trace(S) * jnp.eye(3, dtype=S.dtype) - S
-    return I if trace is None else I * (trace / jnp.trace(I))
-
-
-def params_from_inertia(
-    I: Float[ArrayLike, "3 3"], trace: float | None = None
-) -> Float[Array, "6"]:
-    """Parameters of `I` (Σ = tr(I)/2 E − I, Cholesky; a planar body's singular Σ is nudged by
-    1e-9·tr Σ so the factor exists)."""
-    del trace  # the same factor serves both gauges
-    I = jnp.asarray(I)
-    S = jnp.trace(I) / 2 * jnp.eye(3, dtype=I.dtype) - I
-    L = jnp.linalg.cholesky(S + 1e-9 * jnp.trace(S) * jnp.eye(3, dtype=I.dtype))
-    return jnp.concatenate([jnp.diagonal(L), jnp.stack([L[1, 0], L[2, 0], L[2, 1]])])
-
-
 def identify_inertia(
     ts: RealLike,
     omega_obs: RealLike | None = None,
     quat_obs: RealLike | None = None,
-    torque: Callable | None = None,
+    torque: Callable | Sequence[Callable] | None = None,
     *,
     torque_frame: Frame = "body",
     inertia_guess: RealLike | None = None,
@@ -103,48 +86,50 @@ def identify_inertia(
     trace: float | None = None,
     sigma_omega: float = 1.0,
     sigma_angle: float = 1.0,
-    rtol: float = 1e-10,
-    atol: float = 1e-10,
+    gyro_bias: bool = False,
+    gyro_scale: bool = False,
+    loss: str = "l2",
+    loss_scale: float | None = None,
+    covariance: str | None = None,
+    rtol: float | None = None,
+    atol: float | None = None,
     solver_rtol: float = 1e-10,
-    solver_atol: float = 1e-12,
+    solver_atol: float = 1e-14,
     max_steps: int = 256,
-    sim_max_steps: int = 100_000,
+    sim_max_steps: int = 10_000,
 ) -> InertiaEstimate:
-    """Fit the inertia tensor and the initial state to gyro data `omega_obs (T, 3)` (body angular
-    velocity), attitude data `quat_obs (T, 4)` (scalar first), or both, sampled at `ts (T,)`.
+    """Fit the inertia tensor, the initial state of each experiment and the gyro errors to gyro
+    data `omega_obs` (body angular velocity), attitude data `quat_obs` (scalar first), or both.
 
-    Residuals: `(Ω_model − Ω_obs)/sigma_omega` and the tangent-space attitude error
-    `log(q_obs⁻¹ ∘ q_model)/sigma_angle` (a 3-vector per sample). Unknowns: the six inertia
-    parameters (physical by construction), Ω(0), and q(0) when attitude data are given (with
-    both kinds of data, a gyro-only fit first provides the starting point).
+    Data: one experiment, `omega_obs (T, 3)` / `quat_obs (T, 4)` at `ts (T,)`; or E experiments
+    of the same body, `(E, T, 3)` / `(E, T, 4)` at `ts (T,)` or `(E, T)`: one inertia tensor,
+    one initial state per experiment, one set of sensor errors.
+
+    Residuals: `z = ((1 + s) ⊙ Ω_model + b − ω_obs)/sigma_omega` and the tangent-space attitude
+    error `log(q_obs⁻¹ ∘ q_model)/sigma_angle`; minimised: `Σ ρ(z)` with `loss` `"l2"`,
+    `"huber"` or `"cauchy"` (`rigidjax.fit.losses`; `loss_scale` c in units of z, so give the
+    sigmas with a robust loss). Unknowns: the six inertia parameters, Ω(0) and (with attitude
+    data) q(0) of each experiment, the gyro bias b with `gyro_bias=True`, the per-axis gyro
+    scale-factor error s with `gyro_scale=True` (with both data kinds, the gyro residuals are
+    fitted first, then everything).
+
+    Covariance (`rigidjax.fit.covariance`): `"gauss_newton"` (`s²(JᵀJ)⁻¹`, residual-variance
+    scaled; default for `"l2"`) or `"sandwich"` (`A⁻¹BA⁻¹`; default for the robust losses).
 
     Scale: torque-free motion depends on I only up to a factor (Euler's equations are
     homogeneous in I), so without `torque` the tensor is normalised to `trace` (default 1) and
-    `result.scale` says so; with a known `torque(t, Ω, q)` the absolute tensor is fitted (unless
-    `trace` is given). `vmap`-able over datasets. A (nearly) planar body, `I3 ≈ I1 + I2`, sits
-    where Σ is singular and the Cholesky factor flattens the cost: convergence is slower there
-    (raise `max_steps`).
+    `result.scale` says so; with a known `torque(t, Ω, q)` (or one per experiment) the absolute
+    tensor is fitted (unless `trace` is given). A torque piecewise constant between sample
+    times is evaluated on the right piece.
+
+    Integration (`rigidjax.fit.flow`): RK4 with each step turning the body by at most
+    `h = min(rtol, atol)^(1/5)` rad (default 0.02 rad; RK4's local error is O(h⁵)), at most
+    `sim_max_steps` steps per sample interval. The fit is compiled once per data shape and set
+    of options, and `jax.vmap`-able over datasets.
     """
-    ts = check_times(as_float(ts, "ts"))
-    if omega_obs is None and quat_obs is None:
-        raise ValueError("give omega_obs (gyro data), quat_obs (attitude data), or both")
-    dtype = ts.dtype
-    T = ts.shape[0]
-    if omega_obs is not None:
-        omega_obs = check_finite(vector(omega_obs, 3, "omega_obs").astype(dtype), "omega_obs")
-        if omega_obs.shape != (T, 3):
-            raise ValueError(f"omega_obs must have shape ({T}, 3), got {tuple(omega_obs.shape)}")
-    if quat_obs is not None:
-        quat_obs = check_finite(vector(quat_obs, 4, "quat_obs").astype(dtype), "quat_obs")
-        if quat_obs.shape != (T, 4):
-            raise ValueError(f"quat_obs must have shape ({T}, 4), got {tuple(quat_obs.shape)}")
-        quat_obs = validate(
-            quat_obs,
-            lambda xp, q: ~(xp.sum(q * q, axis=-1) > 0),
-            "quat_obs must hold non-zero quaternions (they are normalised)",
-            hint="; drop the samples without attitude",
-        )
-        quat_obs = quat.normalize(quat_obs)
+    data = experiments(ts, omega_obs, quat_obs)
+    E, T = data.shape
+    dtype = data.ts.dtype
     if torque is None and trace is None:
         trace = 1.0
     scale = (
@@ -152,39 +137,53 @@ def identify_inertia(
         if torque is None
         else ("absolute (known torque)" if trace is None else f"trace fixed to {trace:g}")
     )
-
-    fit_q0 = quat_obs is not None
-    n_res = 3 * T * ((omega_obs is not None) + fit_q0)
-    n_par = (5 if trace is not None else 6) + 3 + 3 * fit_q0  # identifiable unknowns
+    if torque is not None and not callable(torque):
+        torque = tuple(torque)
+        if len(torque) != E or not all(callable(f) for f in torque):
+            raise ValueError(
+                f"torque must be one callable torque(t, omega, q) or a sequence of {E} (one per "
+                "experiment)"
+            )
+    layout = Layout(E, data.quat is not None, bool(gyro_bias), bool(gyro_scale))
+    n_res = 3 * E * T * ((data.omega is not None) + (data.quat is not None))
+    n_par = layout.size - (trace is not None)
     if n_res <= n_par:
         raise ValueError(
             f"too few samples: {n_res} residuals for {n_par} unknowns; give more times in ts"
         )
+    if (gyro_bias or gyro_scale) and data.omega is None:
+        raise ValueError("gyro_bias and gyro_scale need gyro data: give omega_obs")
+    rho = make_loss(loss, loss_scale, dtype)
+    method = ("gauss_newton" if loss == "l2" else "sandwich") if covariance is None else covariance
+    if method not in METHODS:
+        raise ValueError(f"covariance must be one of {METHODS} or None, got {covariance!r}")
+    tol = [x for x in (rtol, atol) if x is not None]
+    for name, x in (("rtol", rtol), ("atol", atol), ("sigma_omega", sigma_omega)):
+        if x is not None and not (isinstance(x, int | float) and x > 0):
+            raise ValueError(f"{name} must be a positive number, got {x!r}")
+    step_angle = min(min(tol) ** 0.2, 0.1) if tol else 0.02
 
-    if inertia_guess is None:
-        I_guess = jnp.eye(3, dtype=dtype) * ((trace if trace is not None else 3.0) / 3)
-    else:
-        I_guess = as_tensor(inertia_guess).astype(dtype)
-    if omega0_guess is not None:
-        w_guess = vector(omega0_guess, 3, "omega0_guess").astype(dtype)
-    elif omega_obs is not None:
-        w_guess = omega_obs[0]
-    else:  # attitude only: finite-difference the first two samples
-        assert quat_obs is not None
-        w_guess = quat.local(quat_obs[0], quat_obs[1]) / (ts[1] - ts[0])
-    if q0_guess is not None:
-        q_ref = quat.normalize(vector(q0_guess, 4, "q0_guess").astype(dtype))
-    elif fit_q0:
-        q_ref = quat_obs[0]
-    else:
-        q_ref = quat.identity(dtype=dtype)
-
-    model = _Model(torque, torque_frame, trace, scale, sigma_omega, sigma_angle)
-    # forward mode: the Jacobian of the residuals is what Levenberg–Marquardt needs
-    sim = SolveOptions(rtol=rtol, atol=atol, max_steps=sim_max_steps, adjoint=diffrax.ForwardMode())
-    lm = optx.LevenbergMarquardt(rtol=solver_rtol, atol=solver_atol)
-    start = (params_from_inertia(I_guess, trace), w_guess, q_ref)
-    est = _fit(ts, omega_obs, quat_obs, start, model, sim, lm, max_steps)
+    I_guess = None if inertia_guess is None else as_tensor(inertia_guess).astype(dtype)
+    model = _Model(
+        torque,
+        torque_frame,
+        trace,
+        jnp.asarray(sigma_omega, dtype),
+        jnp.asarray(sigma_angle, dtype),
+        rho,
+    )
+    est = _fit(
+        data,
+        (
+            I_guess,
+            guess(omega0_guess, 3, E, "omega0_guess", dtype),
+            guess(q0_guess, 4, E, "q0_guess", dtype),
+        ),
+        model,
+        layout,
+        _Options(method, step_angle, sim_max_steps, solver_rtol, solver_atol, max_steps),
+        scale,
+    )
     identifiable = validate(
         est.identifiable,
         lambda xp, ok: ~ok,
@@ -197,97 +196,124 @@ def identify_inertia(
 
 
 class _Model(eqx.Module):
-    """What the fit assumes besides the data: the known torque, the gauge and the noise levels."""
+    """What the fit assumes besides the data: the known torque(s), the gauge, the noise levels
+    and the loss."""
 
-    torque: Callable | None
+    torque: Callable | tuple[Callable, ...] | None
     torque_frame: Frame = eqx.field(static=True)
     trace: float | None = eqx.field(static=True)
-    scale: str = eqx.field(static=True)
-    sigma_omega: float
-    sigma_angle: float
+    sigma_omega: Array
+    sigma_angle: Array
+    loss: Loss
+
+
+class _Options(eqx.Module):
+    covariance: str = eqx.field(static=True)
+    step_angle: float = eqx.field(static=True)
+    sim_max_steps: int = eqx.field(static=True)
+    rtol: float = eqx.field(static=True)
+    atol: float = eqx.field(static=True)
+    max_steps: int = eqx.field(static=True)
+
+
+def _torque_of(model: _Model, e: Array) -> Callable | None:
+    """The torque of experiment `e` (a switch over the per-experiment torques)."""
+    torque = model.torque
+    if torque is None or not isinstance(torque, tuple):
+        return torque
+    return lambda t, w, q: jax.lax.switch(e, torque, t, w, q)
 
 
 @eqx.filter_jit
 def _fit(
-    ts: Array,
-    omega_obs: Array | None,
-    quat_obs: Array | None,
-    start: tuple[Array, Array, Array],
+    data: Experiments,
+    guesses: tuple[Array | None, Array | None, Array | None],
     model: _Model,
-    sim: SolveOptions,
-    lm: optx.LevenbergMarquardt,
-    max_steps: int,
+    layout: Layout,
+    opts: _Options,
+    scale: str,
 ) -> InertiaEstimate:
-    """The least-squares fit, compiled as one program (repeated calls with the same shapes and
-    settings reuse it)."""
-    dtype = ts.dtype
-    fit_q0 = quat_obs is not None
-    trace, k = model.trace, 6
-    inertia_params0, w_guess, q_ref = start
+    """The fit, compiled as one program (calls with the same shapes and options reuse it)."""
+    data = data.arranged()
+    E, T = data.shape
+    I_guess, w_guess, q_guess = guesses
+    if I_guess is None:
+        I_guess = jnp.eye(3, dtype=data.ts.dtype) * ((model.trace or 3.0) / 3)
+    w_guess, q_ref = initial_states(data, w_guess, q_guess)
+    p0 = layout.pack(params_from_inertia(I_guess), w_guess)
+    substeps = substeps_for(data.ts, 1.25 * angular_rate(data), opts.step_angle, opts.sim_max_steps)
 
-    def unpack(p):
-        I = inertia_from_params(p[:k], trace)
-        q0 = quat.retract(q_ref, p[k + 3 : k + 6]) if p.shape[0] > k + 3 else q_ref
-        return I, p[k : k + 3], q0
+    # stages (one Levenberg–Marquardt loop, `rigidjax.fit.levenberg`): the gyro residuals with
+    # ideal sensors, then with the sensor errors free, then with the attitude residuals too
+    # (they wrap at π and make the cost multimodal far from the solution)
+    gyro, att = data.omega is not None, data.quat is not None
+    sensors = gyro and (layout.bias or layout.scale)
+    s_sensors = 1 if sensors else 0
+    s_attitude = s_sensors + 1 if gyro and att else 0
+    stages = 1 + s_sensors + (gyro and att)
 
-    def residuals(p, use_attitude):
-        I, w0, q0 = unpack(p)
-        traj = simulate(
-            RigidBody(I, check=False),
-            w0,
-            q0,
-            ts,
-            torque=model.torque,
-            torque_frame=model.torque_frame,
-            options=sim,
+    def residuals(p, stage):
+        I = layout.inertia(p, model.trace)
+        b, s = (jnp.where(stage >= s_sensors, x, 0.0) for x in layout.gyro(p))
+
+        def one(e, ts, w0, q0, n):
+            return flow(I, w0, q0, ts, n, _torque_of(model, e), model.torque_frame)
+
+        W, Q = jax.vmap(one)(
+            jnp.arange(E), data.ts, layout.omega0(p), layout.q0(p, q_ref), substeps
         )
-        out = []
-        if omega_obs is not None:
-            out.append(((traj.omega - omega_obs) / model.sigma_omega).reshape(-1))
-        if use_attitude:
-            assert quat_obs is not None
-            out.append((quat.local(quat_obs, traj.quat) / model.sigma_angle).reshape(-1))
-        return jnp.concatenate(out)
+        z = []
+        if data.omega is not None:
+            z.append((((1 + s) * W + b - data.omega) / model.sigma_omega).reshape(-1))
+        if data.quat is not None:
+            dq = quat.local(data.quat, Q) / model.sigma_angle
+            z.append(jnp.where(stage >= s_attitude, dq, 0.0).reshape(-1))
+        z = jnp.concatenate(z)
+        return model.loss.transform(z), z
 
-    def fit(p0, use_attitude):
-        return optx.least_squares(
-            residuals,
-            lm,
-            p0,
-            args=use_attitude,
-            max_steps=max_steps,
-            throw=False,
-        )
-
-    p0 = jnp.concatenate([inertia_params0, w_guess])
-    if fit_q0 and omega_obs is not None:
-        # Attitude residuals wrap at π and make the cost multimodal far from the solution:
-        # fit the (smooth) gyro residuals first, then everything from there.
-        p0 = fit(p0, False).value
-    sol = fit(jnp.concatenate([p0, jnp.zeros(3, dtype)]) if fit_q0 else p0, fit_q0)
-    p = sol.value
-    # residuals and Jacobian at the solution from one forward-mode pass
-    J, r = jax.jacfwd(lambda q: (residuals(q, fit_q0),) * 2, has_aux=True)(p)
-    cost = 0.5 * jnp.sum(r * r)
-    # with `trace` fixed the scale of L is not identifiable: one parameter fewer
-    s2 = 2 * cost / (r.shape[0] - p.shape[0] + (trace is not None))
-    cov = s2 * jnp.linalg.pinv(J.T @ J)
+    sol = levenberg_marquardt(
+        residuals,
+        p0,
+        stages=stages,
+        rtol=opts.rtol,
+        atol=opts.atol,
+        max_steps=opts.max_steps,
+    )
+    p, z, Jz = sol.params, sol.aux, sol.aux_jacobian
+    gauge = layout.gauge(p, model.trace)
+    cov = covariance(z, Jz, model.loss, opts.covariance, gauge)
     # rank of the (weighted) Jacobian: every parameter but the scale gauge must be fixed
-    sv = jnp.linalg.svd(J, compute_uv=False)
-    rank = jnp.sum(sv > jnp.sqrt(jnp.finfo(dtype).eps) * sv[0])
-    JI = jax.jacfwd(lambda q: inertia_from_params(q, trace))(p[:k]).reshape(9, k)
-    I_std = jnp.sqrt(jnp.diagonal(JI @ cov[:k, :k] @ JI.T)).reshape(3, 3)
-    I, w0, q0 = unpack(p)
+    sv = jnp.linalg.svd(Jz, compute_uv=False)
+    rank = jnp.sum(sv > jnp.sqrt(jnp.finfo(p.dtype).eps) * sv[0])
+    I = layout.inertia(p, model.trace)
+    JI = jax.jacfwd(lambda x: inertia_from_params(x, model.trace))(p[:6]).reshape(9, 6)
+    cov_I = JI @ cov[:6, :6] @ JI.T
+    _, V = jnp.linalg.eigh(I)
+    a = jax.vmap(lambda v: jnp.outer(v, v).reshape(9))(V.T)  # dλ_i/dI = v_i v_iᵀ
+    std = jnp.sqrt(jnp.clip(jnp.diagonal(cov), 0.0))
+    b, s = layout.gyro(p)
+    k = layout.size - 3 * layout.scale
+    zero = jnp.zeros(3, p.dtype)
+    b_std = std[k - 3 : k] if layout.bias else zero
+    s_std = std[layout.size - 3 :] if layout.scale else zero
+    w0, q0 = layout.omega0(p), quat.canonical(layout.q0(p, q_ref))
     return InertiaEstimate(
         inertia=I,
-        omega0=w0,
-        q0=quat.canonical(q0),
-        residuals=r,
-        cost=cost,
+        inertia_std=jnp.sqrt(jnp.clip(jnp.diagonal(cov_I), 0.0)).reshape(3, 3),
+        principal_moments_std=jnp.sqrt(jnp.clip(jnp.einsum("ia,ab,ib->i", a, cov_I, a), 0.0)),
+        omega0=w0 if data.several else w0[0],
+        q0=q0 if data.several else q0[0],
+        gyro_bias=b,
+        gyro_bias_std=b_std,
+        gyro_scale=s,
+        gyro_scale_std=s_std,
+        residuals=z,
+        cost=jnp.sum(model.loss.rho(z)),
         covariance=cov,
-        inertia_std=I_std,
-        converged=(sol.result == optx.RESULTS.successful) & jnp.isfinite(cost),
-        identifiable=rank >= p.shape[0] - (trace is not None),
-        num_steps=sol.stats["num_steps"],
-        scale=model.scale,
+        converged=sol.converged,
+        identifiable=rank >= p.shape[0] - (model.trace is not None),
+        num_steps=sol.num_steps,
+        scale=scale,
+        loss=model.loss.name,
+        covariance_method=opts.covariance,
     )

@@ -1,0 +1,99 @@
+"""A small Levenberg–Marquardt loop for the fits (one `lax.while_loop`, forward-mode Jacobians).
+
+Marquardt's damped Gauss–Newton step `(JᵀJ + λ diag(JᵀJ) + λ μ E) δ = −Jᵀr` (Marquardt 1963;
+Nocedal & Wright, Numerical Optimization, §10.3): a step that lowers the cost is accepted and λ
+shrinks by 3, otherwise λ grows by 4. The loop stops when an accepted step lowers the cost by
+less than `rtol · cost + atol` and changes no parameter by more than `√rtol (|p| + √rtol)`, or
+after `max_steps` steps; also when no step lowers the cost any more (λ > 10¹⁶: a minimum to
+rounding, as with exact data).
+
+Stages: `residuals(p, stage)` may depend on an integer stage `0 … stages − 1`; when stage `s`
+has converged the loop goes on from its solution with stage `s + 1` (the identification fits
+the smooth gyro residuals before the attitude ones). One loop, one trace of the Jacobian: the
+compile time of the fit stays that of one iteration, and it is independent of the number of
+stages. The Jacobian and residuals at the solution come back with the result.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+
+class LMResult(NamedTuple):
+    """`params`; `residuals` and `jacobian` at `params` (the last stage) as returned by the
+    residual function's first output (what is minimised) and its `aux` (second output, with its
+    Jacobian `aux_jacobian`); `cost = ½ Σ r²`; `num_steps`; `converged`."""
+
+    params: Float[Array, " p"]
+    residuals: Float[Array, " n"]
+    jacobian: Float[Array, "n p"]
+    aux: Float[Array, " m"]
+    aux_jacobian: Float[Array, "m p"]
+    cost: Float[Array, ""]
+    num_steps: Int[Array, ""]
+    converged: Bool[Array, ""]
+
+
+def levenberg_marquardt(
+    residuals: Callable[[Array, Array], tuple[Array, Array]],
+    p0: Float[Array, " p"],
+    *,
+    stages: int = 1,
+    rtol: float = 1e-10,
+    atol: float = 1e-14,
+    max_steps: int = 256,
+) -> LMResult:
+    """Minimise `½ |r(p)|²` where `(r, aux) = residuals(p, stage)`; see the module docstring."""
+    dtype = p0.dtype
+    mu = jnp.asarray(1e-9, dtype)
+
+    def evaluate(p, stage):
+        (J, Ja), (r, a) = jax.jacfwd(lambda x: (residuals(x, stage),) * 2, has_aux=True)(p)
+        return r, J, a, Ja
+
+    r0, J0, a0, Ja0 = jax.eval_shape(evaluate, p0, jnp.asarray(0))
+    zeros = [jnp.zeros(s.shape, s.dtype) for s in (r0, J0, a0, Ja0)]
+    inf = jnp.asarray(jnp.inf, dtype)
+
+    # state: p, (r, J, aux, aux_J) at p, cost, λ, stage, steps, done
+    def cond(s):
+        return ~s[-1] & (s[-2] < max_steps)
+
+    def body(s):
+        p, (r, J, a, Ja), cost, lam, stage, k, _ = s
+        H, g = J.T @ J, J.T @ r
+        dp = -jnp.linalg.solve(H + lam * (jnp.diag(jnp.diag(H)) + mu * jnp.eye(p.shape[0])), g)
+        dp = jnp.where(jnp.isfinite(dp), dp, 0.0)
+        trial = evaluate(p + dp, stage)
+        new_cost = 0.5 * trial[0] @ trial[0]
+        accept = new_cost < cost
+        small = jnp.all(jnp.abs(dp) <= jnp.sqrt(rtol) * (jnp.abs(p) + jnp.sqrt(rtol)))
+        # a small accepted step, a zero gradient, or no step lowers the cost (λ huge: a
+        # minimum to rounding); not on the first evaluation of a stage (cost ∞)
+        stalled = accept & (cost - new_cost <= rtol * cost + atol) & small
+        stalled = stalled | (jnp.max(jnp.abs(g)) <= atol) | (lam > 1e16)
+        stalled = stalled & jnp.isfinite(cost)
+        p = jnp.where(accept, p + dp, p)
+        vals = jax.tree.map(lambda x, y: jnp.where(accept, x, y), trial, (r, J, a, Ja))
+        cost = jnp.where(accept, new_cost, cost)
+        lam = jnp.where(accept, jnp.maximum(lam / 3, 1e-12), lam * 4)
+        last = stage == stages - 1
+        done = stalled & last
+        # next stage: restart from p (cost ∞, zero Jacobian: the next step is δ = 0 and
+        # evaluates the new stage's residuals there)
+        advance = stalled & ~last
+        vals = jax.tree.map(lambda x, z: jnp.where(advance, z, x), vals, tuple(zeros))
+        cost = jnp.where(advance, inf, cost)
+        lam = jnp.where(advance, 1e-3, lam)
+        return p, vals, cost, lam, stage + advance, k + 1, done
+
+    lam0, int0 = jnp.asarray(1e-3, dtype), jnp.asarray(0)
+    init = (p0, tuple(zeros), inf, lam0, int0, int0, jnp.asarray(False))
+    p, (r, J, a, Ja), cost, _, _, k, done = jax.lax.while_loop(cond, body, init)
+    converged = done & jnp.isfinite(cost)
+    return LMResult(p, r, J, a, Ja, cost, k, converged)
