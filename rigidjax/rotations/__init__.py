@@ -1,7 +1,48 @@
 """Rotation maps: rotation tensor and vector (`so3`), quaternions (`quat`), Euler and Davenport
 angles (`euler`), the Gibbs vector (`gibbs`), modified Rodrigues parameters (`mrp`) and
-Andoyer–Deprit variables (`andoyer`). Pure functions with leading batch dimensions."""
+Andoyer–Deprit variables (`andoyer`). Pure functions with leading batch dimensions.
 
-from . import andoyer, euler, gibbs, mrp, quat, so3
+Completed against SciPy's `Rotation`: `quat.align_vectors` (`align`), `RotationSpline`
+(`spline`), multi-key `Slerp` (`slerp`), `quat.power`/`magnitude`/`approx_equal` (`powers`),
+`quat.rotation_group`/`reduce` (`groups`), `quat.from_scipy`/`to_scipy`/`from_jaxlie`/`to_jaxlie`
+(`interop`)."""
 
-__all__ = ["andoyer", "euler", "gibbs", "mrp", "quat", "so3"]
+# quat and euler first: the modules they re-export (align, groups, davenport, ...) import from
+# them, so they must not be the first to be imported
+from . import quat  # isort: skip
+from . import euler  # isort: skip
+from . import (  # noqa: E402
+    align,
+    andoyer,
+    average,
+    davenport,
+    gibbs,
+    groups,
+    interop,
+    mrp,
+    powers,
+    slerp,
+    so3,
+    spline,
+)
+from .slerp import Slerp
+from .spline import RotationSpline
+
+__all__ = [
+    "RotationSpline",
+    "Slerp",
+    "align",
+    "andoyer",
+    "average",
+    "davenport",
+    "euler",
+    "gibbs",
+    "groups",
+    "interop",
+    "mrp",
+    "powers",
+    "quat",
+    "slerp",
+    "so3",
+    "spline",
+]

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -28,13 +27,13 @@ from jaxtyping import Array, DTypeLike, Float
 
 from .._checks import as_float, matrix, validate, vector
 from .._custom_types import (
-    DavenportAxesLike,
     EulerSeq,
     Frame,
     Mat33,
     Mat33Like,
     Quat,
     QuatLike,
+    RealLike,
     Scalar,
     Vec3,
     Vec3Like,
@@ -55,16 +54,39 @@ SEQUENCES: tuple[str, ...] = tuple(
 # --------------------------------------------------------------------------- helpers
 
 
-def _parse_seq(seq: object) -> tuple[tuple[int, int, int], bool]:
-    """Axis indices and `intrinsic` flag of a sequence string; ValueError naming `seq` if bad."""
-    if not isinstance(seq, str) or seq not in SEQUENCES:
+_SEQ_HINT = (
+    "; seq must be 1 to 3 letters from 'xyz' (3 for angles out of a rotation), all upper case "
+    "(intrinsic, rotating axes) or all lower case (extrinsic, fixed axes), with no two "
+    "consecutive letters equal, e.g. 'ZXZ', 'ZYX', 'xyz', 'z'"
+)
+
+
+def _parse_axes(seq: object, three: bool) -> tuple[tuple[int, ...], bool]:
+    """Axis indices and `intrinsic` flag of a SciPy sequence string of 1 to 3 axes (exactly 3
+    if `three`); a ValueError with SciPy's message (and the fix) if bad."""
+    if not isinstance(seq, str):
+        raise ValueError(f"Expected `seq` to be a string of axes, got seq={seq!r}" + _SEQ_HINT)
+    if three and len(seq) != 3:
+        raise ValueError(f"Expected 3 axes, got {seq}." + _SEQ_HINT)
+    if not 1 <= len(seq) <= 3:
         raise ValueError(
-            "seq must be 3 letters from 'xyz', all upper case (intrinsic, rotating axes) or all "
-            "lower case (extrinsic, fixed axes), with no two consecutive letters equal, "
-            f"e.g. 'ZXZ', 'ZYX', 'xyz'; got seq={seq!r}"
+            "Expected axis specification to be a non-empty string of up to 3 characters, "
+            f"got {seq}" + _SEQ_HINT
         )
-    i, j, k = ("xyz".index(c) for c in seq.lower())
-    return (i, j, k), seq.isupper()
+    if not (set(seq) <= set("xyz") or set(seq) <= set("XYZ")):
+        raise ValueError(
+            f"Expected axes from `seq` to be from ['x', 'y', 'z'] or ['X', 'Y', 'Z'], got {seq}"
+            + _SEQ_HINT
+        )
+    if any(a == b for a, b in zip(seq, seq[1:], strict=False)):
+        raise ValueError(f"Expected consecutive axes to be different, got {seq}" + _SEQ_HINT)
+    return tuple("xyz".index(c) for c in seq.lower()), seq.isupper()
+
+
+def _parse_seq(seq: object) -> tuple[tuple[int, int, int], bool]:
+    """Axis indices and `intrinsic` flag of a 3-axis sequence (see `_parse_axes`)."""
+    (i, j, k), intrinsic = _parse_axes(seq, True)
+    return (i, j, k), intrinsic
 
 
 def _check_frame(frame: object) -> None:
@@ -190,27 +212,50 @@ def _seq_axes(seq: EulerSeq, dtype: DTypeLike) -> tuple[tuple[Array, Array, Arra
 # --------------------------------------------------------------------------- Euler angles
 
 
-def to_quat(angles: Vec3Like, seq: EulerSeq = "ZXZ") -> Quat:
+def to_quat(angles: RealLike, seq: EulerSeq = "ZXZ", degrees: bool = False) -> Quat:
     """Unit quaternion of Euler angles: the product of the half-angle quaternions in the order of
     the matrix product (intrinsic `"ABC"`: `q_A(α) ∘ q_B(β) ∘ q_C(γ)`).
 
     For `"ZXZ"`, `(ψ, θ, φ)` this is Borisov–Mamaev's (001; THEORY §3)
     `λ0 = cos(θ/2) cos((ψ+φ)/2)`, `λ1 = sin(θ/2) cos((ψ−φ)/2)`, `λ2 = sin(θ/2) sin((ψ−φ)/2)`,
-    `λ3 = cos(θ/2) sin((ψ+φ)/2)`. No sign normalisation (λ0 may be negative). `angles` must be
-    finite.
+    `λ3 = cos(θ/2) sin((ψ+φ)/2)`. No sign normalisation (λ0 may be negative).
+
+    As SciPy's `Rotation.from_euler`: `seq` has 1, 2 or 3 axes and `angles` shape `(..., len(seq))`
+    (a scalar for one axis); `degrees=True` reads degrees. `angles` must be finite.
     """
-    return _to_quat(_angles_arg(angles), seq)
+    n = len(_parse_axes(seq, False)[0])
+    return _to_quat(_angles_arg(angles, n, degrees, seq=str(seq)), seq)
 
 
-def _angles_arg(angles: Vec3Like, name: str = "angles") -> Vec3:
-    """Angles `(..., 3)`, checked to be finite."""
-    return _validation.check_finite(vector(angles, 3, name), name, 1)
+def _angles_arg(
+    angles: RealLike,
+    n: int = 3,
+    degrees: bool = False,
+    name: str = "angles",
+    seq: str | None = None,
+) -> Float[Array, "*batch k"]:
+    """Angles `(..., n)` (a scalar for n = 1), checked to be finite, in radians; a wrong last
+    dimension is SciPy's ValueError (naming `seq`, if given)."""
+    a = as_float(angles, name)
+    if n == 1 and a.ndim == 0:
+        a = a[None]
+    if a.ndim == 0 or a.shape[-1] != n:
+        got = a.shape[-1] if a.ndim else "a scalar"
+        raise ValueError(
+            f"{name} must have shape (..., {n}), got {tuple(a.shape)}"
+            if seq is None
+            else "Expected last dimension of `angles` to match number of sequence axes specified, "
+            f"got {got}. ({name} must have shape (..., {n}) for seq={seq!r})"
+        )
+    a = _validation.check_finite(a, name, 1)
+    return jnp.deg2rad(a) if degrees else a
 
 
-def _to_quat(angles: Vec3, seq: EulerSeq) -> Quat:
-    """`to_quat` without the check of `angles`."""
-    axes, intrinsic = _parse_seq(seq)
-    order = (0, 1, 2) if intrinsic else (2, 1, 0)  # extrinsic "abc": q_c(γ) ∘ q_b(β) ∘ q_a(α)
+def _to_quat(angles: Float[Array, "*batch k"], seq: EulerSeq) -> Quat:
+    """`to_quat` without the checks of `angles` (1 to 3 axes)."""
+    axes, intrinsic = _parse_axes(seq, False)
+    n = len(axes)
+    order = range(n) if intrinsic else range(n - 1, -1, -1)  # extrinsic "abc": q_c ∘ q_b ∘ q_a
 
     def factor(m: int) -> list[Array | None]:
         h = angles[..., m] / 2
@@ -218,29 +263,33 @@ def _to_quat(angles: Vec3, seq: EulerSeq) -> Quat:
         f[axes[m] + 1] = jnp.sin(h)
         return f
 
-    q = factor(order[0])
-    for m in order[1:]:  # basis-axis factors: only the non-zero products are formed
+    first, *rest = order
+    q = factor(first)
+    for m in rest:  # basis-axis factors: only the non-zero products are formed
         q = _mul_components(q, factor(m))
     return jnp.stack([jnp.zeros_like(angles[..., 0]) if c is None else c for c in q], axis=-1)
 
 
-def to_matrix(angles: Vec3Like, seq: EulerSeq = "ZXZ") -> Mat33:
+def to_matrix(angles: RealLike, seq: EulerSeq = "ZXZ", degrees: bool = False) -> Mat33:
     """Rotation tensor of Euler angles, e.g. `"ZXZ"`: `P = Rz(ψ) Rx(θ) Rz(φ)` (THEORY §4;
-    `Pᵀ` is the direction-cosine matrix of Borisov–Mamaev 001, remark 2)."""
+    `Pᵀ` is the direction-cosine matrix of Borisov–Mamaev 001, remark 2). 1 to 3 axes and
+    `degrees` as `to_quat`."""
     # the barrier keeps XLA from fusing the quaternion into each of the nine entries, which
     # recomputed its sines and cosines (1.4× faster for 10⁶ angles; benchmarks/bench_rotations.py)
-    q = jax.lax.optimization_barrier(to_quat(angles, seq))
+    q = jax.lax.optimization_barrier(to_quat(angles, seq, degrees))
     return quat._to_matrix(q, quat.norm2(q))
 
 
-def from_quat(q: QuatLike, seq: EulerSeq = "ZXZ") -> Vec3:
+def from_quat(q: QuatLike, seq: EulerSeq = "ZXZ", degrees: bool = False) -> Vec3:
     """Euler angles of a quaternion (any non-zero `q`, treated as `q/|q|`; `±q` give the same).
 
-    Bernardes & Viollet (2022), as SciPy's `Rotation.as_euler`: first/third angle in [−π, π],
-    middle in [0, π] (proper Euler) or [−π/2, π/2] (Tait–Bryan); at gimbal lock the third angle
-    is 0. Finite values and gradients everywhere. `q` must be finite and non-zero.
+    Bernardes & Viollet (2022), as SciPy's `Rotation.as_euler`: `seq` has 3 axes; first/third
+    angle in [−π, π], middle in [0, π] (proper Euler) or [−π/2, π/2] (Tait–Bryan); at gimbal lock
+    the third angle is 0. Finite values and gradients everywhere. `q` must be finite and
+    non-zero; `degrees=True` returns degrees.
     """
-    return _from_unit_quat(quat._unit(vector(q, 4, "q"), "q"), seq)
+    angles = _from_unit_quat(quat._unit(vector(q, 4, "q"), "q"), seq)
+    return jnp.rad2deg(angles) if degrees else angles
 
 
 def _from_unit_quat(q: Quat, seq: EulerSeq) -> Vec3:
@@ -250,105 +299,13 @@ def _from_unit_quat(q: Quat, seq: EulerSeq) -> Vec3:
     return _angles(q, n1, n2, n3, False)
 
 
-def from_matrix(P: Mat33Like, seq: EulerSeq = "ZXZ") -> Vec3:
+def from_matrix(P: Mat33Like, seq: EulerSeq = "ZXZ", degrees: bool = False) -> Vec3:
     """Euler angles of a rotation matrix (via the largest-component `quat.from_matrix`), with the
-    ranges and gimbal-lock convention of `from_quat`. `P` is checked and orthogonalised as by
-    `quat.from_matrix` (det P ≤ 0 or a non-finite P is an error)."""
-    return _from_unit_quat(quat._from_matrix(matrix(P, "P"), "P"), seq)
-
-
-# --------------------------------------------------------------------------- Davenport angles
-
-
-def _davenport_axes(axes: DavenportAxesLike, dtype: DTypeLike) -> tuple[Vec3, Vec3, Vec3]:
-    """Unit axes (m, e, n) from `axes` of shape (..., 3, 3) = (m, e, n) or (..., 2, 3) = (m, n)."""
-    axes = as_float(axes, "axes")
-    if axes.ndim < 2 or axes.shape[-1] != 3 or axes.shape[-2] not in (2, 3):
-        raise ValueError(
-            "axes must have shape (..., 3, 3) with rows (m, e, n) or (..., 2, 3) with rows "
-            f"(m, n), got {tuple(axes.shape)}"
-        )
-    axes = axes.astype(dtype)
-    try:
-        concrete = np.asarray(axes, dtype=np.float64)
-    except (jax.errors.TracerArrayConversionError, jax.errors.ConcretizationTypeError):
-        concrete = None
-    if concrete is not None:
-        nrm = np.linalg.norm(concrete, axis=-1)
-        if not np.all(nrm > 0) or not np.all(np.isfinite(concrete)):
-            raise ValueError("axes must be finite, non-zero vectors")
-        u = concrete / nrm[..., None]
-        if axes.shape[-2] == 2:
-            if not np.all(np.linalg.norm(np.cross(u[..., 0, :], u[..., 1, :]), axis=-1) > 1e-6):
-                raise ValueError(
-                    "axes = (m, n) with m ∥ n leaves the middle axis undefined; "
-                    "pass axes = (m, e, n) with e ⟂ m (m = n gives classical Euler angles)"
-                )
-        else:
-            m_dot_e = np.abs(np.sum(u[..., 0, :] * u[..., 1, :], -1))
-            e_dot_n = np.abs(np.sum(u[..., 1, :] * u[..., 2, :], -1))
-            dots = np.maximum(m_dot_e, e_dot_n)
-            if not np.all(dots <= 1e-6):
-                raise ValueError(
-                    "the middle axis e of axes = (m, e, n) must be perpendicular to both m and n "
-                    "(representation theorem, THEORY §1)"
-                )
-    unit = axes / jnp.linalg.norm(axes, axis=-1, keepdims=True)
-    m, n = unit[..., 0, :], unit[..., -1, :]
-    if axes.shape[-2] == 2:
-        e = jnp.cross(m, n)
-        e = e / jnp.linalg.norm(e, axis=-1, keepdims=True)
-    else:
-        e = unit[..., 1, :]
-    if concrete is None:  # traced axes: runtime check (NaN from m ∥ n in the (m, n) form fails it)
-        ok = (jnp.abs(jnp.sum(m * e, -1)) <= 1e-6) & (jnp.abs(jnp.sum(e * n, -1)) <= 1e-6)
-        e = eqx.error_if(
-            e, ~ok, "axes: the middle axis e must be perpendicular to m and n (and m ∦ n)"
-        )
-    return m, e, n
-
-
-def davenport_to_quat(angles: Vec3Like, axes: DavenportAxesLike) -> Quat:
-    """Quaternion of generalized (Davenport) angles `(ψ, ϑ, φ)`: `q = q(ψ m) ∘ q(ϑ e) ∘ q(φ n)`.
-
-    See `davenport_to_matrix` for `axes`; `angles` must be finite."""
-    angles = _angles_arg(angles)
-    m, e, n = _davenport_axes(axes, angles.dtype)
-    return _compose(angles, m, e, n)
-
-
-def davenport_to_matrix(angles: Vec3Like, axes: DavenportAxesLike) -> Mat33:
-    """Generalized Euler angles (representation theorem, article 003; THEORY §1):
-    `P = Q(ψ m) Q(ϑ e) Q(φ n)` with fixed axes given as `axes = (m, e, n)` (shape (..., 3, 3),
-    e ⟂ m and e ⟂ n) or `axes = (m, n)` (shape (..., 2, 3), then `e = m × n/|m × n|`).
-    Axes need not be unit. `m = n` (with e given) gives classical Euler angles.
-
-    Equals SciPy `Rotation.from_davenport([m, e, n], "intrinsic", (ψ, ϑ, φ))`. Unsuitable axes
-    raise a ValueError (a runtime error if the axes are traced).
-    """
-    q = davenport_to_quat(angles, axes)
-    return quat._to_matrix(q, quat.norm2(q))
-
-
-def davenport_from_quat(q: QuatLike, axes: DavenportAxesLike) -> Vec3:
-    """Generalized angles `(ψ, ϑ, φ)` of a quaternion (finite, non-zero); see
-    `davenport_from_matrix`."""
-    return _davenport_from_unit_quat(quat._unit(vector(q, 4, "q"), "q"), axes)
-
-
-def _davenport_from_unit_quat(q: Quat, axes: DavenportAxesLike) -> Vec3:
-    m, e, n = _davenport_axes(axes, q.dtype)
-    return _angles(q, n, e, m, True)
-
-
-def davenport_from_matrix(P: Mat33Like, axes: DavenportAxesLike) -> Vec3:
-    """Generalized angles `(ψ, ϑ, φ)` with `P = Q(ψ m) Q(ϑ e) Q(φ n)` (Bernardes & Viollet 2022).
-
-    As SciPy `Rotation.as_davenport([m, e, n], "intrinsic")`: ψ, φ ∈ [−π, π], ϑ ∈ [−λ, π − λ]
-    where λ is the angle from n to m about e; at gimbal lock (ϑ = −λ or π − λ, where m and
-    Q(ϑ e) n are parallel) φ = 0. `P` is checked and orthogonalised as by `quat.from_matrix`.
-    """
-    return _davenport_from_unit_quat(quat._from_matrix(matrix(P, "P"), "P"), axes)
+    ranges and gimbal-lock convention of `from_quat` (3 axes; `degrees=True` returns degrees).
+    `P` is checked and orthogonalised as by `quat.from_matrix` (det P ≤ 0 or a non-finite P is an
+    error)."""
+    angles = _from_unit_quat(quat._from_matrix(matrix(P, "P"), "P"), seq)
+    return jnp.rad2deg(angles) if degrees else angles
 
 
 # --------------------------------------------------------------------------- kinematics
@@ -402,7 +359,7 @@ def rates_to_omega(
     body components Ω for `frame="body"`, space components ω = P Ω for `frame="space"`.
     `angles`, `rates` must be finite."""
     angles = _angles_arg(angles)
-    rates = _angles_arg(rates, "rates")
+    rates = _angles_arg(rates, name="rates")
     J = jacobian(angles, seq, frame)
     return jnp.einsum("...ij,...j->...i", J, rates)
 
@@ -425,7 +382,7 @@ def omega_to_rates(
     returns (yaw rate, pitch rate, roll rate). `angles`, `omega` must be finite.
     """
     angles = _angles_arg(angles)
-    omega = _angles_arg(omega, "omega")
+    omega = _angles_arg(omega, name="omega")
     J = jacobian(angles, seq, frame)
     c1, c2, c3 = J[..., 0], J[..., 1], J[..., 2]
     adj = jnp.stack([jnp.cross(c2, c3), jnp.cross(c3, c1), jnp.cross(c1, c2)], axis=-2)
@@ -453,3 +410,10 @@ def omega_to_rates(
             "kinematics",
         )
     return jnp.einsum("...ij,...j->...i", adj, omega) / det[..., None]
+
+
+# Davenport's generalized angles live in their own module (they use this one's helpers)
+from .davenport import davenport_from_matrix as davenport_from_matrix  # noqa: E402
+from .davenport import davenport_from_quat as davenport_from_quat  # noqa: E402
+from .davenport import davenport_to_matrix as davenport_to_matrix  # noqa: E402
+from .davenport import davenport_to_quat as davenport_to_quat  # noqa: E402

@@ -14,11 +14,10 @@ offending value and the fix; under `jit`/`vmap`/`grad` the same message comes fr
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+from typing import Any
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, ArrayLike, DTypeLike, Float, PRNGKeyArray, Real
 
 from .._checks import as_float, matrix, vector
@@ -27,7 +26,6 @@ from .._custom_types import (
     Mat33Like,
     Quat,
     QuatLike,
-    RealLike,
     Scalar,
     ScalarLike,
     Vec3,
@@ -132,9 +130,11 @@ def _from_rotvec(theta: Vec3) -> Quat:
     return _join(_series.half_cos(x2), _series.half_sin_over(x2)[..., None] * theta)
 
 
-def from_rotvec(theta: Vec3Like) -> Quat:
-    """`(cos(θ/2), sin(θ/2) θ/|θ|)`; exact and differentiable at θ = 0. `theta` must be finite."""
-    return _from_rotvec(_v.check_finite(vector(theta, 3, "theta"), "theta", 1))
+def from_rotvec(theta: Vec3Like, degrees: bool = False) -> Quat:
+    """`(cos(θ/2), sin(θ/2) θ/|θ|)`; exact and differentiable at θ = 0. `theta` must be finite;
+    `degrees=True` reads it in degrees (as SciPy's `Rotation.from_rotvec`)."""
+    theta = _v.check_finite(vector(theta, 3, "theta"), "theta", 1)
+    return _from_rotvec(jnp.deg2rad(theta) if degrees else theta)
 
 
 def _to_rotvec(q: Quat) -> Vec3:
@@ -151,13 +151,15 @@ def _to_rotvec(q: Quat) -> Vec3:
     return jnp.where(small, series, exact)[..., None] * v
 
 
-def to_rotvec(q: QuatLike) -> Vec3:
+def to_rotvec(q: QuatLike, degrees: bool = False) -> Vec3:
     """Rotation vector with |θ| ≤ π: `θ = 2 atan2(|λ|, λ0) λ/|λ|` of `canonical(q)` (at θ = π
-    the first non-zero component of θ is positive). `q` must be finite and non-zero.
+    the first non-zero component of θ is positive). `q` must be finite and non-zero;
+    `degrees=True` returns degrees (as SciPy's `Rotation.as_rotvec`).
 
     Near θ = 0 uses `atan(y)/y = 1 − y²/3 + y⁴/5 − …`, so values and gradients stay finite.
     """
-    return _to_rotvec(_v.check_quat(vector(q, 4, "q"), "q"))
+    theta = _to_rotvec(_v.check_quat(vector(q, 4, "q"), "q"))
+    return jnp.rad2deg(theta) if degrees else theta
 
 
 def _to_matrix(q: Quat, n2: Scalar) -> Mat33:
@@ -335,94 +337,6 @@ def slerp(a: QuatLike, b: QuatLike, t: ScalarLike) -> Quat:
     return mul(base, _from_rotvec(s * theta))
 
 
-@jax.custom_jvp
-def _top_eigvec(M: Float[Array, "*#batch 4 4"]) -> Quat:
-    return jnp.linalg.eigh(M)[1][..., :, -1]
-
-
-@_top_eigvec.defjvp
-def _top_eigvec_jvp(primals, tangents):
-    # dv = Σ_{i≠top} v_i (v_iᵀ dM v) / (λ_top − λ_i): only the top eigenvalue must be simple, so
-    # degenerate lower eigenvalues (e.g. all rotations equal) do not give NaN gradients.
-    (M,), (dM,) = primals, tangents
-    w, V = jnp.linalg.eigh(M)
-    top = V[..., :, -1]
-    gap = w[..., -1:] - w
-    ok = gap > 0
-    proj = jnp.einsum("...ki,...kl,...l->...i", V, dM, top)
-    coef = jnp.where(ok, proj / jnp.where(ok, gap, jnp.ones_like(gap)), jnp.zeros_like(gap))
-    return top, jnp.einsum("...ki,...i->...k", V, coef)
-
-
-def mean(
-    q: Annotated[RealLike, "*#batch N 4"],
-    weights: Annotated[RealLike, "*#batch N"] | None = None,
-) -> Quat:
-    """Rotation average (Markley et al. 2007, as SciPy `Rotation.mean`): the unit eigenvector of
-    the largest eigenvalue of `M = Σ_n w_n q_n q_nᵀ`, returned with λ0 ≥ 0.
-
-    `q` has shape `(..., N, 4)`, N ≥ 1: the set of N rotations lies along axis −2 (each finite,
-    non-zero, treated as `q/|q|`, sign-invariant); `weights` `(..., N)`, finite, non-negative and
-    not all zero in a set, default all 1. Returns `(..., 4)`. Gradients are finite unless the
-    largest eigenvalue is degenerate (mean not unique).
-    """
-    q = vector(q, 4, "q")
-    if q.ndim < 2:
-        raise ValueError(f"q must have shape (..., N, 4), got {tuple(q.shape)}")
-    if q.shape[-2] == 0:
-        raise ValueError(
-            f"q must hold at least one rotation (N ≥ 1 along axis -2), got shape {q.shape}: the "
-            "mean of an empty set is undefined"
-        )
-    q = _unit(q, "q")
-    if weights is None:
-        w = jnp.ones(q.shape[:-1], q.dtype)
-    else:
-        w = as_float(weights, "weights")
-        if w.ndim < 1 or w.shape[-1] != q.shape[-2]:
-            raise ValueError(
-                f"weights must have shape (..., N) with N = {q.shape[-2]} (one weight per "
-                f"rotation of q, shape {q.shape}), got {w.shape}"
-            )
-        w = _v.validate_all(w, _weight_checks("weights"))
-    M = jnp.einsum("...n,...ni,...nj->...ij", w, q, q)
-    return canonical(_top_eigvec(M))
-
-
-def _weight_checks(name: str) -> list[_v.Check]:
-    """Weights `(..., N)` of a set: finite, non-negative, not all zero."""
-
-    def negative(xp: Any, w: Any) -> Any:
-        return w < 0
-
-    def all_zero(xp: Any, w: Any) -> Any:
-        return ~(xp.sum(w, axis=-1) > 0)
-
-    def at_negative(w: np.ndarray) -> str:
-        k = _v.first(negative(np, w))
-        return f", got {_v.at(name, k)} = {w[k]:.6g}"
-
-    def at_zero(w: np.ndarray) -> str:
-        k = _v.first(all_zero(np, w))
-        return f", got {_v.at(name, k)} = {_v.fmt(w[k])}"
-
-    return [
-        _v.finite_check(name, 0),
-        _v.Check(
-            negative,
-            f"{name} must be non-negative",
-            at_negative,
-            "; a weight is the importance of its rotation (0 leaves it out)",
-        ),
-        _v.Check(
-            all_zero,
-            f"{name} must not all be zero in a set",
-            at_zero,
-            "; the mean of no rotation is undefined: give some rotation of each set a weight > 0",
-        ),
-    ]
-
-
 def retract(q: QuatLike, delta: Vec3Like) -> Quat:
     """Move `q` by the body-frame rotation vector `delta`: `q ∘ exp(δ)` (a chart of SO(3) around q;
     a gradient with respect to a rotation lives in this 3-dimensional tangent space)."""
@@ -436,6 +350,8 @@ def local(q_ref: QuatLike, q: QuatLike) -> Vec3:
 
 
 # the Cayley–Klein / SU(2) forms live in their own module; imported last (it uses this one)
+from .align import align_vectors as align_vectors  # noqa: E402
+from .average import mean as mean  # noqa: E402
 from .cayley_klein import from_cayley_klein as from_cayley_klein  # noqa: E402
 from .cayley_klein import from_su2 as from_su2  # noqa: E402
 from .cayley_klein import pauli as pauli  # noqa: E402
@@ -444,3 +360,12 @@ from .cayley_klein import su2_act as su2_act  # noqa: E402
 from .cayley_klein import to_cayley_klein as to_cayley_klein  # noqa: E402
 from .cayley_klein import to_su2 as to_su2  # noqa: E402
 from .cayley_klein import vec_to_sigma as vec_to_sigma  # noqa: E402
+from .groups import reduce as reduce  # noqa: E402
+from .groups import rotation_group as rotation_group  # noqa: E402
+from .interop import from_jaxlie as from_jaxlie  # noqa: E402
+from .interop import from_scipy as from_scipy  # noqa: E402
+from .interop import to_jaxlie as to_jaxlie  # noqa: E402
+from .interop import to_scipy as to_scipy  # noqa: E402
+from .powers import approx_equal as approx_equal  # noqa: E402
+from .powers import magnitude as magnitude  # noqa: E402
+from .powers import power as power  # noqa: E402
