@@ -78,15 +78,18 @@ def check_points(c: Config, design) -> None:
 
     def check(lo: int, hi: int) -> None:
         sub = {k: jnp.asarray(v[lo:hi], dtype) for k, v in values.items()}
-        RigidBody(fill(c.inertia, sub, jnp))
+        inertia = fill(c.inertia, sub, jnp)
+        if inertia.ndim == 2:  # moments (n, 3): never read as one tensor when n = 3
+            inertia = inertia[:, None, :]
+        RigidBody(inertia)
         check_finite(fill(c.omega0, sub, jnp), "omega0")
         check_unit_norm(fill(c.q0, sub, jnp), "q0", "; give a unit quaternion")
 
     try:
         check(0, design.size)
         return
-    except ValueError:
-        pass
+    except ValueError as e:
+        first = e
     lo, hi = 0, design.size  # the first bad point lies in [lo, hi)
     while hi - lo > 1:
         mid = (lo + hi) // 2
@@ -98,6 +101,7 @@ def check_points(c: Config, design) -> None:
     point = ", ".join(f"{k} = {v[lo]:.6g}" for k, v in values.items())
     where = f"{c.path}: the design point {point}"
     checked(where, lambda: check(lo, lo + 1))
+    raise UsageError(f"{c.path}: {first}")  # not reached: the bisection found the point
 
 
 def _same_config(out: Path, c: Config) -> None:
@@ -121,18 +125,23 @@ def _plot(path: str, ds, c: Config) -> None:
     """Heat maps (2-D grid), curves (1-D grid) or histograms (samples, larger grids) of the
     scalar observables; failed points are left out."""
     plt = pyplot()
+    from matplotlib.colors import LogNorm
+
     names = _scalar_observables(ds)
-    ok = ds["status"] == 0
+    failed = ds["status"] >= 2  # the integration failed or the model raised: no values
     dims = list(ds["status"].dims)
     cols = min(2, len(names))
     rows = -(-len(names) // cols)
     fig, axes = plt.subplots(rows, cols, figsize=(6 * cols, 4.2 * rows), squeeze=False)
     kind = c.design["kind"]
     for ax, name in zip(axes.flat, names, strict=False):
-        v = ds[name].where(ok & np.isfinite(ds[name]))  # e.g. first_flip_time = inf: no flip
+        v = ds[name].where(~failed & np.isfinite(ds[name]))  # first_flip_time = inf: no flip
+        positive = np.asarray(v.values)[np.isfinite(v.values)]
+        log = positive.size > 0 and positive.min() > 0 and positive.max() > 100 * positive.min()
         if kind == "grid" and len(dims) == 2:
             y, x = dims
-            m = ax.pcolormesh(ds[x].values, ds[y].values, v.values, shading="nearest")
+            norm = LogNorm() if log else None  # drifts span decades
+            m = ax.pcolormesh(ds[x].values, ds[y].values, v.values, shading="nearest", norm=norm)
             fig.colorbar(m, ax=ax, label=name)
             ax.set_xlabel(x)
             ax.set_ylabel(y)
@@ -141,6 +150,8 @@ def _plot(path: str, ds, c: Config) -> None:
                     set_scale("log")
         elif kind == "grid" and len(dims) == 1:
             ax.plot(ds[dims[0]].values, v.values, marker=".")
+            if log:
+                ax.set_yscale("log")
             ax.set_xlabel(dims[0])
             ax.set_ylabel(name)
             if dims[0] in c.log_factors:
@@ -154,8 +165,9 @@ def _plot(path: str, ds, c: Config) -> None:
         ax.set_title(name)
     for ax in list(axes.flat)[len(names) :]:
         ax.axis("off")
-    failed = int((ds["status"] != 0).sum())
-    fig.suptitle(f"{c.path.name}: {ds['status'].size} points, {failed} failed")
+    counts = {k: v for k, v in ds.attrs.get("failures", {}).items() if v}
+    note = ", ".join(f"{v} {k}" for k, v in counts.items()) or "no failures"
+    fig.suptitle(f"{c.path.name}: {ds['status'].size} points; {note}")
     fig.tight_layout()
     fig.savefig(path, dpi=110, format="png")
     plt.close(fig)
