@@ -204,20 +204,19 @@ _CARLSON_STEPS = 18
 
 
 def _rc1(e: Array) -> Array:
-    """`R_C(1, 1 + e) = atan(√e)/√e` (e > 0), `atanh(√−e)/√−e` (−1 < e < 0), by its series
-    `Σ (−e)^k/(2k + 1)` for |e| < 1e-3 (DLMF 19.2.19–20, 19.6.15); finite gradients at 0."""
-    small = jnp.abs(e) < 1e-3
-    es = jnp.where(small, jnp.ones_like(e), e)
-    r = jnp.sqrt(jnp.abs(es))
-    big = jnp.where(es > 0, jnp.arctan(r) / r, jnp.arctanh(jnp.minimum(r, 1 - 1e-16)) / r)
+    """`R_C(1, 1 + e) = atan(√e)/√e` for e ≥ 0 (DLMF 19.2.19), by its series
+    `Σ (−e)^k/(2k + 1)` for e < 1e-3 (DLMF 19.6.15); finite gradients at 0."""
+    small = e < 1e-3
+    r = jnp.sqrt(jnp.where(small, jnp.ones_like(e), e))
     series = 1 + e * (-1 / 3 + e * (1 / 5 + e * (-1 / 7 + e * (1 / 9 + e * (-1 / 11)))))
-    return jnp.where(small, series, big)
+    return jnp.where(small, series, jnp.arctan(r) / r)
 
 
 def _carlson_fj(sx: Array, sy: Array, sz: Array, sp: Array) -> tuple[Array, Array]:
     """`(R_F(x, y, z), R_J(x, y, z, p))` from the square roots `√x, √y, √z, √p` (x, y, z ≥ 0, at
-    most one of them 0, p > 0), by Carlson's duplication algorithm (Carlson 1995, Numer. Algorithms
-    10, algorithms for R_F and R_J; DLMF 19.36.i). The square roots are taken as inputs so that an
+    most one of them 0, and p ≥ max(x, y, z): then every R_C term has e ≥ 0), by Carlson's
+    duplication algorithm (Carlson 1995, Numer. Algorithms 10, algorithms for R_F and R_J; DLMF
+    19.36.i). The square roots are taken as inputs so that an
     argument 0 (x = cos²φ at φ = π/2) has finite derivatives; after the first step every argument
     is positive."""
     sx, sy, sz, sp = jnp.broadcast_arrays(sx, sy, sz, sp)
@@ -260,39 +259,35 @@ def _carlson_fj(sx: Array, sy: Array, sz: Array, sp: Array) -> tuple[Array, Arra
     return rf, rj
 
 
-def _ellippi_reduced(n: Array, phi: Array, m: Array, m1: Array) -> Array:
-    """`Π(n; φ|m) = ∫₀^φ dθ / ((1 − n sin²θ) √(1 − m sin²θ))` for |φ| ≤ π/2, n < 1, 0 ≤ m < 1:
-    `s R_F(c², 1 − m s², 1) + (n/3) s³ R_J(c², 1 − m s², 1, 1 − n s²)` (DLMF 19.25.14, s = sin φ,
-    c = cos φ ≥ 0); `1 − m s² = m1 + m c²` is summed from non-negative terms."""
+def _ellippi_diff(n: Array, phi0: Array, phi1: Array, m: Array, m1: Array) -> Array:
+    """`Π(n; φ1|m) − Π(n; φ0|m)` for any real φ0, φ1 and n ≤ 0, 0 ≤ m < 1:
+    `Π(n; jπ + φr) = 2j Π(n|m) + Π(n; φr)` with |φr| ≤ π/2 (DLMF 19.25.14 and 19.25.2 for the
+    complete integral `R_F(0, 1 − m, 1) + (n/3) R_J(0, 1 − m, 1, 1 − n)`); one call of
+    `_carlson_fj` for the three integrals."""
+    j0, j1 = jnp.round(phi0 / math.pi), jnp.round(phi1 / math.pi)
+    phi = jnp.stack(jnp.broadcast_arrays(phi0 - j0 * math.pi, phi1 - j1 * math.pi))
     s, c = jnp.sin(phi), jnp.cos(phi)
-    one = jnp.ones_like(s)
-    rf, rj = _carlson_fj(jnp.abs(c), jnp.sqrt(m1 + m * c * c), one, jnp.sqrt(1 - n * s * s))
-    return s * rf + (n / 3) * s**3 * rj
-
-
-def _ellippi_complete(n: Array, m: Array, m1: Array) -> Array:
-    """`Π(n|m) = Π(n; π/2|m) = R_F(0, 1 − m, 1) + (n/3) R_J(0, 1 − m, 1, 1 − n)` (DLMF 19.25.2)."""
-    zero = jnp.zeros_like(m1)
-    one = jnp.ones_like(m1)
-    rf, rj = _carlson_fj(zero, jnp.sqrt(m1), one, jnp.sqrt(1 - n) * one)
-    return rf + (n / 3) * rj
-
-
-def _ellippi(n: Array, phi: Array, m: Array, m1: Array) -> Array:
-    """`Π(n; φ|m)` for any real φ: `Π(n; jπ + φr) = 2j Π(n|m) + Π(n; φr)`, |φr| ≤ π/2."""
-    j = jnp.round(phi / math.pi)
-    return 2 * j * _ellippi_complete(n, m, m1) + _ellippi_reduced(n, phi - j * math.pi, m, m1)
+    # (φ0r, φ1r, complete) stacked on a leading axis
+    sx = jnp.concatenate([jnp.abs(c), jnp.zeros_like(c[:1])])
+    sy = jnp.concatenate([jnp.sqrt(m1 + m * c * c), jnp.broadcast_to(jnp.sqrt(m1), c[:1].shape)])
+    sp = jnp.concatenate([jnp.sqrt(1 - n * s * s), jnp.broadcast_to(jnp.sqrt(1 - n), c[:1].shape)])
+    ss = jnp.concatenate([s, jnp.ones_like(s[:1])])
+    rf, rj = _carlson_fj(sx, sy, jnp.ones_like(sx), sp)
+    pis = ss * rf + (n / 3) * ss**3 * rj
+    return 2 * (j1 - j0) * pis[2] + pis[1] - pis[0]
 
 
 @jax.jit
 def ellippi(n: ScalarLike, phi: ScalarLike, m: ScalarLike) -> Scalar:
     """Incomplete elliptic integral of the third kind
-    `Π(n; φ|m) = ∫₀^φ dθ / ((1 − n sin²θ) √(1 − m sin²θ))` for any real φ, n < 1 and
-    0 ≤ m < 1 (A&S 17.2.14–15 convention: characteristic n, parameter m; DLMF's Π(φ, α², k) with
-    α² = n, k² = m), by Carlson's R_F and R_J (DLMF 19.25.14; Carlson 1995) and
+    `Π(n; φ|m) = ∫₀^φ dθ / ((1 − n sin²θ) √(1 − m sin²θ))` for any real φ, n ≤ 0 (the
+    characteristic of the free rigid body's precession angle) and 0 ≤ m < 1 (A&S 17.2.14–15
+    convention: characteristic n, parameter m; DLMF's Π(φ, α², k) with α² = n, k² = m), by
+    Carlson's R_F and R_J (DLMF 19.25.14; Carlson 1995) and
     `Π(n; φ + π) = Π(n; φ) + 2Π(n|m)`. NaN outside that range. Differentiable in n, φ and m."""
     n, phi, m = floats((n, "n"), (phi, "phi"), (m, "m"))
-    bad = ~((m >= 0) & (m < 1) & (n < 1))
+    n, phi, m = jnp.broadcast_arrays(n, phi, m)
+    bad = ~((m >= 0) & (m < 1) & (n <= 0))
     ms = jnp.where(bad, jnp.zeros_like(m), m)
     ns = jnp.where(bad, jnp.zeros_like(n), n)
-    return jnp.where(bad, jnp.nan, _ellippi(ns, phi, ms, 1 - ms))
+    return jnp.where(bad, jnp.nan, _ellippi_diff(ns, jnp.zeros_like(phi), phi, ms, 1 - ms))

@@ -199,11 +199,12 @@ def _plan(I: Array, w: Array) -> _Plan:
     )
 
 
-def _omega_periodic(p: _Plan, t: Array) -> Array:
-    """Ω in the periodic branch, permuted axes, `t` any shape → (*t.shape, 3)."""
+def _omega_periodic(p: _Plan, t: Array, scd: tuple[Array, Array, Array] | None = None) -> Array:
+    """Ω in the periodic branch, permuted axes, `t` any shape → (*t.shape, 3); `scd`: the
+    `(sn, cn, dn)(λt)` if already computed."""
     I1, I2, I3 = p.Ip
     w1, w2, w3 = p.wp
-    S, C, D = _ellipj(p.lam_p * t, p.m, p.m1)[:3]
+    S, C, D = _ellipj(p.lam_p * t, p.m, p.m1)[:3] if scd is None else scd
     d0 = jnp.abs(w3) * jnp.sqrt(I3 / p.P3)
     den = (I3 * w3**2 + p.a * I2 * w2**2 * C * C) / p.P3
     r12 = jnp.sqrt(p.b * I2 / I1)  # A1/A2

@@ -13,7 +13,7 @@ from jaxtyping import Array, Float
 from .._checks import as_float, vector
 from .._custom_types import Quat, QuatLike, RealScalarLike, TimesLike, Vec3Like
 from ..rotations import quat
-from .elliptic import _ellipf, _ellipj, _ellippi
+from .elliptic import _ellipf, _ellipj, _ellippi_diff
 from .euler_poinsot import (
     _body_inputs,
     _omega,
@@ -30,13 +30,13 @@ from .euler_poinsot import (
 _Q_CYCLIC = ((0.5, 0.5, 0.5, 0.5), (0.5, -0.5, -0.5, -0.5), (1.0, 0.0, 0.0, 0.0))
 
 
-def _euler_zxz_quat(psi: Array, n: Array) -> Array:
+def _euler_zxz_quat(psi: Array, n: Array, phi: Array | None = None) -> Array:
     """Quaternion of `Rz(ψ) Rx(θ) Rz(φ)` with θ, φ the polar angles of the unit vector
     `n = (sin θ sin φ, sin θ cos φ, cos θ)` (THEORY §3 Euler-angle formula:
     `λ0 = cos(θ/2) cos((ψ+φ)/2)`, `λ1 = sin(θ/2) cos((ψ−φ)/2)`, `λ2 = sin(θ/2) sin((ψ−φ)/2)`,
-    `λ3 = cos(θ/2) sin((ψ+φ)/2)`)."""
+    `λ3 = cos(θ/2) sin((ψ+φ)/2)`). `phi`: φ itself, on a chosen branch (default `atan2`)."""
     half_t = 0.5 * jnp.arctan2(jnp.sqrt(n[..., 0] ** 2 + n[..., 1] ** 2), n[..., 2])
-    phi = jnp.arctan2(n[..., 0], n[..., 1])
+    phi = jnp.arctan2(n[..., 0], n[..., 1]) if phi is None else phi
     ct, st = jnp.cos(half_t), jnp.sin(half_t)
     sp, dp = 0.5 * (psi + phi), 0.5 * (psi - phi)
     return jnp.stack([ct * jnp.cos(sp), st * jnp.cos(dp), st * jnp.sin(dp), ct * jnp.sin(sp)], -1)
@@ -65,7 +65,7 @@ def _attitude(p: _Plan, q0: Array, t: Array) -> Array:
     return quat.canonical(_flow(p, q0, t)[1])
 
 
-def _psi_exact(p: _Plan, t: Array) -> Array:
+def _psi_exact(p: _Plan, t: Array) -> tuple[Array, Array]:
     """Precession angle ψ(t) = ∫₀ᵗ ψ̇ in the periodic branch in closed form (exact to rounding).
 
     With axis 1 the reference ("cn") axis, `ψ̇ = M (2E − I1 Ω1²)/(M² − I1² Ω1²)`; since
@@ -77,7 +77,8 @@ def _psi_exact(p: _Plan, t: Array) -> Array:
         `ψ(t) = (M/I1) t − (M (I3 − I1)/(I1 I3 λ)) [Π(−ν²; am(u0 + λt)|m) − Π(−ν²; am u0|m)]`.
     `am u0 = atan2(sn u0, cn u0)` with `(sn u0, cn u0) ∝ ((A1/A2) Ω2, Ω1)` at t = 0,
     `u0 = F(am u0|m)` and `am(u0 + λt)` from the descending Landen algorithm (continuous in t);
-    Π by Carlson's R_F, R_J (`elliptic._ellippi`). Cf. Celledoni, Fassò, Säfström, Zanna 2008
+    Π by Carlson's R_F, R_J (`elliptic._ellippi_diff`). Also returns `_omega_periodic(p, t)`
+    (the Jacobi functions are evaluated once for both). Cf. Celledoni, Fassò, Säfström, Zanna 2008
     (with Principia's corrections, `documentation/Celledoni.tex`): the same third-kind integral."""
     I1, I2, I3 = p.Ip
     w1, w2, _ = p.wp
@@ -87,10 +88,12 @@ def _psi_exact(p: _Plan, t: Array) -> Array:
     flat = (s0 == 0) & (w1 == 0)  # steady rotation about axis 3: ψ does not depend on am u0
     phi0 = jnp.arctan2(s0, jnp.where(flat, jnp.ones_like(w1), w1))
     u0 = _ellipf(phi0, p.m, p.m1)
-    phi1 = _ellipj(u0 + p.lam_p * t, p.m, p.m1)[3]
-    n = -nu2
-    d_pi = _ellippi(n, phi1, p.m, p.m1) - _ellippi(n, phi0, p.m, p.m1)
-    return p.M / I1 * t - p.M * (I3 - I1) / (I1 * I3 * p.lam_p) * d_pi
+    # one call for am(u0 + λt) and for (sn, cn, dn)(λt) of the addition theorems (`_omega`)
+    vt = p.lam_p * t
+    sn, cn, dn, am = _ellipj(jnp.stack([u0 + vt, vt]), p.m, p.m1)
+    d_pi = _ellippi_diff(-nu2, phi0, am[0], p.m, p.m1)
+    psi = p.M / I1 * t - p.M * (I3 - I1) / (I1 * I3 * p.lam_p) * d_pi
+    return psi, _omega_periodic(p, t, (sn[1], cn[1], dn[1]))
 
 
 def _flow(p: _Plan, q0: Array, t: Array) -> tuple[Array, Array]:
@@ -98,7 +101,7 @@ def _flow(p: _Plan, q0: Array, t: Array) -> tuple[Array, Array]:
     `(Ω(t) (T, 3), q(t) (T, 4))`, q continuous in t with `q(0) = q0` to rounding (not made
     canonical). The attitude construction is that of `free_rigid_body_attitude`, with ψ in closed
     form (`_psi_exact`, `_psi_sep`) and the trivial case (sphere, Ω = 0) `q0 ∘ exp(tΩ0)`."""
-    om_p = _omega_periodic(p, t)
+    psi_p, om_p = _psi_exact(p, t)
     # Ω of the (possibly dummy, never zero) non-trivial branches, so that the angles stay regular
     om = jnp.where(p.sep, _unpermute(_omega_sep(p, t), p.ps), _unpermute(om_p, p.pp))  # (T, 3)
     j = jnp.where(p.sep, p.ps[0], p.pp[0])  # reference body axis e
@@ -106,9 +109,14 @@ def _flow(p: _Plan, q0: Array, t: Array) -> tuple[Array, Array]:
     n = jnp.take(p.I * om / p.M, cyc, axis=-1)
     n0 = jnp.take(p.I * p.w / p.M, cyc, axis=-1)
     qc = jnp.asarray(_Q_CYCLIC, t.dtype)[j]
-    psi = jnp.where(p.sep, _psi_sep(p, t), _psi_exact(p, t))
-    qe = _euler_zxz_quat(psi, n)
-    qe0 = _euler_zxz_quat(jnp.zeros((), t.dtype), n0)
+    psi = jnp.where(p.sep, _psi_sep(p, t), psi_p)
+    # φ on the branch through φ0: n(t) never crosses the plane ⟂ to the "dn" axis, so its
+    # polar angle about e stays within π of φ0 (and q stays continuous in t)
+    phi0 = jnp.arctan2(n0[0], n0[1])
+    d = jnp.arctan2(n[..., 0], n[..., 1]) - phi0
+    phi = phi0 + jnp.arctan2(jnp.sin(d), jnp.cos(d))
+    qe = _euler_zxz_quat(psi, n, phi)
+    qe0 = _euler_zxz_quat(jnp.zeros((), t.dtype), n0, phi0)
     left = quat.mul(quat.mul(q0, qc), quat.conj(qe0))
     q = quat.mul(quat.mul(left, qe), quat.conj(qc))
     q_triv = quat.mul(q0, quat.from_rotvec(t[:, None] * p.w_orig))

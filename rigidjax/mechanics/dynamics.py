@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Unpack
@@ -26,7 +27,9 @@ from .._integrate import SolveKwargs, SolveOptions, solve_saved
 from .._trajectory import AbstractTrajectory
 from ..kinematics.formulations import AbstractKinematics, Quaternion, lookup
 from ..rotations import quat
+from ..solvers.exact_free_body import ExactFreeBody, RigidBodyField
 from ..solvers.rkmk import LieTerm
+from ..solvers.splitting import LiePoissonSplitting
 from .body import RigidBody, euler_rhs
 
 if TYPE_CHECKING:
@@ -198,6 +201,56 @@ def _component_args(I: Array) -> tuple:
     return ((I2 - I3) / I1, (I3 - I1) / I2, (I1 - I2) / I3), (1 / I1, 1 / I2, 1 / I3)
 
 
+def _structured(
+    body: RigidBody,
+    options: SolveOptions,
+    torque: Torque | None,
+    torque_frame: Frame,
+    quaternion: bool,
+    args: tuple[Array, ...],
+) -> tuple[diffrax.ODETerm, SolveOptions, Array]:
+    """Term, options and args (the principal moments `(B, 3)`) for `ExactFreeBody` and
+    `LiePoissonSplitting`, with clear errors for what they cannot integrate. Fixed steps: by
+    default one exact step per output interval for `ExactFreeBody`; `dt0` is required for
+    `LiePoissonSplitting`."""
+    name = type(options.solver).__name__
+    exact = isinstance(options.solver, ExactFreeBody)
+    if exact and torque is not None:
+        raise ValueError(
+            "ExactFreeBody integrates the torque-free rigid body (torque=None); for a torque "
+            "that depends on the attitude only use solver=rigidjax.LiePoissonSplitting() with "
+            "stepsize_controller=diffrax.ConstantStepSize() and dt0, otherwise a Runge–Kutta "
+            "solver"
+        )
+    if not body.diagonal:
+        raise ValueError(
+            f"{name} needs the body in principal axes: give RigidBody(principal moments (3,)) and "
+            "Ω0, q0 in those axes (rigidjax.inertia.principal_axes diagonalises a tensor)"
+        )
+    if not quaternion:
+        raise ValueError(
+            f"{name} integrates the attitude as a unit quaternion: use kinematics='quat' (the "
+            "default)"
+        )
+    controller = options.stepsize_controller
+    if controller is not None and not isinstance(controller, diffrax.ConstantStepSize):
+        raise ValueError(
+            f"{name} takes fixed steps (it has no error estimate): use "
+            "stepsize_controller=diffrax.ConstantStepSize() (or leave it unset) with dt0"
+        )
+    dt0 = options.dt0
+    if dt0 is None:
+        if not exact:
+            raise ValueError(
+                "LiePoissonSplitting takes fixed steps: give the step dt0 (e.g. "
+                "simulate(..., solver=LiePoissonSplitting(), dt0=0.01))"
+            )
+        dt0 = math.inf  # exact for any step: one step per output interval
+    options = dataclasses.replace(options, stepsize_controller=diffrax.ConstantStepSize(), dt0=dt0)
+    term = diffrax.ODETerm(RigidBodyField(torque, torque_frame))
+    return term, options, args[0]
+
+
 def simulate(
     body: RigidBody,
     omega0: RealLike,
@@ -228,6 +281,11 @@ def simulate(
     quaternions, no interpolation; `max_steps` bounds each output interval). For large batches
     at fixed steps, `solver=RK4()` with `diffrax.ConstantStepSize()` and `dt0` runs at the rate
     of a hand-written `lax.scan` kernel (benchmarks/bench_dynamics.py).
+    `solver=rigidjax.ExactFreeBody()` (no torque) steps by the exact Euler–Poinsot flow, exact
+    to rounding for any step (by default one step per output interval);
+    `solver=rigidjax.LiePoissonSplitting()` with `dt0` splits the exact free flow and the torque
+    kick for a torque of the attitude only (structure-preserving, fixed steps). Both need the
+    body in principal axes and quaternion kinematics.
 
     `check=False` skips the checks of `ts`, `omega0` and `q0` (like `RigidBody(check=False)`)
     for inputs validated beforehand: traced inputs then compile without runtime checks, which
@@ -263,10 +321,19 @@ def simulate(
     omega0 = jnp.broadcast_to(omega0, (*batch, 3)).reshape(B, 3)
     q0 = jnp.broadcast_to(q0, (*batch, 4)).reshape(B, 4)
 
-    components = body.diagonal and (
-        kinematics == "quat" or type(kinematics) is Quaternion and kinematics.frame == "body"
+    quaternion = kinematics == "quat" or (
+        type(kinematics) is Quaternion and kinematics.frame == "body"
     )
-    if components:
+    structured = isinstance(options.solver, ExactFreeBody | LiePoissonSplitting)
+    components = body.diagonal and quaternion and not structured
+    if structured:
+        axis = 0  # the exact flow maps each body: batch first
+        term, options, args = _structured(body, options, torque, torque_frame, quaternion, args)
+        solver = None
+        step_end = None
+        y0 = (omega0, q0)
+        finish = tuple
+    elif components:
         axis = -1
         term = diffrax.ODETerm(_QuaternionComponents(torque, torque_frame))
         solver = None
@@ -307,7 +374,7 @@ def simulate(
         norm=_BatchMaxRMS(axis),
     )
     omega, q = finish(ys)
-    if not components:  # other states give q up to sign: continue the integrated q0
+    if not (components or structured):  # other states give q up to sign: continue the integrated q0
         q = quat.continuous(jnp.moveaxis(q, 0, 1))  # (B, T, 4)
         q = jnp.moveaxis(q * jnp.sign(jnp.sum(q[:, :1] * q0[:, None], -1, keepdims=True)), 1, 0)
     T = ts.shape[0]
