@@ -232,6 +232,17 @@ def _structured(
             f"{name} integrates the attitude as a unit quaternion: use kinematics='quat' (the "
             "default)"
         )
+    options = fixed_steps(options)
+    term = diffrax.ODETerm(RigidBodyField(torque, torque_frame))
+    return term, options, args[0]
+
+
+def fixed_steps(options: SolveOptions) -> SolveOptions:
+    """`options` for `ExactFreeBody` or `LiePoissonSplitting`: `diffrax.ConstantStepSize`, by
+    default one step per output interval for `ExactFreeBody` (exact for any step), `dt0`
+    required for `LiePoissonSplitting`; an adaptive controller is a clear error."""
+    name = type(options.solver).__name__
+    exact = isinstance(options.solver, ExactFreeBody)
     controller = options.stepsize_controller
     if controller is not None and not isinstance(controller, diffrax.ConstantStepSize):
         raise ValueError(
@@ -246,9 +257,7 @@ def _structured(
                 "simulate(..., solver=LiePoissonSplitting(), dt0=0.01))"
             )
         dt0 = math.inf  # exact for any step: one step per output interval
-    options = dataclasses.replace(options, stepsize_controller=diffrax.ConstantStepSize(), dt0=dt0)
-    term = diffrax.ODETerm(RigidBodyField(torque, torque_frame))
-    return term, options, args[0]
+    return dataclasses.replace(options, stepsize_controller=diffrax.ConstantStepSize(), dt0=dt0)
 
 
 def simulate(

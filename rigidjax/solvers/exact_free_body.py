@@ -82,12 +82,10 @@ class RigidBodyField(eqx.Module):
     def __call__(self, t: RealScalarLike, y: tuple, args: Args) -> tuple:
         omega, q = y[0], y[1]
         I = args
-        domega = (self.torque_body(t, omega, q) - jnp.cross(omega, I * omega)) / I
-        out = (domega, _quat_rate(q, omega))
+        domega_kick, dx_kick = self.kick(t, y, args)
+        out = (domega_kick - jnp.cross(omega, I * omega) / I, _quat_rate(q, omega))
         if len(y) == 3:
-            _, dx_kick = self.kick(t, y, args)
-            dx_drift = self.drift(t, y, args)
-            out = (*out, tree_add(dx_kick, dx_drift))
+            out = (*out, tree_add(dx_kick, self.drift(t, y, args)))
         return out
 
 
