@@ -3,7 +3,8 @@
 The package is layered; each layer uses only the ones above it:
 
 - `rotations`: rotation maps (`so3`, `quat`, `euler`, `gibbs`, `mrp`, `andoyer`);
-- `solvers`: Diffrax solvers (`ExplicitRK`, `RK4`, `RKMK`, `StepEndMap`);
+- `solvers`: Diffrax solvers (`ExplicitRK`, `RK4`, `RKMK`, `StepEndMap`, `ExactFreeBody`,
+  `LiePoissonSplitting`);
 - `_integrate`: the one driver from `SolveOptions` to `diffrax.diffeqsolve` to a trajectory;
 - `kinematics`: the Darboux problem (`darboux`, the kinematics formulations);
 - `mechanics`: bodies, inertia, Euler's equations (`simulate`), heavy top, 6-DOF, Kepler, ...;
@@ -48,7 +49,7 @@ from .mechanics import (
     stability,
 )
 from .rotations import andoyer, euler, gibbs, mrp, quat, so3
-from .solvers import RK4, RKMK, ExplicitRK, LieTerm, StepEndMap
+from .solvers import RK4, RKMK, ExactFreeBody, ExplicitRK, LiePoissonSplitting, LieTerm, StepEndMap
 
 # The modules' flat names of rigidjax 0.1 (`import rigidjax.quat`, `rigidjax.heavy_top`, ...)
 # keep working: they are the same module objects as in the layered packages.
@@ -79,9 +80,11 @@ __all__ = [
     "AbstractKinematics",
     "CayleyKlein",
     "EulerAngles",
+    "ExactFreeBody",
     "ExplicitRK",
     "HeavyTop",
     "InertiaEstimate",
+    "LiePoissonSplitting",
     "LieTerm",
     "PoissonMatrix",
     "Quaternion",
