@@ -48,7 +48,7 @@ from .mechanics import (
     sixdof,
     stability,
 )
-from .rotations import andoyer, euler, gibbs, mrp, quat, so3
+from .rotations import RotationSpline, Slerp, andoyer, euler, gibbs, mrp, quat, so3
 from .solvers import RK4, RKMK, ExactFreeBody, ExplicitRK, LiePoissonSplitting, LieTerm, StepEndMap
 
 # The modules' flat names of rigidjax 0.1 (`import rigidjax.quat`, `rigidjax.heavy_top`, ...)
@@ -89,8 +89,10 @@ __all__ = [
     "PoissonMatrix",
     "Quaternion",
     "RigidBody",
+    "RotationSpline",
     "RotationVector",
     "IntegrationError",
+    "Slerp",
     "SolveOptions",
     "StepEndMap",
     "Trajectory",

@@ -25,7 +25,6 @@ rounding. Each sweep is a block Thomas solve (the system is block diagonally dom
 from __future__ import annotations
 
 import math
-from typing import ClassVar
 
 import equinox as eqx
 import jax
@@ -106,16 +105,25 @@ def _mv(A: Mat33, v: Vec3) -> Vec3:
     return jnp.einsum("...ij,...j->...i", A, v)
 
 
+def _inv3(M: Float[Array, "3 3"]) -> Float[Array, "3 3"]:
+    """Inverse of a 3×3 matrix by cofactors, `M⁻¹ = cof(M)ᵀ/det M` (rows of cof: cross products
+    of the rows of M); a small program to compile, unlike a pivoted LU."""
+    r0, r1, r2 = M[0], M[1], M[2]
+    cof = jnp.stack([jnp.cross(r1, r2), jnp.cross(r2, r0), jnp.cross(r0, r1)])
+    return cof.T / jnp.dot(r0, cof[0])
+
+
 def _block_thomas(L: Array, D: Array, U: Array, r: Array) -> Array:
     """Solve the block-tridiagonal system `L_i x_{i−1} + D_i x_i + U_i x_{i+1} = r_i` (blocks
-    3×3, `L_0`, `U_{m−1}` unused) by block Gaussian elimination without pivoting."""
+    3×3, `L_0`, `U_{m−1}` unused) by block Gaussian elimination without pivoting (the system is
+    block diagonally dominant: the diagonal blocks are `4(1/Δ_k + 1/Δ_{k+1}) E`)."""
 
     def forward(carry, blocks):
         c_prev, d_prev = carry
         Li, Di, Ui, ri = blocks
-        M = Di - Li @ c_prev
-        c = jnp.linalg.solve(M, Ui)
-        d = jnp.linalg.solve(M, ri - Li @ d_prev)
+        M_inv = _inv3(Di - Li @ c_prev)
+        c = M_inv @ Ui
+        d = M_inv @ (ri - Li @ d_prev)
         return (c, d), (c, d)
 
     zero = (jnp.zeros_like(D[0]), jnp.zeros_like(r[0]))
@@ -176,15 +184,20 @@ class RotationSpline(eqx.Module):
     Times outside `[ts[0], ts[-1]]` extrapolate the end segments' cubics (as SciPy). An equinox
     Module: `jit`, `vmap` and `grad` with respect to `ts`, `q` and `t` (the fixed-point sweeps
     are differentiated as computed).
+
+    `max_iter`, `tol`: the fixed-point sweeps for the inner rates, SciPy's 10 and 1e-9 by
+    default. With large turns between keys 10 sweeps may stop short (SciPy's spline then has
+    jumps in the angular acceleration at the keys, e.g. 1e-4 relative); `max_iter=50, tol=0`
+    iterates to the fixed point, continuous to rounding.
     """
 
     times: Float[Array, " N"]
     keys: Float[Array, "N 4"]
     coeffs: Float[Array, "3 M 3"]  # (a, b, ω_k) of each segment's cubic θ(τ)
-    MAX_ITER: ClassVar[int] = 10
-    TOL: ClassVar[float] = 1e-9
+    max_iter: int = eqx.field(static=True, default=10)
+    tol: float = eqx.field(static=True, default=1e-9)
 
-    def __init__(self, ts: RealLike, q: QuatLike):
+    def __init__(self, ts: RealLike, q: QuatLike, max_iter: int = 10, tol: float = 1e-9):
         times, keys = key_frames(ts, q)
         dt = jnp.diff(times)
         rotvecs = _to_rotvec(mul(conj(keys[:-1]), keys[1:]))
@@ -192,11 +205,12 @@ class RotationSpline(eqx.Module):
         if keys.shape[0] == 2:
             rotvecs_dot = rates
         else:
-            rates, rotvecs_dot = _solve_rates(dt, rates, rotvecs, self.MAX_ITER, self.TOL)
+            rates, rotvecs_dot = _solve_rates(dt, rates, rotvecs, max_iter, tol)
         d = dt[:, None]
         a = (-2 * rotvecs + d * rates + d * rotvecs_dot) / d**3
         b = (3 * rotvecs - 2 * d * rates - d * rotvecs_dot) / d**2
         self.times, self.keys, self.coeffs = times, keys, jnp.stack([a, b, rates])
+        self.max_iter, self.tol = max_iter, tol
 
     def _segment(self, t: Array) -> tuple[Array, Array]:
         n = self.times.shape[0]
