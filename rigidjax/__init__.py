@@ -9,7 +9,7 @@ The package is layered; each layer uses only the ones above it:
 - `kinematics`: the Darboux problem (`darboux`, the kinematics formulations);
 - `mechanics`: bodies, inertia, Euler's equations (`simulate`), heavy top, 6-DOF, Kepler, ...;
 - `analytic`: closed forms (Jacobi elliptic functions, Euler–Poinsot, the symmetric top);
-- `fit`: identification (`identify_inertia`);
+- `fit`: identification (`identify_inertia`) and experiment design (`design_excitation`);
 - `cli`: the `rigidjax` command.
 """
 
@@ -21,7 +21,7 @@ from . import analytic, fit, kinematics, mechanics, observables, rotations, solv
 if TYPE_CHECKING:  # imported on first use: see __getattr__
     from . import sweep
 from ._integrate import IntegrationError, SolveOptions
-from .fit import InertiaEstimate, identify_inertia
+from .fit import ExcitationDesign, InertiaEstimate, design_excitation, identify_inertia
 from .kinematics import (
     AbstractKinematics,
     CayleyKlein,
@@ -82,6 +82,7 @@ __all__ = [
     "EulerAngles",
     "ExactFreeBody",
     "ExplicitRK",
+    "ExcitationDesign",
     "HeavyTop",
     "InertiaEstimate",
     "LiePoissonSplitting",
@@ -100,6 +101,7 @@ __all__ = [
     "andoyer",
     "angular_momentum",
     "darboux",
+    "design_excitation",
     "energy",
     "euler",
     "fit",

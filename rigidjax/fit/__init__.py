@@ -1,5 +1,17 @@
-"""Fitting models to data: inertia identification from gyro and attitude measurements."""
+"""Fitting models to data: inertia identification from gyro and attitude measurements of one or
+several experiments (`identify_inertia`), and the design of the excitation that makes the
+inertia best identifiable (`design_excitation`)."""
 
+from .design import ExcitationDesign, design_excitation, fisher_information, prbs
 from .identify import InertiaEstimate, identify_inertia
+from .losses import LOSSES
 
-__all__ = ["InertiaEstimate", "identify_inertia"]
+__all__ = [
+    "LOSSES",
+    "ExcitationDesign",
+    "InertiaEstimate",
+    "design_excitation",
+    "fisher_information",
+    "identify_inertia",
+    "prbs",
+]

@@ -26,28 +26,45 @@ from ..rotations import quat
 Torque = Callable[[Array, Array, Array], Array]
 
 
-def _rhs(I, I_inv, torque, torque_frame, t, w, q):
+def _torque(torque, torque_frame, t, w, q):
+    """Body-frame torque of each experiment: `torque(t, Ω, q)` mapped over the rows, or the
+    row's own function of a tuple (one per experiment)."""
     if torque is None:
-        K = jnp.zeros_like(w)
+        return jnp.zeros_like(w)
+    if isinstance(torque, tuple):
+
+        def one(e, t, w, q):
+            return jax.lax.switch(e, torque, t, w, q)
+
+        K = jax.vmap(one)(jnp.arange(w.shape[0]), t, w, q)
     else:
-        K = jnp.asarray(torque(t, w, q), w.dtype)
-        if torque_frame == "space":
-            K = quat.rotate(quat.conj(q), K)
-    dw = I_inv @ (K - jnp.cross(w, I @ w))
-    dq = 0.5 * jnp.concatenate([-(q[1:] @ w)[None], q[0] * w + jnp.cross(q[1:], w)])
+        K = jax.vmap(torque)(t, w, q)
+    K = jnp.asarray(K, w.dtype)
+    if torque_frame == "space":
+        K = quat.rotate(quat.conj(q), K)
+    return K
+
+
+def _rhs(I, I_inv, K, w, q):
+    """`Ω̇ = I⁻¹(K − Ω × IΩ)`, `q̇ = ½ q ∘ (0, Ω)` for rows `w (E, 3)`, `q (E, 4)`."""
+    dw = (K - jnp.cross(w, w @ I.T)) @ I_inv.T
+    s, v = q[:, :1], q[:, 1:]
+    dq = 0.5 * jnp.concatenate([-jnp.sum(v * w, -1, keepdims=True), s * w + jnp.cross(v, w)], -1)
     return dw, dq
 
 
 def flow(
     inertia: Float[Array, "3 3"],
-    omega0: Float[Array, "3"],
-    q0: Float[Array, "4"],
-    ts: Float[Array, " T"],
+    omega0: Float[Array, "*E 3"],
+    q0: Float[Array, "*E 4"],
+    ts: Float[Array, "*E T"],
     substeps: int | Int[Array, " T-1"],
-    torque: Torque | None = None,
+    torque: Torque | tuple[Torque, ...] | None = None,
     torque_frame: Frame = "body",
-) -> tuple[Float[Array, "T 3"], Float[Array, "T 4"]]:
-    """`(Ω (T, 3), q (T, 4))` at `ts` from `(Ω, q) = (omega0, q0)` at `ts[0]`.
+) -> tuple[Float[Array, "*E T 3"], Float[Array, "*E T 4"]]:
+    """`(Ω (T, 3), q (T, 4))` at `ts` from `(Ω, q) = (omega0, q0)` at `ts[0]`; or of E
+    experiments of the same body at once (`omega0 (E, 3)`, `q0 (E, 4)`, `ts (T,)` or
+    `(E, T)`, a torque function for all or a tuple of E), integrated as one state.
 
     `substeps`: steps per output interval, a Python int (the loop is a `lax.scan`: forward and
     reverse differentiable) or an integer array `(T-1,)` (a `while` loop: forward mode only,
@@ -57,49 +74,57 @@ def flow(
     I = jnp.asarray(inertia)
     I_inv = jnp.linalg.inv(I)
     dtype = I.dtype
+    single = jnp.ndim(omega0) == 1
+    w0 = jnp.atleast_2d(jnp.asarray(omega0, dtype))
+    q0 = jnp.atleast_2d(jnp.asarray(q0, dtype))
+    E = w0.shape[0]
+    ts = jnp.broadcast_to(ts, (E, ts.shape[-1]))
     squeeze = jnp.sqrt(jnp.finfo(dtype).eps)
 
     def interval(carry, x):
-        t0, t1, n = x
-        h = (t1 - t0) / n
+        t0, t1, n = x  # t0, t1: (E,)
+        h = ((t1 - t0) / n)[:, None]
         lo, hi = t0 + squeeze * (t1 - t0), t1 - squeeze * (t1 - t0)
 
         def f(t, w, q):
-            return _rhs(I, I_inv, torque, torque_frame, jnp.clip(t, lo, hi), w, q)
+            K = _torque(torque, torque_frame, jnp.clip(t, lo, hi), w, q)
+            return _rhs(I, I_inv, K, w, q)
 
         def step(i, y):
             w, q = y
-            t = t0 + i * h
+            t = t0 + i * h[:, 0]
             k1 = f(t, w, q)
-            k2 = f(t + h / 2, w + h / 2 * k1[0], q + h / 2 * k1[1])
-            k3 = f(t + h / 2, w + h / 2 * k2[0], q + h / 2 * k2[1])
-            k4 = f(t + h, w + h * k3[0], q + h * k3[1])
+            k2 = f(t + h[:, 0] / 2, w + h / 2 * k1[0], q + h / 2 * k1[1])
+            k3 = f(t + h[:, 0] / 2, w + h / 2 * k2[0], q + h / 2 * k2[1])
+            k4 = f(t + h[:, 0], w + h * k3[0], q + h * k3[1])
             w = w + h / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0])
             q = q + h / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
-            return w, q * jax.lax.rsqrt(q @ q)
+            return w, q * jax.lax.rsqrt(jnp.sum(q * q, -1, keepdims=True))
 
         y = jax.lax.fori_loop(0, n, step, carry)  # int n: a scan; traced n: a while loop
         return y, y
 
     if isinstance(substeps, int):
-        xs = (ts[:-1], ts[1:], None)
+        xs = (ts[:, :-1].T, ts[:, 1:].T, None)
 
         def body(carry, x):
             return interval(carry, (x[0], x[1], substeps))
 
     else:
-        xs = (ts[:-1], ts[1:], jnp.asarray(substeps))
+        xs = (ts[:, :-1].T, ts[:, 1:].T, jnp.asarray(substeps))
         body = interval
-    y0 = (jnp.asarray(omega0, dtype), jnp.asarray(q0, dtype))
-    _, (ws, qs) = jax.lax.scan(body, y0, xs)
-    return jnp.concatenate([y0[0][None], ws]), jnp.concatenate([y0[1][None], qs])
+    _, (ws, qs) = jax.lax.scan(body, (w0, q0), xs)  # (T-1, E, ...)
+    ws = jnp.concatenate([w0[None], ws]).swapaxes(0, 1)
+    qs = jnp.concatenate([q0[None], qs]).swapaxes(0, 1)
+    return (ws[0], qs[0]) if single else (ws, qs)
 
 
 def substeps_for(
     ts: Float[Array, "*E T"], rate: Float[Array, "*E"], step_angle: float, max_steps: int
-) -> Int[Array, "*E T-1"]:
+) -> Int[Array, " T-1"]:
     """Steps per output interval so that each turns the body by at most `step_angle` at the
     angular speed `rate` (an upper estimate from the data): `n_k = ⌈(t_{k+1} − t_k) rate / h⌉`,
-    between 1 and `max_steps`."""
-    n = jnp.ceil(jnp.diff(ts, axis=-1) * rate[..., None] / step_angle)
-    return jnp.clip(jnp.where(jnp.isfinite(n), n, max_steps), 1, max_steps).astype(jnp.int32)
+    between 1 and `max_steps` (the most over the experiments)."""
+    n = jnp.ceil(jnp.diff(ts, axis=-1) * rate[..., None] / step_angle * (1 - 1e-9))  # rounding
+    n = jnp.clip(jnp.where(jnp.isfinite(n), n, max_steps), 1, max_steps).astype(jnp.int32)
+    return n.reshape(-1, n.shape[-1]).max(axis=0)

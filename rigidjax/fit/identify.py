@@ -216,14 +216,6 @@ class _Options(eqx.Module):
     max_steps: int = eqx.field(static=True)
 
 
-def _torque_of(model: _Model, e: Array) -> Callable | None:
-    """The torque of experiment `e` (a switch over the per-experiment torques)."""
-    torque = model.torque
-    if torque is None or not isinstance(torque, tuple):
-        return torque
-    return lambda t, w, q: jax.lax.switch(e, torque, t, w, q)
-
-
 @eqx.filter_jit
 def _fit(
     data: Experiments,
@@ -256,11 +248,14 @@ def _fit(
         I = layout.inertia(p, model.trace)
         b, s = (jnp.where(stage >= s_sensors, x, 0.0) for x in layout.gyro(p))
 
-        def one(e, ts, w0, q0, n):
-            return flow(I, w0, q0, ts, n, _torque_of(model, e), model.torque_frame)
-
-        W, Q = jax.vmap(one)(
-            jnp.arange(E), data.ts, layout.omega0(p), layout.q0(p, q_ref), substeps
+        W, Q = flow(
+            I,
+            layout.omega0(p),
+            layout.q0(p, q_ref),
+            data.ts,
+            substeps,
+            model.torque,
+            model.torque_frame,
         )
         z = []
         if data.omega is not None:

@@ -28,7 +28,7 @@ class Loss(eqx.Module):
     name: str = eqx.field(static=True)
     c: Float[Array, ""]
 
-    def rho(self, z: Float[Array, " n"]) -> Float[Array, " n"]:
+    def rho(self, z: Float[Array, "*n"]) -> Float[Array, "*n"]:
         a, c = jnp.abs(z), self.c
         if self.name == "huber":
             return jnp.where(a <= c, 0.5 * z * z, c * a - 0.5 * c * c)
@@ -36,7 +36,7 @@ class Loss(eqx.Module):
             return 0.5 * c * c * jnp.log1p((z / c) ** 2)
         return 0.5 * z * z
 
-    def transform(self, z: Float[Array, " n"]) -> Float[Array, " n"]:
+    def transform(self, z: Float[Array, "*n"]) -> Float[Array, "*n"]:
         """`z̃ = sign(z) √(2ρ(z))`: `Σ z̃²/2 = Σ ρ(z)`; `z̃ = z` where ρ is quadratic."""
         if self.name == "l2":
             return z
@@ -47,7 +47,7 @@ class Loss(eqx.Module):
         big = jnp.sign(safe) * jnp.sqrt(2 * self.rho(safe))
         return jnp.where(small, z * (1 - (z / self.c) ** 2 / 4 * (self.name == "cauchy")), big)
 
-    def psi(self, z: Float[Array, " n"]) -> Float[Array, " n"]:
+    def psi(self, z: Float[Array, "*n"]) -> Float[Array, "*n"]:
         """`ψ = ρ'`."""
         c = self.c
         if self.name == "huber":
@@ -56,7 +56,7 @@ class Loss(eqx.Module):
             return z / (1 + (z / c) ** 2)
         return z
 
-    def dpsi(self, z: Float[Array, " n"]) -> Float[Array, " n"]:
+    def dpsi(self, z: Float[Array, "*n"]) -> Float[Array, "*n"]:
         """`ψ' = ρ''`."""
         c = self.c
         if self.name == "huber":
