@@ -288,6 +288,7 @@ def from_quat(q: QuatLike, seq: EulerSeq = "ZXZ", degrees: bool = False) -> Vec3
     the third angle is 0. Finite values and gradients everywhere. `q` must be finite and
     non-zero; `degrees=True` returns degrees.
     """
+    _parse_seq(seq)  # a bad sequence before any computation
     angles = _from_unit_quat(quat._unit(vector(q, 4, "q"), "q"), seq)
     return jnp.rad2deg(angles) if degrees else angles
 
@@ -304,6 +305,7 @@ def from_matrix(P: Mat33Like, seq: EulerSeq = "ZXZ", degrees: bool = False) -> V
     ranges and gimbal-lock convention of `from_quat` (3 axes; `degrees=True` returns degrees).
     `P` is checked and orthogonalised as by `quat.from_matrix` (det P ≤ 0 or a non-finite P is an
     error)."""
+    _parse_seq(seq)
     angles = _from_unit_quat(quat._from_matrix(matrix(P, "P"), "P"), seq)
     return jnp.rad2deg(angles) if degrees else angles
 

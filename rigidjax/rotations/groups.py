@@ -13,7 +13,7 @@ Reduction: `r = l ∘ q ∘ ρ` with `l` from `left` and `ρ` from `right` chose
 
 from __future__ import annotations
 
-from typing import Literal, overload
+from typing import TYPE_CHECKING, Literal, TypeAlias, overload
 
 import jax.numpy as jnp
 import numpy as np
@@ -24,6 +24,11 @@ from .._custom_types import Quat, QuatLike
 from .quat import _unit, mul
 
 _AXES = ("x", "y", "z", "X", "Y", "Z")
+if TYPE_CHECKING:
+    GroupName: TypeAlias = str
+    GroupAxis: TypeAlias = Literal["x", "y", "z", "X", "Y", "Z"]
+else:  # validated by `rotation_group` itself (SciPy's ValueErrors), not by the runtime checker
+    GroupName = GroupAxis = object
 
 
 def _rotvec_quat(rv: np.ndarray) -> np.ndarray:
@@ -143,7 +148,7 @@ def _icosahedral_xyzw() -> np.ndarray:
 
 
 def rotation_group(
-    name: str, axis: Literal["x", "y", "z", "X", "Y", "Z"] = "Z", dtype: DTypeLike | None = None
+    name: GroupName, axis: GroupAxis = "Z", dtype: DTypeLike | None = None
 ) -> Float[Array, "K 4"]:
     """The elements of a finite rotation group as unit quaternions `(K, 4)` (scalar-first), in the
     order and with the signs of SciPy's `Rotation.create_group(name, axis)`.
