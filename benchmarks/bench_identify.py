@@ -1,15 +1,25 @@
 """Inertia identification and gradient cost through `simulate`: time, compile, memory.
 
-Part 1: identification (``identify_inertia`` on gyro data)
+Part 1: identification (``identify_inertia``), every mode
     A body with a full (non-diagonal) inertia tensor ``I = R diag(1, 2, 2.6) Rᵀ`` (the one in
-    ``tests/test_identify.py``), torque-free; body angular velocity sampled at T equally spaced
-    times on [0, 8] (T = 201 and 1001), generated with SciPy ``solve_ivp`` (DOP853, rtol = atol
-    = 1e-13; independent of rigidjax), plus Gaussian noise σ = 1e-3. Each T runs in a fresh Python
-    process (no persistent compilation cache): the first call (trace + compile + fit) and then
-    ``--repeats`` calls with NEW data of the same shape (another initial Ω0 and another noise
-    draw; the compiled program is reused). Wall time with ``block_until_ready``; data generation
-    is not timed. Also recorded: convergence, Levenberg–Marquardt steps, the error of the
-    trace-normalised tensor relative to its trace, and the process's peak RSS.
+    ``tests/fit/data.py``), torque-free; body angular velocity and attitude sampled at T equally
+    spaced times on [0, 8], generated with SciPy ``solve_ivp`` (DOP853, rtol = atol = 1e-13;
+    independent of rigidjax), plus Gaussian noise σ = 1e-3 (rad/s for the gyro, rad for the
+    attitude). Modes (``MODES``): gyro data (T = 201 and 1001), attitude only, gyro + attitude,
+    three experiments with a gyro bias fitted, gyro data with 5% outliers and the Huber loss
+    (T = 201). Each mode and T runs in a fresh Python process (no persistent compilation
+    cache): the first call (trace + compile + fit) and then ``--repeats`` calls with NEW data of
+    the same shape (another initial Ω0 and another noise draw; the compiled program is
+    reused). Wall and CPU time with ``block_until_ready``; data generation is not timed. Also
+    recorded: convergence, Levenberg–Marquardt steps, the error of the trace-normalised tensor
+    relative to its trace, the largest |error|/std, the bias error, and the peak RSS.
+
+Part 1b: experiment design (``design_excitation``) against PRBS
+    Body diag(1, 2, 2.6), Ω0 = (0.1, 0.05, −0.05), 20 s, 8 segments, |u_i| ≤ 0.1, 10 gyro
+    samples per segment (σ = 1e-3). Recorded: the design time (first call, compile included),
+    the criterion log det (inertia-block information) of the design and of 20 PRBS draws of
+    the same duration, segments and bound, their Cramér–Rao std of the six inertia entries,
+    and actual known-torque fits of SciPy data (5 noise draws with the design, 5 PRBS draws).
 
 Part 2: gradient / forward cost through ``simulate``
     Scalar loss ``L(I, Ω0) = c·Ω(T) + (q(T)·q_c)²`` of ``simulate(RigidBody(I), Ω0, None,
@@ -36,7 +46,7 @@ Part 2: gradient / forward cost through ``simulate``
 
 Usage
     python benchmarks/bench_identify.py [--quick] [--repeats 3] [--seed 0]
-        [--out benchmarks/results/identify.json]
+        [--parts identify,design,grad] [--out benchmarks/results/identify.json]
 """
 
 from __future__ import annotations
@@ -105,26 +115,80 @@ def default_checkpoints(max_steps: int) -> int:
 # --------------------------------------------------------------------------- part 1
 
 
-def gyro_data(T: int, w0, rng):
-    """Noisy body angular velocity of the torque-free body, SciPy DOP853."""
+def motion(T: int, w0, q0=(1.0, 0.0, 0.0, 0.0), I=None, torque=None, span=SPAN):
+    """Clean body angular velocity (T, 3) and attitude (T, 4) at T equally spaced times on
+    [0, span], SciPy DOP853 (rtol = atol = 1e-13; independent of rigidjax)."""
     import numpy as np
     from scipy.integrate import solve_ivp
 
-    I = true_inertia()
-    ts = np.linspace(0.0, SPAN, T)
-    sol = solve_ivp(
-        lambda t, w: np.linalg.solve(I, -np.cross(w, I @ w)),
-        (0.0, SPAN),
-        np.asarray(w0, float),
-        t_eval=ts,
-        method="DOP853",
-        rtol=1e-13,
-        atol=1e-13,
-    )
-    return ts, sol.y.T + NOISE * rng.normal(size=(T, 3))
+    I = true_inertia() if I is None else I
+    ts = np.linspace(0.0, span, T)
+
+    def rhs(t, y):
+        w, q = y[:3], y[3:]
+        K = np.zeros(3) if torque is None else torque(t)
+        dw = np.linalg.solve(I, K - np.cross(w, I @ w))
+        dq = 0.5 * np.concatenate([[-(q[1:] @ w)], q[0] * w + np.cross(q[1:], w)])
+        return np.concatenate([dw, dq])
+
+    y0 = np.concatenate([np.asarray(w0, float), np.asarray(q0, float)])
+    sol = solve_ivp(rhs, (0.0, span), y0, t_eval=ts, method="DOP853", rtol=1e-13, atol=1e-13)
+    q = sol.y.T[:, 3:]
+    return ts, sol.y.T[:, :3], q / np.linalg.norm(q, axis=1, keepdims=True)
 
 
-def identify_worker(T: int, repeats: int, seed: int) -> dict:
+def gyro_data(T: int, w0, rng):
+    """Noisy body angular velocity of the torque-free body, SciPy DOP853."""
+    ts, w, _ = motion(T, w0)
+    return ts, w + NOISE * rng.normal(size=(T, 3))
+
+
+def attitude_noise(q, rng):
+    """q ∘ exp(δ), δ ~ N(0, NOISE² E)."""
+    from scipy.spatial.transform import Rotation
+
+    r = Rotation.from_quat(q.reshape(-1, 4), scalar_first=True)
+    r = r * Rotation.from_rotvec(NOISE * rng.normal(size=(len(r), 3)))
+    return r.as_quat(scalar_first=True).reshape(q.shape)
+
+
+MODES = {
+    "gyro": "gyro data, one experiment",
+    "attitude": "attitude data only (star tracker), one experiment",
+    "gyro_attitude": "gyro and attitude data, one experiment",
+    "multi_bias": "gyro data of 3 experiments (other Ω0 each), constant gyro bias fitted",
+    "huber": "gyro data with 5% outliers of 0.1 rad/s, loss='huber'",
+}
+BIAS = (0.02, -0.01, 0.015)
+EXTRA_W0 = ((1.0, -0.3, 0.5), (-0.2, 0.6, 1.2))
+
+
+def mode_data(mode: str, T: int, w0, rng):
+    """`(ts, kwargs of identify_inertia)` for one dataset of `mode` (see MODES)."""
+    import numpy as np
+
+    sig = dict(sigma_omega=NOISE, sigma_angle=NOISE)
+    if mode == "multi_bias":
+        runs = [motion(T, w) for w in (w0, *EXTRA_W0)]
+        w = np.stack([r[1] for r in runs]) + np.asarray(BIAS)
+        w = w + NOISE * rng.normal(size=w.shape)
+        return runs[0][0], dict(omega_obs=w, gyro_bias=True, sigma_omega=NOISE)
+    ts, w, q = motion(T, w0)
+    w = w + NOISE * rng.normal(size=w.shape)
+    if mode == "gyro":
+        return ts, dict(omega_obs=w, sigma_omega=NOISE)
+    if mode == "attitude":
+        return ts, dict(quat_obs=attitude_noise(q, rng), sigma_angle=NOISE)
+    if mode == "gyro_attitude":
+        return ts, dict(omega_obs=w, quat_obs=attitude_noise(q, rng), **sig)
+    if mode == "huber":
+        bad = rng.choice(w.size, size=w.size // 20, replace=False)
+        w.reshape(-1)[bad] += 0.1 * rng.choice([-1.0, 1.0], size=bad.size)
+        return ts, dict(omega_obs=w, loss="huber", sigma_omega=NOISE)
+    raise ValueError(mode)
+
+
+def identify_worker(T: int, repeats: int, seed: int, mode: str = "gyro") -> dict:
     t_proc = time.perf_counter()
     _setup_jax()
     import numpy as np
@@ -135,27 +199,36 @@ def identify_worker(T: int, repeats: int, seed: int) -> dict:
     import_s = time.perf_counter() - t_proc
     rng = np.random.default_rng(seed)
     ref = true_inertia() / np.trace(true_inertia())
-    datasets = [gyro_data(T, W0, rng)]
+    datasets = [mode_data(mode, T, W0, rng)]
     for _ in range(repeats):  # new data of the same shape: another Ω0 and another noise draw
-        datasets.append(gyro_data(T, np.asarray(W0) + 0.1 * rng.normal(size=3), rng))
+        datasets.append(mode_data(mode, T, np.asarray(W0) + 0.1 * rng.normal(size=3), rng))
 
     calls = []
-    for ts, w in datasets:
-        est, dt, dc = timed(identify_inertia, ts, omega_obs=w)
+    for ts, kw in datasets:
+        est, dt, dc = timed(identify_inertia, ts, **kw)
+        err = np.asarray(est.inertia) - ref
         calls.append(
             dict(
                 seconds=round(dt, 4),
                 cpu_seconds=round(dc, 4),
                 converged=bool(est.converged),
                 lm_steps=int(est.num_steps),
-                max_abs_error_rel_trace=float(np.abs(np.asarray(est.inertia) - ref).max()),
+                max_abs_error_rel_trace=float(np.abs(err).max()),
                 max_inertia_std=float(np.max(est.inertia_std)),
+                max_abs_error_over_std=float(np.max(np.abs(err) / np.asarray(est.inertia_std))),
+                **(
+                    dict(bias_error=float(np.abs(np.asarray(est.gyro_bias) - BIAS).max()))
+                    if mode == "multi_bias"
+                    else {}
+                ),
             )
         )
     rep = [c["seconds"] for c in calls[1:]]
     rep_cpu = [c["cpu_seconds"] for c in calls[1:]]
     return dict(
         T=T,
+        mode=mode,
+        description=MODES[mode],
         span=SPAN,
         import_s=round(import_s, 3),
         first_call_s=calls[0]["seconds"],
@@ -166,6 +239,103 @@ def identify_worker(T: int, repeats: int, seed: int) -> dict:
         calls=calls,
         maxrss_mib_after_import=rss_import,
         maxrss_mib_end=_maxrss_mib(),
+    )
+
+
+# --------------------------------------------------------------------------- design
+
+DESIGN = dict(
+    moments=MOMENTS,
+    omega0=(0.1, 0.05, -0.05),
+    duration=20.0,
+    torque_bound=0.1,
+    n_segments=8,
+    samples_per_segment=10,
+    steps=60,
+    n_prbs=20,
+    n_fits=5,
+)
+
+
+def design_worker(seed: int) -> dict:
+    """`design_excitation` against PRBS of the same duration, segments and bound: the
+    criterion and the Cramér–Rao std (20 PRBS draws), and actual known-torque fits of SciPy
+    data (noise NOISE) with the designed torque and with PRBS (5 draws each)."""
+    jax = _setup_jax()
+    import jax.numpy as jnp
+    import numpy as np
+
+    from rigidjax import design_excitation, identify_inertia
+    from rigidjax.fit import fisher_information, prbs
+    from rigidjax.fit.design import log_det_criterion, piecewise_constant
+
+    d = DESIGN
+    I = np.diag(d["moments"])
+    w0 = np.asarray(d["omega0"])
+    S, b = d["n_segments"], d["torque_bound"]
+    design, t_design, c_design = timed(
+        design_excitation,
+        I,
+        w0,
+        d["duration"],
+        torque_bound=b,
+        n_segments=S,
+        samples_per_segment=d["samples_per_segment"],
+        sigma_omega=NOISE,
+        steps=d["steps"],
+    )
+    ts = np.asarray(design.ts)
+
+    @jax.jit
+    def criterion(u):
+        F = fisher_information(
+            jnp.asarray(I), jnp.asarray(w0), u, design.ts, sigma_omega=NOISE, substeps=4
+        )
+        return log_det_criterion(F), jnp.sqrt(jnp.diagonal(jnp.linalg.inv(F))[:6])
+
+    phi_d, std_d = criterion(design.torques)
+    prbs_u = [prbs(jax.random.PRNGKey(100 + k), S, b) for k in range(d["n_prbs"])]
+    prbs_eval = [criterion(u) for u in prbs_u]
+    rng = np.random.default_rng(seed)
+
+    def fit(u):
+        u = np.asarray(u)
+        edges = np.asarray(design.edges)
+
+        def torque_np(t):
+            return u[min(int(np.searchsorted(edges, t, side="right")) - 1, S - 1)]
+
+        _, W, _ = motion(len(ts), w0, I=I, torque=torque_np, span=d["duration"])
+        uj, ej = jnp.asarray(u), jnp.asarray(edges)
+        est = identify_inertia(
+            ts,
+            omega_obs=W + NOISE * rng.normal(size=W.shape),
+            torque=lambda t, w, q: piecewise_constant(uj, ej, t),
+            sigma_omega=NOISE,
+        )
+        return (
+            float(np.abs(np.asarray(est.inertia) - I).max()),
+            float(np.max(est.inertia_std)),
+            bool(est.converged),
+        )
+
+    fits_d = [fit(design.torques) for _ in range(d["n_fits"])]
+    fits_p = [fit(u) for u in prbs_u[: d["n_fits"]]]
+    return dict(
+        parameters=d,
+        design_s=round(t_design, 3),
+        design_cpu_s=round(c_design, 3),
+        log_det_designed=float(phi_d),
+        log_det_prbs_mean=float(np.mean([float(p[0]) for p in prbs_eval])),
+        log_det_prbs_max=float(np.max([float(p[0]) for p in prbs_eval])),
+        cramer_rao_std_designed=np.asarray(std_d).tolist(),
+        cramer_rao_std_prbs_mean=np.mean([np.asarray(p[1]) for p in prbs_eval], 0).tolist(),
+        fit_max_abs_error_designed=[f[0] for f in fits_d],
+        fit_max_std_designed=[f[1] for f in fits_d],
+        fit_max_abs_error_prbs=[f[0] for f in fits_p],
+        fit_max_std_prbs=[f[1] for f in fits_p],
+        fits_converged=all(f[2] for f in fits_d + fits_p),
+        history=np.asarray(design.history).tolist(),
     )
 
 
@@ -360,21 +530,36 @@ def run(args) -> dict:
     configs = ["default"] if args.quick else [*SIM_CONFIGS, "lean_scan", "lean_scan_remat"]
     print(f"bench_identify: T={Ts}, N={Ns}, configs={configs}, load {load_start}", flush=True)
     ident = {}
-    for T in Ts:
+    runs = [("gyro", T) for T in Ts] + [(m, 201) for m in MODES if m != "gyro"]
+    for mode, T in runs if "identify" in args.parts else []:
         r = run_worker(
-            ["--_identify", str(T), "--repeats", str(args.repeats), "--seed", str(args.seed)]
+            ["--_identify", str(T), "--_mode", mode]
+            + ["--repeats", str(args.repeats), "--seed", str(args.seed)]
         )
-        ident[str(T)] = r
+        ident[f"{mode}_T{T}"] = r
         if "error" in r:
-            print(f"  identify T={T}: ERROR\n{r['error']}", flush=True)
+            print(f"  identify {mode} T={T}: ERROR\n{r['error']}", flush=True)
         else:
             print(
-                f"  identify T={T}: first call {r['first_call_s']:.2f} s, "
-                f"repeat {r['repeat_call_s_min']:.3f} s (min)",
+                f"  identify {mode} T={T}: first call {r['first_call_s']:.2f} s "
+                f"(CPU {r['first_call_cpu_s']:.2f} s), repeat {r['repeat_call_s_min']:.3f} s "
+                f"(min), max error {max(c['max_abs_error_rel_trace'] for c in r['calls']):.1e}",
+                flush=True,
+            )
+    design = None
+    if "design" in args.parts:
+        design = run_worker(["--_design", "--seed", str(args.seed)])
+        if "error" in design:
+            print(f"  design: ERROR\n{design['error']}", flush=True)
+        else:
+            print(
+                f"  design: {design['design_s']:.1f} s, log det {design['log_det_designed']:.2f} "
+                f"vs PRBS mean {design['log_det_prbs_mean']:.2f} "
+                f"(max {design['log_det_prbs_max']:.2f})",
                 flush=True,
             )
     grad = {}
-    for N in Ns:
+    for N in Ns if "grad" in args.parts else []:
         r = run_worker(
             [
                 "--_grad",
@@ -395,12 +580,37 @@ def run(args) -> dict:
                 f"{d['grad_s'] * 1e3:.1f} ms, ratio {d['grad_over_forward']:.1f}",
                 flush=True,
             )
+    grad_note = None
+    if "grad" not in args.parts and args.out.exists():  # keep the last recorded grad part
+        previous = json.loads(args.out.read_text())
+        grad = previous.get("grad", {})
+        grad_note = f"not re-run: from the run of {previous.get('timestamp')}"
     summary = {}
     ok = all("error" not in r for r in (*ident.values(), *grad.values()))
     if ok:
-        for T, r in ident.items():
-            summary[f"identify_T{T}_first_call_s"] = r["first_call_s"]
-            summary[f"identify_T{T}_repeat_call_s"] = r["repeat_call_s_min"]
+        for key, r in ident.items():
+            summary[f"identify_{key}_first_call_s"] = r["first_call_s"]
+            summary[f"identify_{key}_first_call_cpu_s"] = r["first_call_cpu_s"]
+            summary[f"identify_{key}_repeat_call_s"] = r["repeat_call_s_min"]
+            summary[f"identify_{key}_max_abs_error"] = max(
+                c["max_abs_error_rel_trace"] for c in r["calls"]
+            )
+        if design is not None and "error" not in design:
+            summary["design_s"] = design["design_s"]
+            summary["design_log_det_over_prbs_mean"] = round(
+                design["log_det_designed"] - design["log_det_prbs_mean"], 3
+            )
+            summary["design_cramer_rao_std_over_prbs_mean_max"] = round(
+                max(
+                    a / b
+                    for a, b in zip(
+                        design["cramer_rao_std_designed"],
+                        design["cramer_rao_std_prbs_mean"],
+                        strict=True,
+                    )
+                ),
+                3,
+            )
         for N, r in grad.items():
             for cfg, d in r["configs"].items():
                 summary[f"grad_over_forward_N{N}_{cfg}"] = round(d["grad_over_forward"], 2)
@@ -443,26 +653,39 @@ def run(args) -> dict:
         load_average_end=load_average(),
         total_wall_s=round(time.perf_counter() - t_start, 1),
         identify=ident,
+        design=design,
         grad=grad,
+        grad_note=grad_note,
         summary=summary,
     )
 
 
 def print_table(out: dict) -> None:
-    print("\nidentification (gyro data, fresh process per T)")
+    print("\nidentification (fresh process per mode and T)")
     print(
-        f"{'T':>6} {'first call s':>13} {'repeat s (min)':>15} {'repeat CPU s':>13} "
-        f"{'err/tr':>9} {'peak RSS MiB':>13}"
+        f"{'mode':>20} {'first call s':>13} {'first CPU s':>12} {'repeat s (min)':>15} "
+        f"{'err/tr':>9} {'err/std':>8} {'peak RSS MiB':>13}"
     )
-    for T, r in out["identify"].items():
+    for key, r in out["identify"].items():
         if "error" in r:
-            print(f"{T:>6} ERROR")
+            print(f"{key:>20} ERROR")
             continue
         err = max(c["max_abs_error_rel_trace"] for c in r["calls"])
+        z = max(c["max_abs_error_over_std"] for c in r["calls"])
         print(
-            f"{T:>6} {r['first_call_s']:>13.2f} {r['repeat_call_s_min']:>15.3f} "
-            f"{r['repeat_call_cpu_s_min']:>13.3f} {err:>9.1e} "
+            f"{key:>20} {r['first_call_s']:>13.2f} {r['first_call_cpu_s']:>12.2f} "
+            f"{r['repeat_call_s_min']:>15.3f} {err:>9.1e} {z:>8.2f} "
             f"{r['maxrss_mib_end']:>13.0f}"
+        )
+    d = out.get("design")
+    if d and "error" not in d:
+        print(
+            f"\ndesign_excitation: {d['design_s']:.1f} s; log det {d['log_det_designed']:.2f} vs "
+            f"PRBS mean {d['log_det_prbs_mean']:.2f}; Cramér–Rao std designed "
+            f"{[round(x, 6) for x in d['cramer_rao_std_designed'][:3]]} vs PRBS mean "
+            f"{[round(x, 6) for x in d['cramer_rao_std_prbs_mean'][:3]]}; fit max error "
+            f"designed {max(d['fit_max_abs_error_designed']):.1e}, PRBS "
+            f"{max(d['fit_max_abs_error_prbs']):.1e}"
         )
     print("\ngradient through simulate (RK4, fixed steps)")
     print(
@@ -494,7 +717,16 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--grad-repeats", type=int, default=5, help="timed forward/grad rounds")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="JSON output path")
+    p.add_argument(
+        "--parts",
+        type=lambda x: x.split(","),
+        default=["identify", "design", "grad"],
+        help="comma-separated parts to run (identify, design, grad); a part not run keeps "
+        "its previous grad results in the JSON",
+    )
     p.add_argument("--_identify", type=int, default=None, help=argparse.SUPPRESS)
+    p.add_argument("--_mode", default="gyro", help=argparse.SUPPRESS)
+    p.add_argument("--_design", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--_grad", type=int, default=None, help=argparse.SUPPRESS)
     p.add_argument("--_configs", default="default", help=argparse.SUPPRESS)
     return p.parse_args(argv)
@@ -503,7 +735,10 @@ def parse_args(argv=None) -> argparse.Namespace:
 def main(argv=None) -> None:
     args = parse_args(argv)
     if args._identify is not None:
-        print(json.dumps(identify_worker(args._identify, args.repeats, args.seed)))
+        print(json.dumps(identify_worker(args._identify, args.repeats, args.seed, args._mode)))
+        return
+    if args._design:
+        print(json.dumps(design_worker(args.seed)))
         return
     if args._grad is not None:
         print(json.dumps(grad_worker(args._grad, args._configs.split(","), args.grad_repeats)))

@@ -81,8 +81,8 @@ def fisher_information(
     ts: Float[Array, " T"],
     *,
     q0: Float[Array, "4"] | None = None,
-    sigma_omega: float = 1.0,
-    sigma_angle: float | None = None,
+    sigma_omega: float | Array = 1.0,
+    sigma_angle: float | Array | None = None,
     substeps: int = 4,
 ) -> Float[Array, "p p"]:
     """`F = JᵀJ` of the sampled gyro (and, with `sigma_angle`, attitude) data with respect to

@@ -65,11 +65,11 @@ class InertiaEstimate(eqx.Module):
     covariance_method: str = eqx.field(static=True, default="gauss_newton")
 
     @property
-    def principal_moments(self) -> Float[Array, "3"]:
+    def principal_moments(self) -> Float[Array, "*batch 3"]:
         return principal_axes(self.inertia)[0]
 
     @property
-    def principal_axes(self) -> Float[Array, "3 3"]:
+    def principal_axes(self) -> Float[Array, "*batch 3 3"]:
         return principal_axes(self.inertia)[1]
 
 
