@@ -275,14 +275,17 @@ def _solve_intervals(
     def interval(carry, t01):
         y, h, meter_state, result = carry
         ok = result == diffrax.RESULTS.successful
-        alive = finite(y)  # a non-finite state is not integrated further (no wasted steps)
-        t01 = jnp.stack([t01[0], jnp.where(alive, t01[1], t01[0])])
-        if not adaptive:  # the fewest equal steps of at most dt0 (to 1e-6, against rounding)
+        alive = finite(y)
+        if adaptive:  # a non-finite state is not integrated further (its steps would all be
+            # rejected until max_steps): the interval is empty, t1 = t0
+            t01 = jnp.stack([t01[0], jnp.where(alive, t01[1], t01[0])])
+        else:  # the fewest equal steps of at most dt0 (to 1e-6, against rounding), a hair
+            # above width/n so that Diffrax's ceil(width/h) is exactly n. A non-finite state
+            # just takes its n steps: the step count then depends on the times only, so under
+            # `jax.vmap` (a sweep) the loop stays unbatched instead of masking every step
             width = t01[1] - t01[0]
             n = jnp.maximum(jnp.ceil(width / dt0 * (1 - 1e-6)), 1)
-            # a hair above width/n, so that Diffrax's ceil(width/h) is exactly n (an empty
-            # interval after a failure keeps the step dt0)
-            h = jnp.where(alive, width / n * (1 + 4 * jnp.finfo(width.dtype).eps), dt0)
+            h = width / n * (1 + 4 * jnp.finfo(width.dtype).eps)
         sol = diffrax.diffeqsolve(
             term,
             solver,

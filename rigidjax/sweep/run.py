@@ -252,7 +252,10 @@ def run(
     errors: list[str] = []
     compile_s = 0.0
     if todo:
-        from tqdm.auto import tqdm
+        if progress:  # tqdm.auto: a widget in notebooks (it warns there without ipywidgets)
+            from tqdm.auto import tqdm
+        else:
+            from tqdm import tqdm
 
         dtype = next(iter(point.values())).dtype
         t_compile = time.perf_counter()
