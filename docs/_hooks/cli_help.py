@@ -1,4 +1,5 @@
-"""MkDocs hook: replace `<!-- cli-help -->` in a page with the `rigidjax --help` text.
+"""MkDocs hook: replace `<!-- cli-help -->` in a page with the help of `rigidjax` and of each
+of its commands.
 
 The text comes from the command's own argument parser, so the page cannot drift from the code.
 If the parser cannot be built (the CLI module moved or failed to import), the page says how to
@@ -18,9 +19,17 @@ def _help() -> str:
     old = os.environ.get("COLUMNS")
     os.environ["COLUMNS"] = "96"  # argparse wraps to the terminal width: fix it for the page
     try:
+        import argparse
+
         from rigidjax.cli.main import _parser
 
-        return _parser().format_help()
+        parser = _parser()
+        texts = [f"$ rigidjax --help\n{parser.format_help()}"]
+        for action in parser._actions:  # the subcommands' own parsers
+            if isinstance(action, argparse._SubParsersAction):
+                for name, sub in action.choices.items():
+                    texts.append(f"$ rigidjax {name} --help\n{sub.format_help()}")
+        return "\n".join(texts)
     finally:
         if old is None:
             os.environ.pop("COLUMNS", None)
