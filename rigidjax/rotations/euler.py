@@ -1,8 +1,10 @@
 """Angle systems: Euler / Tait–Bryan angles, generalized (Davenport) angles, and their kinematics.
 
 Conventions (THEORY §1, §4): `P` maps body vectors to space. Sequence strings are SciPy's
-(`Rotation.from_euler`): three letters from `xyz`, all uppercase = intrinsic (rotating axes),
-all lowercase = extrinsic (fixed axes), no two consecutive letters equal. Intrinsic `"ABC"` with
+(`Rotation.from_euler`): letters from `xyz`, all uppercase = intrinsic (rotating axes),
+all lowercase = extrinsic (fixed axes), no two consecutive letters equal; three letters, or 1 to
+3 for the angle → rotation maps (`to_quat`, `to_matrix`). A bad sequence is SciPy's ValueError
+(with the fix). `degrees=True` reads or returns degrees, as SciPy. Intrinsic `"ABC"` with
 angles `(α, β, γ)` is `P = R_A(α) R_B(β) R_C(γ)`; extrinsic `"abc"` is `P = R_c(γ) R_b(β) R_a(α)`.
 The classical angles of Borisov–Mamaev (001) — precession ψ, nutation θ, spin φ — are `"ZXZ"`
 with angles `(ψ, θ, φ)`: `P = Rz(ψ) Rx(θ) Rz(φ)`.

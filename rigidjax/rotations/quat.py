@@ -10,6 +10,10 @@ offending value and the fix; under `jit`/`vmap`/`grad` the same message comes fr
 `equinox.error_if` at run time. The algebra used inside integrators (`mul`, `rotate`,
 `normalize`, `to_matrix`, `inv`) keeps a single check of `|q| > 0`, finite; `from_matrix`,
 `to_rotvec`, `angle` and the other conversions check their arguments fully.
+
+Also here, from modules of their own: `mean` (`average`), `align_vectors` (`align`), `power`,
+`magnitude`, `approx_equal` (`powers`), `rotation_group`, `reduce` (`groups`), `from_scipy`,
+`to_scipy`, `from_jaxlie`, `to_jaxlie` (`interop`) and the Cayley–Klein forms (`cayley_klein`).
 """
 
 from __future__ import annotations
