@@ -267,7 +267,7 @@ def design_worker(seed: int) -> dict:
 
     from rigidjax import design_excitation, identify_inertia
     from rigidjax.fit import fisher_information, prbs
-    from rigidjax.fit.design import log_det_criterion, piecewise_constant
+    from rigidjax.fit.design import PiecewiseConstantTorque, log_det_criterion
 
     d = DESIGN
     I = np.diag(d["moments"])
@@ -306,11 +306,10 @@ def design_worker(seed: int) -> dict:
             return u[min(int(np.searchsorted(edges, t, side="right")) - 1, S - 1)]
 
         _, W, _ = motion(len(ts), w0, I=I, torque=torque_np, span=d["duration"])
-        uj, ej = jnp.asarray(u), jnp.asarray(edges)
         est = identify_inertia(
             ts,
             omega_obs=W + NOISE * rng.normal(size=W.shape),
-            torque=lambda t, w, q: piecewise_constant(uj, ej, t),
+            torque=PiecewiseConstantTorque(jnp.asarray(u), jnp.asarray(edges)),  # one compile
             sigma_omega=NOISE,
         )
         return (
@@ -580,11 +579,15 @@ def run(args) -> dict:
                 f"{d['grad_s'] * 1e3:.1f} ms, ratio {d['grad_over_forward']:.1f}",
                 flush=True,
             )
-    grad_note = None
-    if "grad" not in args.parts and args.out.exists():  # keep the last recorded grad part
-        previous = json.loads(args.out.read_text())
-        grad = previous.get("grad", {})
-        grad_note = f"not re-run: from the run of {previous.get('timestamp')}"
+    notes = {}  # parts not re-run keep their last recorded results
+    previous = json.loads(args.out.read_text()) if args.out.exists() else {}
+    for part in ("grad", "design"):
+        if part not in args.parts and previous.get(part):
+            notes[part] = f"not re-run: from the run of {previous.get('timestamp')}"
+            if part == "grad":
+                grad = previous["grad"]
+            else:
+                design = previous["design"]
     summary = {}
     ok = all("error" not in r for r in (*ident.values(), *grad.values()))
     if ok:
@@ -655,7 +658,8 @@ def run(args) -> dict:
         identify=ident,
         design=design,
         grad=grad,
-        grad_note=grad_note,
+        parts_run=args.parts,
+        notes=notes,
         summary=summary,
     )
 

@@ -2,7 +2,13 @@
 several experiments (`identify_inertia`), and the design of the excitation that makes the
 inertia best identifiable (`design_excitation`)."""
 
-from .design import ExcitationDesign, design_excitation, fisher_information, prbs
+from .design import (
+    ExcitationDesign,
+    PiecewiseConstantTorque,
+    design_excitation,
+    fisher_information,
+    prbs,
+)
 from .identify import InertiaEstimate, identify_inertia
 from .losses import LOSSES
 
@@ -10,6 +16,7 @@ __all__ = [
     "LOSSES",
     "ExcitationDesign",
     "InertiaEstimate",
+    "PiecewiseConstantTorque",
     "design_excitation",
     "fisher_information",
     "identify_inertia",

@@ -59,6 +59,18 @@ class ExcitationDesign(eqx.Module):
         return piecewise_constant(self.torques, self.edges, t)
 
 
+class PiecewiseConstantTorque(eqx.Module):
+    """`torque(t, omega, q) = torques[k]` on `[edges[k], edges[k+1])`: a torque function whose
+    values are arrays (a new profile of the same shape reuses the compiled fit)."""
+
+    torques: Float[Array, "S 3"]
+    edges: Float[Array, " S+1"]
+
+    def __call__(self, t: RealLike, omega: Array, q: Array) -> Float[Array, "3"]:
+        del omega, q
+        return piecewise_constant(self.torques, self.edges, t)
+
+
 def piecewise_constant(
     torques: Float[Array, "S 3"], edges: Float[Array, " S+1"], t: RealLike
 ) -> Float[Array, "3"]:

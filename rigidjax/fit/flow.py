@@ -61,6 +61,7 @@ def flow(
     substeps: int | Int[Array, " T-1"],
     torque: Torque | tuple[Torque, ...] | None = None,
     torque_frame: Frame = "body",
+    attitude: bool = True,
 ) -> tuple[Float[Array, "*E T 3"], Float[Array, "*E T 4"]]:
     """`(Ω (T, 3), q (T, 4))` at `ts` from `(Ω, q) = (omega0, q0)` at `ts[0]`; or of E
     experiments of the same body at once (`omega0 (E, 3)`, `q0 (E, 4)`, `ts (T,)` or
@@ -70,7 +71,8 @@ def flow(
     reverse differentiable) or an integer array `(T-1,)` (a `while` loop: forward mode only,
     as the fits use it). Stage times are kept inside the open output interval (by √eps of its
     width), so a torque that is piecewise constant between output times is evaluated on the
-    right piece."""
+    right piece. With `attitude=False` (no attitude data and no torque, which may depend on
+    it) q is not integrated and stays q0: a smaller program, faster to compile."""
     I = jnp.asarray(inertia)
     I_inv = jnp.linalg.inv(I)
     dtype = I.dtype
@@ -88,6 +90,8 @@ def flow(
 
         def f(t, w, q):
             K = _torque(torque, torque_frame, jnp.clip(t, lo, hi), w, q)
+            if not attitude:
+                return (K - jnp.cross(w, w @ I.T)) @ I_inv.T, jnp.zeros_like(q)
             return _rhs(I, I_inv, K, w, q)
 
         def step(i, y):
@@ -99,6 +103,8 @@ def flow(
             k4 = f(t + h[:, 0], w + h * k3[0], q + h * k3[1])
             w = w + h / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0])
             q = q + h / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
+            if not attitude:
+                return w, y[1]
             return w, q * jax.lax.rsqrt(jnp.sum(q * q, -1, keepdims=True))
 
         y = jax.lax.fori_loop(0, n, step, carry)  # int n: a scan; traced n: a while loop

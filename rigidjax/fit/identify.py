@@ -158,8 +158,9 @@ def identify_inertia(
     if method not in METHODS:
         raise ValueError(f"covariance must be one of {METHODS} or None, got {covariance!r}")
     tol = [x for x in (rtol, atol) if x is not None]
-    for name, x in (("rtol", rtol), ("atol", atol), ("sigma_omega", sigma_omega)):
-        if x is not None and not (isinstance(x, int | float) and x > 0):
+    checks = (("rtol", rtol), ("atol", atol), ("sigma_omega", sigma_omega))
+    for name, x in (*checks, ("sigma_angle", sigma_angle)):
+        if isinstance(x, int | float) and not x > 0:  # arrays (traced too) are taken as given
             raise ValueError(f"{name} must be a positive number, got {x!r}")
     step_angle = min(min(tol) ** 0.2, 0.1) if tol else 0.02
 
@@ -256,6 +257,7 @@ def _fit(
             substeps,
             model.torque,
             model.torque_frame,
+            attitude=att or model.torque is not None,
         )
         z = []
         if data.omega is not None:
