@@ -583,7 +583,9 @@ def run(args) -> dict:
     previous = json.loads(args.out.read_text()) if args.out.exists() else {}
     for part in ("grad", "design"):
         if part not in args.parts and previous.get(part):
-            notes[part] = f"not re-run: from the run of {previous.get('timestamp')}"
+            notes[part] = previous.get("notes", {}).get(part) or (
+                f"not re-run: from the run of {previous.get('timestamp')}"
+            )
             if part == "grad":
                 grad = previous["grad"]
             else:
