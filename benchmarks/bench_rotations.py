@@ -11,6 +11,14 @@ What is measured
     * ``jax.scipy.spatial.transform.Rotation`` under ``jax.jit``, float64 and float32 (skipped,
       and recorded as unavailable in the JSON, if the installed JAX lacks it).
 
+    The functions completed against SciPy (issue 17) are timed against SciPy in the same run
+    (``extras`` in the JSON; rigidjax under ``jax.jit`` in float64, ``--n-extra`` rotations):
+    ``quat.align_vectors`` (one problem of ``--n-extra`` vector pairs; 1000 problems of 8 pairs,
+    ``jax.vmap`` against a SciPy loop), ``RotationSpline`` (100 keys: construction plus
+    attitude, rate and acceleration at ``--n-extra`` times), ``Slerp`` (100 keys), ``quat.power``,
+    ``quat.magnitude``, ``quat.approx_equal``, ``quat.reduce`` (octahedral group on both sides,
+    at most 5000 rotations) and ``euler.to_quat`` of a 2-axis sequence in degrees.
+
 How
     All libraries get the same inputs: N uniformly random rotations (seeded), expressed as
     rotation vectors, matrices, quaternions (SciPy's x, y, z, w order; rigidjax's w, x, y, z) and
@@ -22,7 +30,7 @@ How
     to sign, rotation vectors up to the θ ↔ −θ ambiguity at |θ| = π, angles modulo 2π.
 
 Usage
-    python benchmarks/bench_rotations.py [--n 1000000] [--repeats 5]
+    python benchmarks/bench_rotations.py [--n 1000000] [--n-extra 100000] [--repeats 5]
         [--out benchmarks/results/rotations.json]
 """
 
@@ -45,8 +53,10 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 from _harness import Timing, load_average, machine_info, measure, write_json  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
+from scipy.spatial.transform import RotationSpline as SciPySpline  # noqa: E402
+from scipy.spatial.transform import Slerp as SciPySlerp  # noqa: E402
 
-from rigidjax import euler, quat, so3  # noqa: E402
+from rigidjax import RotationSpline, Slerp, euler, quat, so3  # noqa: E402
 
 try:
     from jax.scipy.spatial.transform import Rotation as JaxRotation  # noqa: E402
@@ -222,6 +232,192 @@ def max_abs_diff(y: np.ndarray, ref: np.ndarray, kind: str) -> float:
     return float(d.max())
 
 
+# --------------------------------------------------------------------------- extras (issue 17)
+
+
+@dataclass(frozen=True)
+class Extra:
+    """A function completed against SciPy: SciPy's and rigidjax's callables on the same inputs
+    (rigidjax's compiled with `jax.jit`), `size` items per call, and the maximum deviation
+    between their (float64) outputs, measured by `diff`."""
+
+    name: str
+    scipy_fn: Callable
+    rigidjax_fn: Callable
+    scipy_args: tuple
+    rigidjax_args: tuple
+    size: int
+    diff: Callable
+
+
+def _q_diff(y, ref) -> float:
+    """Largest deviation of quaternions (..., 4) up to sign."""
+    y, ref = np.asarray(y), np.asarray(ref)
+    return float(np.minimum(np.abs(y - ref).max(-1), np.abs(y + ref).max(-1)).max())
+
+
+def _plain_diff(y, ref) -> float:
+    return float(np.max(np.abs(np.asarray(y, dtype=np.float64) - np.asarray(ref, np.float64))))
+
+
+def _spline_diff(y, ref) -> float:
+    return max(_q_diff(y[0], ref[0]), _plain_diff(y[1], ref[1]), _plain_diff(y[2], ref[2]))
+
+
+def build_extras(n: int, seed: int) -> list[Extra]:
+    rng = np.random.default_rng(seed)
+    r = Rotation.random(n, rng=rng)
+    s = Rotation.random(n, rng=rng)
+    q, q2 = r.as_quat(scalar_first=True), s.as_quat(scalar_first=True)
+    a = rng.normal(size=(n, 3))
+    b = Rotation.random(rng=rng).apply(a) + 0.01 * rng.normal(size=(n, 3))
+    w = rng.uniform(0.5, 2.0, n)
+    ab = rng.normal(size=(1000, 8, 3))
+    bb = ab + 0.05 * rng.normal(size=(1000, 8, 3))
+    keys = Rotation.random(100, rng=rng)
+    kt = np.cumsum(rng.uniform(0.5, 1.5, 100))
+    kq = keys.as_quat(scalar_first=True)
+    t = np.sort(rng.uniform(kt[0], kt[-1], n))
+    g = Rotation.create_group("O")
+    gq = g.as_quat(scalar_first=True)
+    eul = rng.uniform(-180, 180, (n, 2))
+    n_reduce = min(n, 5000)
+
+    def sp_spline(kt, keys, t):
+        sp = SciPySpline(kt, keys)
+        return sp(t).as_quat(scalar_first=True), sp(t, 1), sp(t, 2)
+
+    def rj_spline(kt, kq, t):
+        sp = RotationSpline(kt, kq)
+        return sp(t), sp(t, 1), sp(t, 2)
+
+    def sp_align_many(a, b):
+        return np.stack(
+            [
+                Rotation.align_vectors(x, y)[0].as_quat(scalar_first=True)
+                for x, y in zip(a, b, strict=True)
+            ]
+        )
+
+    return [
+        Extra(
+            "align_vectors",
+            lambda a, b, w: Rotation.align_vectors(a, b, w)[0].as_quat(scalar_first=True),
+            lambda a, b, w: quat.align_vectors(a, b, w)[0],
+            (a, b, w),
+            (a, b, w),
+            n,
+            _q_diff,
+        ),
+        Extra(
+            "align_vectors_1000x8",
+            sp_align_many,
+            jax.vmap(lambda a, b: quat.align_vectors(a, b)[0]),
+            (ab, bb),
+            (ab, bb),
+            1000,
+            _q_diff,
+        ),
+        Extra(
+            "rotation_spline_100_keys",
+            sp_spline,
+            rj_spline,
+            (kt, keys, t),
+            (kt, kq, t),
+            n,
+            _spline_diff,
+        ),
+        Extra(
+            "slerp_100_keys",
+            lambda kt, keys, t: SciPySlerp(kt, keys)(t).as_quat(scalar_first=True),
+            lambda kt, kq, t: Slerp(kt, kq)(t),
+            (kt, keys, t),
+            (kt, kq, t),
+            n,
+            _q_diff,
+        ),
+        Extra(
+            "power_0.5",
+            lambda x: (Rotation.from_quat(x, scalar_first=True) ** 0.5).as_quat(scalar_first=True),
+            lambda x: quat.power(x, 0.5),
+            (q,),
+            (q,),
+            n,
+            _q_diff,
+        ),
+        Extra(
+            "magnitude",
+            lambda x: Rotation.from_quat(x, scalar_first=True).magnitude(),
+            quat.magnitude,
+            (q,),
+            (q,),
+            n,
+            _plain_diff,
+        ),
+        Extra(
+            "approx_equal",
+            lambda x, y: Rotation.from_quat(x, scalar_first=True).approx_equal(
+                Rotation.from_quat(y, scalar_first=True), 0.5
+            ),
+            lambda x, y: quat.approx_equal(x, y, 0.5),
+            (q, q2),
+            (q, q2),
+            n,
+            _plain_diff,
+        ),
+        Extra(  # SciPy's reduce runs ~2e3 rotations/s for O × O: fewer rotations
+            "reduce_O_O",
+            lambda x: Rotation.from_quat(x, scalar_first=True).reduce(g, g).magnitude(),
+            lambda x: quat.magnitude(quat.reduce(x, gq, gq)),
+            (q[:n_reduce],),
+            (q[:n_reduce],),
+            n_reduce,
+            _plain_diff,
+        ),
+        Extra(
+            "euler_to_quat_xy_degrees",
+            lambda x: Rotation.from_euler("xy", x, degrees=True).as_quat(scalar_first=True),
+            lambda x: euler.to_quat(x, "xy", degrees=True),
+            (eul,),
+            (eul,),
+            n,
+            _q_diff,
+        ),
+    ]
+
+
+def bench_extra(e: Extra, repeats: int) -> dict:
+    """SciPy (NumPy in, NumPy out) and rigidjax (`jax.jit`, float64, inputs on the device)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ts = measure(e.scipy_fn, *e.scipy_args, repeats=repeats, aot=False)
+    args = [jax.device_put(jnp.asarray(x)) for x in e.rigidjax_args]
+    tr = measure(e.rigidjax_fn, *args, repeats=repeats)
+    sp = {**ts.summary(), "items_per_s": e.size / ts.best}
+    rj = {
+        **tr.summary(),
+        "items_per_s": e.size / tr.best,
+        "compile_s": tr.trace_lower_compile_s,
+        "max_abs_diff_vs_scipy": e.diff(tr.output, ts.output),
+    }
+    return {"items": e.size, "scipy": sp, "rigidjax": rj, "ratio_vs_scipy": sp["seconds"] / tr.best}
+
+
+def extra_rows(extras: dict) -> list[str]:
+    head = (
+        f"{'function (float64)':<26}{'items':>9}{'SciPy/s':>12}{'rigidjax/s':>12}"
+        f"{'rj/SciPy':>10}{'compile':>9}{'diff':>10}"
+    )
+    rows = [head, "-" * len(head)]
+    for name, r in extras.items():
+        rows.append(
+            f"{name:<26}{r['items']:>9}{r['scipy']['items_per_s']:>12.3g}"
+            f"{r['rigidjax']['items_per_s']:>12.3g}{r['ratio_vs_scipy']:>10.2f}"
+            f"{r['rigidjax']['compile_s']:>9.2f}{r['rigidjax']['max_abs_diff_vs_scipy']:>10.1e}"
+        )
+    return rows
+
+
 # --------------------------------------------------------------------------- driver
 
 
@@ -290,6 +486,9 @@ def table_rows(results: dict) -> list[str]:
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--n", type=int, default=1_000_000, help="number of rotations")
+    p.add_argument(
+        "--n-extra", type=int, default=100_000, help="rotations / times / vector pairs (extras)"
+    )
     p.add_argument("--repeats", type=int, default=5, help="timed calls per measurement")
     p.add_argument("--seed", type=int, default=0, help="seed of the random rotations")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="JSON output path")
@@ -305,6 +504,10 @@ def main(argv: list[str] | None = None) -> dict:
     for op in build_ops():
         results[op.name] = bench_op(op, inputs, args.repeats)
         print(f"  done {op.name} ({time.perf_counter() - t_start:.1f} s)", file=sys.stderr)
+    extras = {}
+    for e in build_extras(args.n_extra, args.seed):
+        extras[e.name] = bench_extra(e, args.repeats)
+        print(f"  done {e.name} ({time.perf_counter() - t_start:.1f} s)", file=sys.stderr)
     report = {
         "benchmark": "rotations",
         "timestamp": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
@@ -318,9 +521,13 @@ def main(argv: list[str] | None = None) -> dict:
         "load_average_start": load_start,
         "load_average_end": load_average(),
         "ops": results,
+        "n_extra": args.n_extra,
+        "extras": extras,
     }
     print(f"N = {args.n}, rates in 10⁶ rotations/s (best of {args.repeats}); diff = max |Δ|")
     print("\n".join(table_rows(results)))
+    print(f"\nCompleted against SciPy: items/s (best of {args.repeats}), diff = max |Δ| vs SciPy")
+    print("\n".join(extra_rows(extras)))
     write_json(args.out, report)
     print(f"load average start {load_start}, end {report['load_average_end']}")
     print(f"wrote {args.out} (total {report['total_wall_s']:.1f} s)")
