@@ -26,7 +26,7 @@ from ..rotations import quat
 Torque = Callable[[Array, Array, Array], Array]
 
 
-def _torque(torque, torque_frame, t, w, q):
+def torque_rows(torque, torque_frame, t, w, q):
     """Body-frame torque of each experiment: `torque(t, Ω, q)` mapped over the rows, or the
     row's own function of a tuple (one per experiment)."""
     if torque is None:
@@ -89,7 +89,7 @@ def flow(
         lo, hi = t0 + squeeze * (t1 - t0), t1 - squeeze * (t1 - t0)
 
         def f(t, w, q):
-            K = _torque(torque, torque_frame, jnp.clip(t, lo, hi), w, q)
+            K = torque_rows(torque, torque_frame, jnp.clip(t, lo, hi), w, q)
             if not attitude:
                 return (K - jnp.cross(w, w @ I.T)) @ I_inv.T, jnp.zeros_like(q)
             return _rhs(I, I_inv, K, w, q)

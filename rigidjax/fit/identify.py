@@ -22,7 +22,8 @@ from ..mechanics.inertia import as_tensor, principal_axes
 from ..rotations import quat
 from .covariance import METHODS, covariance
 from .experiments import Experiments, angular_rate, experiments, guess, initial_states
-from .flow import flow, substeps_for
+from .flow import flow, substeps_for, torque_rows
+from .initial import linear_inertia
 from .levenberg import levenberg_marquardt
 from .losses import Loss, make_loss
 from .parameters import Layout, inertia_from_params, params_from_inertia
@@ -111,7 +112,8 @@ def identify_inertia(
     sigmas with a robust loss). Unknowns: the six inertia parameters, Ω(0) and (with attitude
     data) q(0) of each experiment, the gyro bias b with `gyro_bias=True`, the per-axis gyro
     scale-factor error s with `gyro_scale=True` (with both data kinds, the gyro residuals are
-    fitted first, then everything).
+    fitted first, then everything). Start: `inertia_guess`, else the linear least-squares
+    estimate from Euler's equations (`rigidjax.fit.initial`).
 
     Covariance (`rigidjax.fit.covariance`): `"gauss_newton"` (`s²(JᵀJ)⁻¹`, residual-variance
     scaled; default for `"l2"`) or `"sandwich"` (`A⁻¹BA⁻¹`; default for the robust losses).
@@ -217,6 +219,31 @@ class _Options(eqx.Module):
     max_steps: int = eqx.field(static=True)
 
 
+def _linear_guess(data: Experiments, q_ref: Array, model: _Model) -> Array:
+    """`linear_inertia` from the gyro data (or attitude central differences) and the torque
+    at the samples (at the measured attitude, else the starting one)."""
+    if data.omega is not None:
+        w = data.omega
+    else:
+        assert data.quat is not None
+        dt = (data.ts[:, 2:] - data.ts[:, :-2])[..., None]
+        w = quat.local(data.quat[:, :-2], data.quat[:, 2:]) / dt
+        w = jnp.concatenate([w[:, :1], w, w[:, -1:]], axis=1)
+    K = None
+    if model.torque is not None:
+        q = (
+            data.quat
+            if data.quat is not None
+            else jnp.broadcast_to(q_ref[:, None], (*w.shape[:2], 4))
+        )
+        K = jax.vmap(
+            lambda t, w, q: torque_rows(model.torque, model.torque_frame, t, w, q),
+            in_axes=1,
+            out_axes=1,
+        )(data.ts, w, q)
+    return linear_inertia(data.ts, w, K)
+
+
 @eqx.filter_jit
 def _fit(
     data: Experiments,
@@ -230,9 +257,9 @@ def _fit(
     data = data.arranged()
     E, T = data.shape
     I_guess, w_guess, q_guess = guesses
-    if I_guess is None:
-        I_guess = jnp.eye(3, dtype=data.ts.dtype) * ((model.trace or 3.0) / 3)
     w_guess, q_ref = initial_states(data, w_guess, q_guess)
+    if I_guess is None:  # the linear least-squares estimate (rigidjax.fit.initial)
+        I_guess = _linear_guess(data, q_ref, model)
     p0 = layout.pack(params_from_inertia(I_guess), w_guess)
     substeps = substeps_for(data.ts, 1.25 * angular_rate(data), opts.step_angle, opts.sim_max_steps)
 
