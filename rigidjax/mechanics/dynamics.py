@@ -60,7 +60,7 @@ class _BatchMaxRMS(eqx.Module):
     axis: int = eqx.field(static=True)
 
     def __call__(self, y) -> Array:
-        leaves = [jnp.moveaxis(x, self.axis, 0) for x in jtu.tree_leaves(y)]
+        leaves = [jnp.moveaxis(jnp.atleast_1d(x), self.axis, 0) for x in jtu.tree_leaves(y)]
         squares = sum(jnp.sum((x * x).reshape(x.shape[0], -1), axis=1) for x in leaves)
         count = sum(math.prod(x.shape[1:]) for x in leaves)
         return jnp.sqrt(jnp.max(squares) / count)
@@ -140,7 +140,10 @@ class _QuaternionComponents(eqx.Module):
         dw = (c[0] * w1 * w2, c[1] * w2 * w0, c[2] * w0 * w1)
         if self.torque is not None:
             w, q = jnp.stack((w0, w1, w2)), jnp.stack((q0, q1, q2, q3))  # (3, B), (4, B)
-            K = jax.vmap(self.torque, in_axes=(None, -1, -1), out_axes=-1)(t, w, q)
+            torque = self.torque  # one body (scalar components): called as it is
+            if w.ndim == 2:
+                torque = jax.vmap(torque, in_axes=(None, -1, -1), out_axes=-1)
+            K = torque(t, w, q)
             if self.torque_frame == "space":
                 K = quat.rotate(quat.conj(q.T), K.T).T
             K = K.astype(w0.dtype)
@@ -161,8 +164,10 @@ def _normalize_components(y):
 
 
 def _stack_components(ys) -> tuple[Array, Array]:
-    """`(Ω (T, B, 3), q (T, B, 4))` from the saved component state."""
-    return jnp.stack(ys[0], axis=-1), jnp.stack(ys[1], axis=-1)
+    """`(Ω (T, B, 3), q (T, B, 4))` from the saved component state (`(T,)` components of
+    one body: B = 1)."""
+    w, q = jnp.stack(ys[0], axis=-1), jnp.stack(ys[1], axis=-1)
+    return (w, q) if w.ndim == 3 else (w[:, None], q[:, None])
 
 
 def _from_lie(ys) -> tuple[Array, Array]:
@@ -353,7 +358,9 @@ def simulate(
         term = diffrax.ODETerm(_QuaternionComponents(torque, torque_frame))
         solver = None
         step_end = _normalize_components
-        y0 = (tuple(omega0.T), tuple(q0.T))  # seven (B,) arrays, Ω first
+        # seven (B,) arrays, Ω first; one body: seven scalars (under `jax.vmap`, e.g. in a
+        # sweep, they become (N,) arrays, not (N, 1), which XLA vectorises poorly)
+        y0 = (tuple(omega0.T), tuple(q0.T)) if batch else (tuple(omega0[0]), tuple(q0[0]))
         # one body for the whole batch: scalar coefficients that broadcast, instead of
         # streaming (B,) copies through every stage
         I = body.operator()[0].astype(dtype)
