@@ -450,6 +450,42 @@ def _checks(d: dict) -> str:
     )
 
 
+def _sweep(d: dict) -> str:
+    par = d.get("parameters", {})
+    raw = [[_g(r.get("B")), _g(r.get("body_steps_per_s"))] for r in _list(d.get("raw"))]
+    sweeps = [
+        [
+            _g(r.get("points")),
+            _g(r.get("chunk")),
+            _g(r.get("body_steps_per_s")),
+            _ratio(r.get("ratio_to_raw")),
+        ]
+        for r in _list(d.get("sweep"))
+    ]
+    devices = [
+        [_g(r.get("num_devices")), _g(r.get("body_steps_per_s"))] for r in _list(d.get("devices"))
+    ]
+    memory = [
+        [_g(r.get("points")), _bytes(r.get("peak_rss_bytes")), _g(r.get("wall_time_s"))]
+        for r in _list(d.get("memory"))
+    ]
+    return "\n\n".join(
+        [
+            f"`sweep.run` against one batched `simulate` (the whole batch as one state), "
+            f"{_g(par.get('steps'))} steps of {par.get('solver', '–')}, outputs at the end "
+            "only; times exclude compiling.",
+            "**Raw batched simulate** (the baseline is the best batch):\n\n"
+            + _table(["bodies B", "body-steps/s"], raw),
+            "**Sweep** (in memory):\n\n"
+            + _table(["points", "chunk", "body-steps/s", "÷ best raw"], sweeps),
+            "**Virtual CPU devices** (`--xla_force_host_platform_device_count`):\n\n"
+            + _table(["devices", "body-steps/s"], devices),
+            f"**Memory** (a Zarr store; peak RSS ratio {_ratio(d.get('memory_ratio'))}):\n\n"
+            + _table(["points", "peak RSS", "wall s"], memory),
+        ]
+    )
+
+
 def _generic(d: dict) -> str:
     s = d.get("summary")
     items = s.items() if isinstance(s, dict) else ()
@@ -463,6 +499,7 @@ SECTIONS: dict[str, tuple[str, Callable[[dict], str]]] = {
     "dynamics.json": ("Batched free-body dynamics", _dynamics),
     "identify.json": ("Inertia identification and gradient cost", _identify),
     "checks.json": ("What the input checks cost", _checks),
+    "sweep.json": ("Sweeps: throughput, devices, memory", _sweep),
 }
 
 
