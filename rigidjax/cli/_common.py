@@ -179,11 +179,11 @@ def checks_as_nan() -> Iterator[None]:
     if getattr(_errors, "EQX_ON_ERROR", None) != "raise":
         yield  # the user chose another mode (nan, breakpoint, off): keep it
         return
-    _errors.EQX_ON_ERROR = "nan"
+    setattr(_errors, "EQX_ON_ERROR", "nan")  # noqa: B010 - a module setting, not an export
     try:
         yield
     finally:
-        _errors.EQX_ON_ERROR = "raise"
+        setattr(_errors, "EQX_ON_ERROR", "raise")  # noqa: B010
         jax.clear_caches()
         sweep_run = sys.modules.get("rigidjax.sweep.run")  # its compiled programs, if any
         if sweep_run is not None:

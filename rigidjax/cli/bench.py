@@ -78,6 +78,7 @@ def _rows(repeat: int) -> list[dict]:
     from scipy.spatial.transform import Rotation
 
     from .. import sweep
+    from .._integrate import SolveOptions
     from ..mechanics.body import RigidBody
     from ..mechanics.dynamics import simulate
     from ..mechanics.invariants import energy
@@ -106,12 +107,12 @@ def _rows(repeat: int) -> list[dict]:
     # a batch of free bodies, fixed-step RK4, same scheme as the NumPy baseline
     w0 = jnp.asarray(rng.normal(size=(BODIES, 3)))
     ts = jnp.array([0.0, STEPS * DT])
-    fixed = dict(
+    fixed = SolveOptions(
         solver=RK4(), stepsize_controller=diffrax.ConstantStepSize(), dt0=DT, max_steps=STEPS
     )
 
     def final(inertia, w0):
-        tr = simulate(RigidBody(inertia, check=False), w0, None, ts, check=False, **fixed)
+        tr = simulate(RigidBody(inertia, check=False), w0, None, ts, check=False, options=fixed)
         return tr.omega[:, -1], tr.quat[:, -1]
 
     forward = jax.jit(final)
