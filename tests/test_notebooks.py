@@ -5,17 +5,10 @@ from pathlib import Path
 import pytest
 
 NOTEBOOKS = sorted((Path(__file__).resolve().parent.parent / "notebooks").glob("*.ipynb"))
-# ~25-45 s each (they compile and run simulations and fits): with the slow tests
-SLOW = {"inertia_identification.ipynb", "dzhanibekov.ipynb"}
 
 
-@pytest.mark.parametrize(
-    "path",
-    [
-        pytest.param(p, id=p.name, marks=[pytest.mark.slow] if p.name in SLOW else [])
-        for p in NOTEBOOKS
-    ],
-)
+@pytest.mark.slow  # ~25-80 s each (they compile and run simulations, sweeps and fits)
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])
 def test_notebook_executes(path):
     nbclient = pytest.importorskip("nbclient")
     nbformat = pytest.importorskip("nbformat")
