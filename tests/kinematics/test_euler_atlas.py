@@ -130,6 +130,7 @@ def test_darboux_through_exact_gimbal_locks(seq, frame, axis):
     assert np.all(np.sum(q[1:] * q[:-1], -1) > 0)
 
 
+@pytest.mark.slow  # ~25 s (two compiled solves)
 def test_darboux_from_the_identity_and_near_miss():
     """The default start (P0 = None, the lock of "ZXZ") and a path passing 1e-9 from it
     (formerly a gimbal-lock error) agree with quaternion kinematics; `switch=0` (one chart)
@@ -152,8 +153,8 @@ def test_darboux_from_the_identity_and_near_miss():
 
 @pytest.mark.parametrize(
     ("kinematics", "seq", "axis"),
-    [
-        ("euler", "ZXZ", 0),
+    [  # ~40 s each (simulate compiled with the chart atlas): with the slow tests
+        pytest.param("euler", "ZXZ", 0, marks=pytest.mark.slow),
         pytest.param(EulerAngles(seq="XYZ", frame="body"), "XYZ", 1, marks=pytest.mark.slow),
     ],
 )

@@ -54,12 +54,11 @@ def _directional_fd(f, x, v, h=1e-5):
 
 @pytest.mark.parametrize(
     "kinematics",
-    # ~30 s each (compiling reverse mode through the adaptive solve): the default kinematics in
-    # the quick suite, the other five with the slow tests
-    ["quat"]
-    + [
+    # ~30 s each (compiling reverse mode through the adaptive solve): with the slow tests
+    # (the quick suite compares reverse with forward mode: test_forward_mode_matches_reverse)
+    [
         pytest.param(k, marks=pytest.mark.slow)
-        for k in ("rotvec", "geometric", "matrix", "euler", "cayley_klein")
+        for k in ("quat", "rotvec", "geometric", "matrix", "euler", "cayley_klein")
     ],
 )
 def test_reverse_mode_every_kinematics(kinematics):
