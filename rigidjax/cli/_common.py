@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import importlib.util
+import math
 import os
 import sys
 import tempfile
@@ -97,6 +98,21 @@ def pyplot():
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def save_figure(fig, path: str) -> None:
+    """Lay out `fig`, write it to `path` as PNG and close it."""
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, format="png")
+    pyplot().close(fig)
+
+
+def check_positive(args, *names: str) -> None:
+    """UsageError unless each option `names` (argparse dests) is None or positive and finite."""
+    for name in names:
+        v = getattr(args, name)
+        if v is not None and not (math.isfinite(v) and v > 0):
+            raise UsageError(f"--{name.replace('_', '-')} must be positive and finite, got {v}")
 
 
 def enable_x64(float32: bool) -> None:

@@ -43,6 +43,13 @@ def _best(f: Callable[[], object], repeat: int) -> float:
     return min(times)
 
 
+def _row(name: str, unit: str, work: float, seconds: float, base_s: float, base: str) -> dict:
+    """One table row: `work` units done in `seconds` by rigidjax and `base_s` by the baseline."""
+    return dict(
+        name=name, unit=unit, rigidjax=work / seconds, baseline=work / base_s, baseline_name=base
+    )
+
+
 def _numpy_rk4(w: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The baseline: RK4 on Euler's equations and q̇ = ½ q ∘ (0, Ω), vectorised over bodies."""
     i1, i2, i3 = I
@@ -93,15 +100,11 @@ def _rows(repeat: int) -> list[dict]:
     roundtrip = jax.jit(lambda v: so3.log(so3.exp(v)))
     vj = jnp.asarray(v)
     ours = _best(lambda: roundtrip(vj), repeat)
-    base = _best(lambda: Rotation.from_matrix(Rotation.from_rotvec(v).as_matrix()).as_rotvec(), 1)
+    base = _best(
+        lambda: Rotation.from_matrix(Rotation.from_rotvec(v).as_matrix()).as_rotvec(), repeat
+    )
     rows.append(
-        dict(
-            name="so3.log(so3.exp(v)), 1e5 rotations",
-            unit="rotations/s",
-            rigidjax=v.shape[0] / ours,
-            baseline=v.shape[0] / base,
-            baseline_name="SciPy",
-        )
+        _row("so3.log(so3.exp(v)), 1e5 rotations", "rotations/s", v.shape[0], ours, base, "SciPy")
     )
 
     # a batch of free bodies, fixed-step RK4, same scheme as the NumPy baseline
@@ -121,19 +124,20 @@ def _rows(repeat: int) -> list[dict]:
     wn = np.asarray(w0).T.copy()
     qn = np.zeros((4, BODIES))
     qn[0] = 1.0
-    base = _best(lambda: _numpy_rk4(wn, qn), 1)
+    base = _best(lambda: _numpy_rk4(wn, qn), repeat)
     w_ours, _ = forward(inertia, w0)
     err = float(np.max(np.abs(np.asarray(w_ours) - _numpy_rk4(wn, qn)[0].T)))
     if not err < 1e-8:
         raise RunError(f"bench: rigidjax and the NumPy RK4 disagree by {err:.2e}")
     n = BODIES * STEPS
     rows.append(
-        dict(
-            name=f"free bodies, RK4, {BODIES} × {STEPS} steps",
-            unit="body-steps/s",
-            rigidjax=n / ours,
-            baseline=n / base,
-            baseline_name="NumPy, same scheme",
+        _row(
+            f"free bodies, RK4, {BODIES} × {STEPS} steps",
+            "body-steps/s",
+            n,
+            ours,
+            base,
+            "NumPy, same scheme",
         )
     )
 
@@ -149,12 +153,13 @@ def _rows(repeat: int) -> list[dict]:
     g, f = _best(lambda: grad(inertia), repeat), _best(lambda: small(inertia), repeat)
     m = GRAD_BODIES * STEPS
     rows.append(
-        dict(
-            name=f"gradient d(mean energy)/dI, {GRAD_BODIES} × {STEPS} steps",
-            unit="body-steps/s",
-            rigidjax=m / g,
-            baseline=m / f,
-            baseline_name="forward run",
+        _row(
+            f"gradient d(mean energy)/dI, {GRAD_BODIES} × {STEPS} steps",
+            "body-steps/s",
+            m,
+            g,
+            f,
+            "forward run",
         )
     )
 
@@ -168,13 +173,7 @@ def _rows(repeat: int) -> list[dict]:
 
     swept = _best(lambda: sweep.run(model, design, progress=False)["omega_end"].values, 1)
     rows.append(
-        dict(
-            name=f"sweep.run over {BODIES} points",
-            unit="body-steps/s",
-            rigidjax=n / swept,
-            baseline=n / ours,
-            baseline_name="batched simulate",
-        )
+        _row(f"sweep.run over {BODIES} points", "body-steps/s", n, swept, ours, "batched simulate")
     )
     return rows
 

@@ -14,7 +14,18 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import NO_PLOT, RunError, can_plot, checked, pyplot, write_atomic
+from ._common import (
+    NO_PLOT,
+    RunError,
+    can_plot,
+    check_out,
+    check_positive,
+    checked,
+    enable_x64,
+    pyplot,
+    save_figure,
+    write_atomic,
+)
 from ._data import read
 
 METHODS = ("rotvec", "quat", "matrix", "euler", "cayley_klein", "geometric")
@@ -49,18 +60,11 @@ def _plot(path: str, t, q, ypr) -> None:
     ax[1].set_ylabel("Euler angles ZYX [deg]")
     ax[1].set_xlabel("t [s]")
     ax[1].legend(loc="upper right", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110, format="png")
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def run(args: argparse.Namespace) -> int:
-    from ._common import UsageError, check_out, enable_x64
-
-    for name in ("rtol", "atol"):
-        v = getattr(args, name)
-        if v is not None and not (np.isfinite(v) and v > 0):
-            raise UsageError(f"--{name} must be positive and finite, got {v}")
+    check_positive(args, "rtol", "atol")
     data = read(args.data, attitude=False)
     out: Path = args.out or Path(f"{args.data.stem}_out")
     check_out(out)

@@ -15,7 +15,18 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import NO_PLOT, RunError, can_plot, checked, pyplot, write_atomic
+from ._common import (
+    NO_PLOT,
+    RunError,
+    can_plot,
+    check_out,
+    check_positive,
+    checked,
+    enable_x64,
+    pyplot,
+    save_figure,
+    write_atomic,
+)
 from ._data import read
 
 
@@ -40,18 +51,11 @@ def _plot(path: str, t, omega, model) -> None:
     ax[1].set_ylabel("residual: data − fit [rad/s]")
     ax[1].set_xlabel("t [s]")
     ax[1].legend(loc="upper right", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110, format="png")
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def run(args: argparse.Namespace) -> int:
-    from ._common import UsageError, check_out, enable_x64
-
-    for name in ("trace", "sigma_omega", "sigma_angle"):
-        v = getattr(args, name)
-        if not (np.isfinite(v) and v > 0):
-            raise UsageError(f"--{name.replace('_', '-')} must be positive and finite, got {v}")
+    check_positive(args, "trace", "sigma_omega", "sigma_angle")
     data = read(args.data, attitude=not args.gyro_only)
     out: Path = args.out or Path(f"{args.data.stem}_out")
     check_out(out)

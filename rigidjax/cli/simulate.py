@@ -27,9 +27,11 @@ from ._common import (
     NO_PLOT,
     UsageError,
     can_plot,
+    check_positive,
     checked,
     checks_as_nan,
     pyplot,
+    save_figure,
     write_atomic,
 )
 
@@ -75,10 +77,7 @@ def check_options(args: argparse.Namespace) -> None:
         raise UsageError(f"--num must be at least 2 (output times), got {args.num}")
     if not (math.isfinite(args.t_end) and args.t_end > 0):
         raise UsageError(f"--t-end must be a positive, finite time span [s], got {args.t_end}")
-    for name in ("rtol", "atol"):
-        value = getattr(args, name)
-        if value is not None and not (math.isfinite(value) and value > 0):
-            raise UsageError(f"--{name} must be positive and finite, got {value}")
+    check_positive(args, "rtol", "atol")
 
 
 @dataclass(frozen=True)
@@ -237,9 +236,7 @@ def _plot(path: str, ts, omega, energy_drift, momentum_drift, axis_space, inerti
     ax[2].set_ylabel("body axis 2 in space")
     ax[2].set_xlabel("t [s]")
     ax[2].legend(loc="upper right")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110, format="png")
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def _write(args: argparse.Namespace, x: _Inputs, r: dict, times: dict) -> dict[str, Path]:

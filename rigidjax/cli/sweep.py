@@ -24,6 +24,7 @@ from ._common import (
     checked,
     checks_as_nan,
     pyplot,
+    save_figure,
     write_atomic,
 )
 from ._config import Config, fill, load, make_design, make_model
@@ -168,9 +169,7 @@ def _plot(path: str, ds, c: Config) -> None:
     counts = {k: v for k, v in ds.attrs.get("failures", {}).items() if v}
     note = ", ".join(f"{v} {k}" for k, v in counts.items()) or "no failures"
     fig.suptitle(f"{c.path.name}: {ds['status'].size} points; {note}")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110, format="png")
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def run(args: argparse.Namespace) -> int:
