@@ -7,7 +7,7 @@ from __future__ import annotations
 import dataclasses
 import warnings
 from collections.abc import Callable
-from typing import Any, TypedDict, cast
+from typing import Any, NoReturn, TypedDict, cast
 
 import diffrax
 import equinox as eqx
@@ -59,7 +59,7 @@ def _cause(result: diffrax.RESULTS, max_steps: int) -> str:
     return diffrax.RESULTS[result]
 
 
-def _raise_failure(
+def raise_failure(
     result: diffrax.RESULTS, num_valid: Array, ts: Array, ys: PyTree, max_steps: int
 ) -> PyTree:
     """Raise `IntegrationError` for a failed solve, naming the output interval (concrete
@@ -241,16 +241,22 @@ def solve_saved(
             term, solver, controller, ts, y0, args, dt0, options.max_steps, adjoint, meter
         )
     except TypeError as e:
-        if "forward-mode autodiff" not in str(e):
-            raise
-        raise TypeError(
-            "jax.jacfwd / jax.jvp through an integration needs adjoint=diffrax.ForwardMode() "
-            "(e.g. simulate(..., adjoint=diffrax.ForwardMode())): the default "
-            "RecursiveCheckpointAdjoint differentiates in reverse mode only (jax.grad, jax.jacrev)"
-        ) from e
+        raise_forward_mode(e)
     if options.throw:
-        ys = _raise_failure(result, stats["num_valid"], ts, ys, options.max_steps)
+        ys = raise_failure(result, stats["num_valid"], ts, ys, options.max_steps)
     return ys, stats, result
+
+
+def raise_forward_mode(e: TypeError) -> NoReturn:
+    """Re-raise JAX's error for forward-mode autodiff through a reverse-mode-only integration
+    with the remedy; any other TypeError unchanged."""
+    if "forward-mode autodiff" not in str(e):
+        raise e
+    raise TypeError(
+        "jax.jacfwd / jax.jvp through an integration needs adjoint=diffrax.ForwardMode() "
+        "(e.g. simulate(..., adjoint=diffrax.ForwardMode())): the default "
+        "RecursiveCheckpointAdjoint differentiates in reverse mode only (jax.grad, jax.jacrev)"
+    ) from e
 
 
 @eqx.filter_jit  # one compilation per problem structure, as `diffrax.diffeqsolve` itself

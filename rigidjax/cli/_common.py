@@ -13,6 +13,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TypeVar
 
+from .._cache import user_cache_dir
+
 PROG = "rigidjax"
 T = TypeVar("T")
 
@@ -125,18 +127,11 @@ def enable_x64(float32: bool) -> None:
 
 def cache_dir() -> Path:
     """Where the command keeps JAX's persistent compilation cache: `$RIGIDJAX_CACHE_DIR`, else
-    the user's cache folder (`$XDG_CACHE_HOME`, `%LOCALAPPDATA%` on Windows, `~/Library/Caches`
-    on macOS, `~/.cache`), under `rigidjax/jax`."""
+    `jax/` in the user's cache folder (`rigidjax._cache.user_cache_dir`)."""
     explicit = os.environ.get("RIGIDJAX_CACHE_DIR")
     if explicit:
         return Path(explicit).expanduser()
-    if sys.platform == "win32" and os.environ.get("LOCALAPPDATA"):
-        base = Path(os.environ["LOCALAPPDATA"])
-    elif sys.platform == "darwin":
-        base = Path.home() / "Library" / "Caches"
-    else:
-        base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
-    return base / "rigidjax" / "jax"
+    return user_cache_dir() / "jax"
 
 
 @contextlib.contextmanager

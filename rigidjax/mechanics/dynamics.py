@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Unpack
+from typing import TYPE_CHECKING, Unpack, cast
 
 import diffrax
 import equinox as eqx
@@ -23,11 +23,19 @@ from .._checks import (
     vector,
 )
 from .._custom_types import Frame, RealLike
-from .._integrate import SolveKwargs, SolveOptions, solve_saved
+from .._integrate import (
+    SolveKwargs,
+    SolveOptions,
+    raise_failure,
+    raise_forward_mode,
+    solve_saved,
+)
 from .._trajectory import AbstractTrajectory
+from ..kernels import free_body as kernel
 from ..kinematics.formulations import AbstractKinematics, Quaternion, lookup
 from ..rotations import quat
 from ..solvers.exact_free_body import ExactFreeBody, RigidBodyField, flow_from_start
+from ..solvers.rk4 import RK4
 from ..solvers.rkmk import LieTerm
 from ..solvers.splitting import LiePoissonSplitting
 from .body import RigidBody, euler_rhs
@@ -242,6 +250,86 @@ def _structured(
     return term, options, args[0]
 
 
+def _kernel_serves(options: SolveOptions, torque: Torque | None, dtype) -> bool:
+    """Whether the CPU kernel (`rigidjax.kernels.free_body`) integrates this component-path
+    solve: no torque, `RK4()` at fixed steps `dt0`, reverse-mode (default) adjoint, no Diffrax
+    progress meter, float32/float64 on the CPU with the kernel built."""
+    return (
+        torque is None
+        and type(options.solver) is RK4
+        and isinstance(options.stepsize_controller, diffrax.ConstantStepSize)
+        and options.dt0 is not None
+        and isinstance(options.adjoint, None | diffrax.RecursiveCheckpointAdjoint)
+        and isinstance(options.progress_meter, None | diffrax.NoProgressMeter)
+        and kernel.available(dtype)
+    )
+
+
+def _kernel_solve(
+    term: diffrax.AbstractTerm, ts: Array, y0, options: SolveOptions, args
+) -> tuple[tuple, dict[str, Array], diffrax.RESULTS]:
+    """`solve_saved` for the component state through the CPU kernel: the same steps (`n` equal
+    steps per output interval) and arithmetic. Reverse-mode derivatives are those of the Diffrax
+    path (`solve_saved` on the same term), through `jax.custom_vjp`."""
+
+    dt0 = jnp.asarray(options.dt0, ts.dtype)
+    quiet = dataclasses.replace(options, throw=False)
+
+    def reference(ts, y0, args):
+        return solve_saved(term, ts, y0, quiet, step_end=_normalize_components, args=args)[0]
+
+    def forward(ts, y0, args):
+        comps = jtu.tree_leaves(y0)  # Ω1, Ω2, Ω3, q0..q3: (B,) arrays, or scalars (one body)
+        B = 1 if comps[0].ndim == 0 else comps[0].shape[0]
+        state = jnp.stack([jnp.broadcast_to(a, (B,)) for a in comps])
+        coef = jnp.stack([jnp.broadcast_to(c, (B,)) for c in args[0]])
+        _, h, taken = kernel.steps(ts, dt0, options.max_steps)
+        ys = kernel.free_body_rk4(state, coef, taken, h)  # (T, 7, B)
+        ys = ys if comps[0].ndim else ys[..., 0]
+        return tuple(ys[:, i] for i in range(3)), tuple(ys[:, i] for i in range(3, 7))
+
+    @jax.custom_vjp
+    def run(ts, y0, args):
+        return forward(ts, y0, args)
+
+    def run_fwd(ts, y0, args):
+        return forward(ts, y0, args), (ts, y0, args)
+
+    def run_bwd(residuals, g):
+        return jax.vjp(reference, *residuals)[1](g)
+
+    run.defvjp(run_fwd, run_bwd)
+    try:
+        ys = run(ts, y0, args)
+    except TypeError as e:
+        raise_forward_mode(e)
+    n, _, taken = kernel.steps(ts, dt0, options.max_steps)
+    # the first failing interval: more steps than max_steps, or a non-finite state at its end
+    finite = jnp.all(jnp.stack([jnp.isfinite(a) for a in jtu.tree_leaves(ys)]), axis=0)
+    finite = finite.reshape(finite.shape[0], -1).all(axis=1)[1:]
+    fails = (n > options.max_steps) | ~finite
+    first = jnp.argmax(fails)
+    result = diffrax.RESULTS.where(
+        jnp.any(fails),
+        diffrax.RESULTS.where(
+            n[first] > options.max_steps,
+            cast(diffrax.RESULTS, diffrax.RESULTS.max_steps_reached),
+            cast(diffrax.RESULTS, diffrax.RESULTS.nonfinite),
+        ),
+        diffrax.RESULTS.successful,
+    )
+    num_steps = jnp.sum(taken)
+    stats = dict(
+        num_steps=num_steps,
+        num_accepted_steps=num_steps,
+        num_rejected_steps=0 * num_steps,
+        num_valid=1 + jnp.where(jnp.any(fails), first, n.shape[0]),
+    )
+    if options.throw:
+        ys = raise_failure(result, stats["num_valid"], ts, ys, options.max_steps)
+    return ys, stats, result
+
+
 def fixed_steps(options: SolveOptions) -> SolveOptions:
     """`options` for `ExactFreeBody` or `LiePoissonSplitting`: `diffrax.ConstantStepSize`, by
     default one step per output interval for `ExactFreeBody` (exact for any step), `dt0`
@@ -341,6 +429,7 @@ def simulate(
     )
     structured = isinstance(options.solver, ExactFreeBody | LiePoissonSplitting)
     components = body.diagonal and quaternion and not structured
+    fast = False  # the CPU kernel (set on the component path)
     direct = (
         isinstance(options.solver, ExactFreeBody)
         and options.dt0 is None
@@ -366,6 +455,7 @@ def simulate(
         I = body.operator()[0].astype(dtype)
         args = _component_args(I if body.batch_shape == () else args[0])
         finish = _stack_components
+        fast = _kernel_serves(options, torque, dtype)
 
     elif kinematics == "geometric":
         solver = options.rkmk("body")
@@ -390,6 +480,8 @@ def simulate(
         n = jnp.asarray(ts.shape[0] - 1)
         stats = dict(num_steps=n, num_accepted_steps=n, num_rejected_steps=0 * n, num_valid=n + 1)
         result = diffrax.RESULTS.successful
+    elif fast:
+        ys, stats, result = _kernel_solve(term, ts, y0, options, args)
     else:
         ys, stats, result = solve_saved(
             term,

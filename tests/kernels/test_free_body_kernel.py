@@ -1,0 +1,156 @@
+"""The CPU kernel of `simulate(..., solver=RK4(), ConstantStepSize, dt0)` against the Diffrax
+path on the same steps (`ExplicitRK(RK4())`, which never takes the kernel), and against SciPy."""
+
+import diffrax
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+import rigidjax as rj
+from rigidjax.kernels import _build
+from rigidjax.kernels import free_body as kernel
+from rigidjax.solvers import ExplicitRK
+
+pytestmark = pytest.mark.skipif(
+    not kernel.available(jnp.float64), reason="the CPU kernel could not be built here"
+)
+
+BODY = rj.RigidBody(jnp.array([1.0, 2.0, 3.0]))
+TS = jnp.linspace(0.0, 1.0, 5)
+FIXED = dict(stepsize_controller=diffrax.ConstantStepSize(), dt0=0.02)
+
+
+def _inputs(B, seed=0):
+    rng = np.random.default_rng(seed)
+    q = rng.normal(size=(B, 4))
+    return jnp.asarray(rng.normal(size=(B, 3))), jnp.asarray(q / np.linalg.norm(q, axis=1)[:, None])
+
+
+def _both(*args, body=BODY, ts=TS, **kw):
+    fast = rj.simulate(body, *args, ts=ts, solver=rj.RK4(), **FIXED, **kw)
+    slow = rj.simulate(body, *args, ts=ts, solver=ExplicitRK(rj.RK4()), **FIXED, **kw)
+    return fast, slow
+
+
+def test_batch_equals_diffrax_path():
+    w, q = _inputs(67)  # one full block of 64 bodies and a partial one
+    fast, slow = _both(w, q)
+    np.testing.assert_allclose(fast.omega, slow.omega, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(fast.quat, slow.quat, rtol=0, atol=1e-13)
+    for key in ("num_steps", "num_accepted_steps", "num_rejected_steps", "num_valid"):
+        assert int(fast.stats[key]) == int(slow.stats[key])
+    assert fast.result == diffrax.RESULTS.successful
+
+
+def test_matches_scipy_on_one_body():
+    w, q = _inputs(1, seed=3)
+    tr = rj.simulate(BODY, w[0], q[0], TS, solver=rj.RK4(), **FIXED)
+    I = np.array([1.0, 2.0, 3.0])
+
+    def rhs(t, s):
+        W, Q = s[:3], s[3:]
+        dW = np.array(
+            [
+                (I[1] - I[2]) / I[0] * W[1] * W[2],
+                (I[2] - I[0]) / I[1] * W[2] * W[0],
+                (I[0] - I[1]) / I[2] * W[0] * W[1],
+            ]
+        )
+        a, b, c, d = Q
+        dQ = 0.5 * np.array(
+            [
+                -b * W[0] - c * W[1] - d * W[2],
+                a * W[0] + c * W[2] - d * W[1],
+                a * W[1] + d * W[0] - b * W[2],
+                a * W[2] + b * W[1] - c * W[0],
+            ]
+        )
+        return np.concatenate([dW, dQ])
+
+    ref = solve_ivp(
+        rhs,
+        (0, 1),
+        np.concatenate([w[0], q[0]]),
+        "DOP853",
+        t_eval=np.asarray(TS),
+        rtol=1e-13,
+        atol=1e-13,
+    ).y.T
+    np.testing.assert_allclose(tr.omega, ref[:, :3], atol=1e-7)  # RK4 at h = 0.02: ~1e-8
+    np.testing.assert_allclose(
+        tr.quat, ref[:, 3:] / np.linalg.norm(ref[:, 3:], axis=1)[:, None], atol=1e-7
+    )
+
+
+def test_vmap_single_bodies_and_per_row_times():
+    w, q = _inputs(5)
+
+    def run(solver, w, q, t1):
+        ts = jnp.stack([0.0, 0.5 * t1, t1])
+        return rj.simulate(BODY, w, q, ts, solver=solver, **FIXED).quat
+
+    for t1 in (jnp.ones(5), jnp.linspace(0.5, 1.5, 5)):  # shared steps, then each its own
+        fast = jax.vmap(lambda *a: run(rj.RK4(), *a))(w, q, t1)
+        slow = jax.vmap(lambda *a: run(ExplicitRK(rj.RK4()), *a))(w, q, t1)
+        np.testing.assert_allclose(fast, slow, rtol=0, atol=1e-13)
+
+
+def test_float32():
+    w, q = _inputs(9)
+    ts = TS.astype(jnp.float32)
+    body = rj.RigidBody(jnp.array([1.0, 2.0, 3.0], jnp.float32))
+    fast, slow = _both(w.astype(jnp.float32), q.astype(jnp.float32), body=body, ts=ts)
+    assert fast.quat.dtype == jnp.float32
+    np.testing.assert_allclose(fast.quat, slow.quat, rtol=0, atol=2e-6)
+
+
+def test_gradient_is_the_diffrax_paths():
+    w, q = _inputs(3)
+
+    def loss(I, solver):
+        tr = rj.simulate(rj.RigidBody(I), w, q, TS, solver=solver, **FIXED)
+        return jnp.sum(tr.quat[:, -1] * jnp.arange(4.0)) + jnp.sum(tr.omega**2)
+
+    I = jnp.array([1.0, 2.0, 2.5])  # inside the triangle inequality, for the differences
+    fast = jax.jit(jax.grad(loss), static_argnums=1)(I, rj.RK4())
+    slow = jax.grad(loss)(I, ExplicitRK(rj.RK4()))
+    np.testing.assert_allclose(fast, slow, rtol=1e-12)
+    eps = 1e-6
+    fd = [
+        (loss(I.at[i].add(eps), rj.RK4()) - loss(I.at[i].add(-eps), rj.RK4())) / (2 * eps)
+        for i in range(3)
+    ]
+    np.testing.assert_allclose(fast, fd, rtol=1e-6)
+
+
+def test_forward_mode_names_the_remedy():
+    w, q = _inputs(2)
+
+    def f(I):
+        return rj.simulate(rj.RigidBody(I), w, q, TS, solver=rj.RK4(), **FIXED).omega
+
+    with pytest.raises(TypeError, match="ForwardMode"):
+        jax.jvp(f, (jnp.array([1.0, 2.0, 3.0]),), (jnp.ones(3),))
+
+
+@pytest.mark.parametrize("case", ["nonfinite", "max_steps"])
+def test_failures_as_the_diffrax_path(case):
+    w, q = _inputs(4)
+    kw = dict(max_steps=10) if case == "max_steps" else {}
+    w = w.at[2].set(1e200) if case == "nonfinite" else w
+    fast, slow = _both(w, q, throw=False, **kw)
+    assert fast.result == slow.result != diffrax.RESULTS.successful
+    assert int(fast.stats["num_valid"]) == int(slow.stats["num_valid"])
+    assert int(fast.stats["num_steps"]) == int(slow.stats["num_steps"])
+    keep = np.isfinite(np.asarray(slow.quat))
+    np.testing.assert_allclose(np.asarray(fast.quat)[keep], np.asarray(slow.quat)[keep], atol=1e-13)
+    with pytest.raises(rj.IntegrationError, match="between t = 0 and t = 0.25"):
+        rj.simulate(BODY, w, q, TS, solver=rj.RK4(), **FIXED, **kw)
+
+
+def test_no_compiler_is_a_clear_failure(monkeypatch, tmp_path):
+    monkeypatch.setenv("CXX", str(tmp_path / "no-such-compiler"))
+    with pytest.raises(_build.KernelUnavailable, match="no C\\+\\+ compiler"):
+        _build.build("free_body_rk4")
