@@ -269,36 +269,43 @@ def _kernel_solve(
     term: diffrax.AbstractTerm, ts: Array, y0, options: SolveOptions, args
 ) -> tuple[tuple, dict[str, Array], diffrax.RESULTS]:
     """`solve_saved` for the component state through the CPU kernel: the same steps (`n` equal
-    steps per output interval) and arithmetic. Reverse-mode derivatives are those of the Diffrax
-    path (`solve_saved` on the same term), through `jax.custom_vjp`."""
-
+    steps per output interval) and arithmetic. Reverse mode (`jax.custom_vjp`): the kernel's
+    discrete adjoint of the same steps (`kernel.free_body_rk4_back`); forward mode is not
+    available (a clear error that names `adjoint=diffrax.ForwardMode()`, which takes the Diffrax
+    path)."""
     dt0 = jnp.asarray(options.dt0, ts.dtype)
-    quiet = dataclasses.replace(options, throw=False)
+    one = jtu.tree_leaves(y0)[0].ndim == 0  # one body: scalar components
+    B = 1 if one else jtu.tree_leaves(y0)[0].shape[0]
 
-    def reference(ts, y0, args):
-        return solve_saved(term, ts, y0, quiet, step_end=_normalize_components, args=args)[0]
+    def columns(tree):  # component tuple -> (..., m, B)
+        comps = [a[..., None] if one or a.ndim == 0 else a for a in jtu.tree_leaves(tree)]
+        return jnp.stack([jnp.broadcast_to(a, (*a.shape[:-1], B)) for a in comps], axis=-2)
+
+    def rows(ys):  # (..., 7, B) -> component tuple
+        comps = [ys[..., i, 0] if one else ys[..., i, :] for i in range(7)]
+        return tuple(comps[:3]), tuple(comps[3:])
 
     def forward(ts, y0, args):
-        comps = jtu.tree_leaves(y0)  # Ω1, Ω2, Ω3, q0..q3: (B,) arrays, or scalars (one body)
-        B = 1 if comps[0].ndim == 0 else comps[0].shape[0]
-        state = jnp.stack([jnp.broadcast_to(a, (B,)) for a in comps])
-        coef = jnp.stack([jnp.broadcast_to(c, (B,)) for c in args[0]])
-        _, h, taken = kernel.steps(ts, dt0, options.max_steps)
+        state, coef = columns(y0), columns(args[0])
+        n, h, taken = kernel.steps(ts, dt0, options.max_steps)
         ys = kernel.free_body_rk4(state, coef, taken, h)  # (T, 7, B)
-        ys = ys if comps[0].ndim else ys[..., 0]
-        return tuple(ys[:, i] for i in range(3)), tuple(ys[:, i] for i in range(3, 7))
+        return rows(ys), (ts, ys, coef, n, h, taken, args)
 
     @jax.custom_vjp
     def run(ts, y0, args):
-        return forward(ts, y0, args)
-
-    def run_fwd(ts, y0, args):
-        return forward(ts, y0, args), (ts, y0, args)
+        return forward(ts, y0, args)[0]
 
     def run_bwd(residuals, g):
-        return jax.vjp(reference, *residuals)[1](g)
+        ts, ys, coef, n, h, taken, args = residuals
+        y0b, coefb, hb = kernel.free_body_rk4_back(ys, coef, taken, h, columns(g))
+        hbar = jnp.sum(hb, axis=-1) / n  # h_k = (t_{k+1} − t_k) / n_k
+        tsb = jnp.zeros_like(ts).at[1:].add(hbar).at[:-1].add(-hbar)
+        cb = tuple(
+            jnp.sum(coefb[i]) if jnp.ndim(c) == 0 else coefb[i] for i, c in enumerate(args[0])
+        )
+        return tsb, rows(y0b), (cb, jtu.tree_map(jnp.zeros_like, args[1]))
 
-    run.defvjp(run_fwd, run_bwd)
+    run.defvjp(forward, run_bwd)
     try:
         ys = run(ts, y0, args)
     except TypeError as e:
