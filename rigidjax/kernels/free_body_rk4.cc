@@ -139,7 +139,7 @@ template <typename T>
 void StepBack(int64_t n, const T (*__restrict x)[kBlock], const T (*__restrict C)[kBlock], T h,
               T (*__restrict lam)[kBlock], T (*__restrict cb)[kBlock], T* __restrict hb) {
   const T h2 = T(0.5) * h, h6 = h / T(6);
-#pragma omp simd
+#pragma GCC ivdep
   for (int64_t i = 0; i < n; ++i) {
     const T c1 = C[0][i], c2 = C[1][i], c3 = C[2][i];
     T y[7], k1[7], k2[7], k3[7], k4[7], z2[7], z3[7], z4[7], u[7];
