@@ -76,6 +76,17 @@ void Steps(int64_t n, T (*__restrict x)[kBlock], const T (*__restrict C)[kBlock]
   }
 }
 
+// Batch row and column of a block's bodies start … start + m − 1 in a group: body g is at row
+// first + g / B, column g % B (counted up, not divided per body).
+inline void Place(int64_t first, int64_t start, int64_t m, int64_t B, int64_t* row, int64_t* col) {
+  int64_t l = first + start / B, b = start % B;
+  for (int64_t i = 0; i < m; ++i) {
+    row[i] = l;
+    col[i] = b;
+    if (++b == B) b = 0, ++l;
+  }
+}
+
 // One group of bodies that share their steps (n, h): `count` bodies, body g at batch row
 // first + g / B, column g % B.
 template <typename T>
@@ -87,15 +98,17 @@ void Group(const T* y0, const T* coef, const int32_t* n, const T* h, T* ys, int6
     alignas(64) T x[7][kBlock];
     alignas(64) T C[3][kBlock];
     const int64_t start = blk * kBlock, m = std::min(kBlock, count - start);
+    int64_t row[kBlock], col[kBlock];
+    Place(first, start, m, B, row, col);
     for (int64_t i = 0; i < m; ++i) {
-      const int64_t l = first + (start + i) / B, b = (start + i) % B;
+      const int64_t l = row[i], b = col[i];
       for (int j = 0; j < 7; ++j) x[j][i] = y0[(l * 7 + j) * B + b];
       for (int j = 0; j < 3; ++j) C[j][i] = coef[(l * 3 + j) * B + b];
     }
     for (int64_t k = 0; k <= K; ++k) {
       if (k > 0) Steps<T>(m, x, C, n[k - 1], h[k - 1]);
       for (int64_t i = 0; i < m; ++i) {
-        const int64_t l = first + (start + i) / B, b = (start + i) % B;
+        const int64_t l = row[i], b = col[i];
         for (int j = 0; j < 7; ++j) ys[((l * (K + 1) + k) * 7 + j) * B + b] = x[j][i];
       }
     }
@@ -218,12 +231,14 @@ void GroupBack(const T* ys, const T* coef, const int32_t* n, const T* h, const T
     alignas(64) T hsum[kBlock];
     std::vector<T> saved;
     const int64_t start = blk * kBlock, m = std::min(kBlock, count - start);
+    int64_t row[kBlock], col[kBlock];
+    Place(first, start, m, B, row, col);
     auto at = [&](int64_t i, int64_t k, int j) {
-      const int64_t l = first + (start + i) / B, b = (start + i) % B;
+      const int64_t l = row[i], b = col[i];
       return ((l * (K + 1) + k) * 7 + j) * B + b;
     };
     for (int64_t i = 0; i < m; ++i) {
-      const int64_t l = first + (start + i) / B, b = (start + i) % B;
+      const int64_t l = row[i], b = col[i];
       for (int j = 0; j < 3; ++j) C[j][i] = coef[(l * 3 + j) * B + b], cb[j][i] = T(0);
       for (int j = 0; j < 7; ++j) lam[j][i] = g[at(i, K, j)];
     }
@@ -251,13 +266,13 @@ void GroupBack(const T* ys, const T* coef, const int32_t* n, const T* h, const T
         for (int64_t j = len - 1; j >= 0; --j) StepBack<T>(m, states[j], C, h[k], lam, cb, hsum);
       }
       for (int64_t i = 0; i < m; ++i) {
-        const int64_t l = first + (start + i) / B, b = (start + i) % B;
+        const int64_t l = row[i], b = col[i];
         hb[(l * K + k) * B + b] = hsum[i];
         for (int j = 0; j < 7; ++j) lam[j][i] += g[at(i, k, j)];
       }
     }
     for (int64_t i = 0; i < m; ++i) {
-      const int64_t l = first + (start + i) / B, b = (start + i) % B;
+      const int64_t l = row[i], b = col[i];
       for (int j = 0; j < 7; ++j) y0b[(l * 7 + j) * B + b] = lam[j][i];
       for (int j = 0; j < 3; ++j) coefb[(l * 3 + j) * B + b] = cb[j][i];
     }
