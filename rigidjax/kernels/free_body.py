@@ -39,53 +39,69 @@ def steps(
 
 
 def free_body_rk4(
-    y0: Float[Array, "7 B"],
-    coef: Float[Array, "3 B"],
+    w0: Float[Array, "B 3"],
+    q0: Float[Array, "B 4"],
+    coef: Float[Array, "3 Bc"],
     n: Int[Array, " K"],
     h: Float[Array, " K"],
-) -> Float[Array, "K+1 7 B"]:
-    """The states `(Ω1, Ω2, Ω3, q0, q1, q2, q3)` of B bodies after each of K intervals of `n[k]`
-    RK4 steps of size `h[k]` (`ys[0] = y0`); `coef` = `(c1, c2, c3)`, `c1 = (I2 − I3)/I1`
-    (cyclic). Under `jax.vmap` the mapped bodies join one kernel call. No derivatives of its
-    own: `free_body_rk4_back` gives them, and the caller joins the two (`jax.custom_vjp`)."""
-    dtype = y0.dtype
-    K, B = h.shape[0], y0.shape[1]
+) -> tuple[Float[Array, "B T 3"], Float[Array, "B T 4"]]:
+    """Body angular velocities and quaternions `(B, K + 1, ·)` of B bodies at the start and
+    after each of K intervals of `n[k]` RK4 steps of size `h[k]`, the quaternion renormalised
+    after each step; `coef = (c1, c2, c3)`, `c1 = (I2 − I3)/I1` (cyclic), per body `(3, B)` or
+    shared `(3, 1)`. Under `jax.vmap` the mapped bodies join one kernel call. No derivatives of
+    its own: `free_body_rk4_back` gives them, and the caller joins the two (`jax.custom_vjp`)."""
+    dtype = w0.dtype
+    K, B = h.shape[0], w0.shape[0]
     call = jax.ffi.ffi_call(
         _TARGETS[jnp.dtype(dtype).name],
-        jax.ShapeDtypeStruct((1, K + 1, 7, B), dtype),
+        (
+            jax.ShapeDtypeStruct((1, B, K + 1, 3), dtype),
+            jax.ShapeDtypeStruct((1, B, K + 1, 4), dtype),
+        ),
         vmap_method="broadcast_all",
     )
-    ys = call(y0[None], coef.astype(dtype)[None], n.astype(jnp.int32)[None], h.astype(dtype)[None])
-    return ys[0]
+    w, q = call(
+        w0[None],
+        q0.astype(dtype)[None],
+        coef.astype(dtype)[None],
+        n.astype(jnp.int32)[None],
+        h.astype(dtype)[None],
+    )
+    return w[0], q[0]
 
 
 def free_body_rk4_back(
-    ys: Float[Array, "T 7 B"],
-    coef: Float[Array, "3 B"],
+    w: Float[Array, "B T 3"],
+    q: Float[Array, "B T 4"],
+    coef: Float[Array, "3 Bc"],
     n: Int[Array, " K"],
     h: Float[Array, " K"],
-    g: Float[Array, "T 7 B"],
-) -> tuple[Float[Array, "7 B"], Float[Array, "3 B"], Float[Array, "K B"]]:
-    """Reverse mode of `free_body_rk4`: from the cotangents `g` of its states `ys`, those of
-    `y0`, `coef` and (per body) `h`. The discrete adjoint of the same RK4 steps with
-    renormalisation, each output interval reversed from its saved start state with its steps
-    recomputed (in checkpointed segments of about √n steps when n > 512)."""
-    dtype = ys.dtype
-    K, B = h.shape[0], ys.shape[2]
+    gw: Float[Array, "B T 3"],
+    gq: Float[Array, "B T 4"],
+) -> tuple[Float[Array, "B 3"], Float[Array, "B 4"], Float[Array, "3 B"], Float[Array, "K B"]]:
+    """Reverse mode of `free_body_rk4`: from the cotangents `gw`, `gq` of its outputs `w`, `q`,
+    those of `w0`, `q0`, `coef` (per body) and `h` (per body). The discrete adjoint of the same
+    RK4 steps with renormalisation; each output interval is reversed from its saved start
+    state, its steps recomputed (in checkpointed segments of about √n steps when n > 512)."""
+    dtype = w.dtype
+    K, B = h.shape[0], w.shape[0]
     call = jax.ffi.ffi_call(
         _BACK[jnp.dtype(dtype).name],
         (
-            jax.ShapeDtypeStruct((1, 7, B), dtype),
+            jax.ShapeDtypeStruct((1, B, 3), dtype),
+            jax.ShapeDtypeStruct((1, B, 4), dtype),
             jax.ShapeDtypeStruct((1, 3, B), dtype),
             jax.ShapeDtypeStruct((1, K, B), dtype),
         ),
         vmap_method="broadcast_all",
     )
-    y0b, coefb, hb = call(
-        ys[None],
+    w0b, q0b, coefb, hb = call(
+        w[None],
+        q[None],
         coef.astype(dtype)[None],
         n.astype(jnp.int32)[None],
         h.astype(dtype)[None],
-        g.astype(dtype)[None],
+        gw.astype(dtype)[None],
+        gq.astype(dtype)[None],
     )
-    return y0b[0], coefb[0], hb[0]
+    return w0b[0], q0b[0], coefb[0], hb[0]

@@ -12,11 +12,12 @@
 // step stays in registers. Bodies go in blocks of kBlock that stay in L1 over all steps; the
 // loop over a block's bodies is the vectorised one; OpenMP spreads blocks over the cores.
 //
-// Shapes (L: leading batch dimensions added by jax.vmap, flattened):
-//   y0 (L, 7, B)  Ω1 Ω2 Ω3 q0 q1 q2 q3, bodies last
-//   coef (L, 3, B)  c1 c2 c3
+// Shapes (L: leading batch dimensions added by jax.vmap, flattened), in the layout of
+// `simulate`'s arguments and trajectory, so that no layout change costs a pass over memory:
+//   w0 (L, B, 3), q0 (L, B, 4)  initial Ω and q
+//   coef (L, 3, Bc)  c1 c2 c3, per body (Bc = B) or for the whole row (Bc = 1)
 //   n (L, K) int32  steps in output interval k;  h (L, K)  their size
-//   ys (L, K + 1, 7, B)  the state at every output time, ys[:, 0] = y0
+//   w (L, B, K + 1, 3), q (L, B, K + 1, 4)  the state at every output time, [:, :, 0] = initial
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -87,11 +88,25 @@ inline void Place(int64_t first, int64_t start, int64_t m, int64_t B, int64_t* r
   }
 }
 
+// Where a body's data lie: row l, body b (see the shapes above).
+struct Layout {
+  int64_t B, K, Bc;
+  int64_t w0(int64_t l, int64_t b, int j) const { return (l * B + b) * 3 + j; }
+  int64_t q0(int64_t l, int64_t b, int j) const { return (l * B + b) * 4 + j; }
+  int64_t w(int64_t l, int64_t b, int64_t k, int j) const {
+    return ((l * B + b) * (K + 1) + k) * 3 + j;
+  }
+  int64_t q(int64_t l, int64_t b, int64_t k, int j) const {
+    return ((l * B + b) * (K + 1) + k) * 4 + j;
+  }
+  int64_t c(int64_t l, int64_t b, int j) const { return (l * 3 + j) * Bc + (Bc == 1 ? 0 : b); }
+};
+
 // One group of bodies that share their steps (n, h): `count` bodies, body g at batch row
 // first + g / B, column g % B.
 template <typename T>
-void Group(const T* y0, const T* coef, const int32_t* n, const T* h, T* ys, int64_t first,
-           int64_t count, int64_t B, int64_t K) {
+void Group(const T* w0, const T* q0, const T* coef, const int32_t* n, const T* h, T* w, T* q,
+           int64_t first, int64_t count, const Layout& at) {
   const int64_t blocks = (count + kBlock - 1) / kBlock;
 #pragma omp parallel for schedule(static)
   for (int64_t blk = 0; blk < blocks; ++blk) {
@@ -99,17 +114,19 @@ void Group(const T* y0, const T* coef, const int32_t* n, const T* h, T* ys, int6
     alignas(64) T C[3][kBlock];
     const int64_t start = blk * kBlock, m = std::min(kBlock, count - start);
     int64_t row[kBlock], col[kBlock];
-    Place(first, start, m, B, row, col);
+    Place(first, start, m, at.B, row, col);
     for (int64_t i = 0; i < m; ++i) {
       const int64_t l = row[i], b = col[i];
-      for (int j = 0; j < 7; ++j) x[j][i] = y0[(l * 7 + j) * B + b];
-      for (int j = 0; j < 3; ++j) C[j][i] = coef[(l * 3 + j) * B + b];
+      for (int j = 0; j < 3; ++j) x[j][i] = w0[at.w0(l, b, j)];
+      for (int j = 0; j < 4; ++j) x[3 + j][i] = q0[at.q0(l, b, j)];
+      for (int j = 0; j < 3; ++j) C[j][i] = coef[at.c(l, b, j)];
     }
-    for (int64_t k = 0; k <= K; ++k) {
+    for (int64_t k = 0; k <= at.K; ++k) {
       if (k > 0) Steps<T>(m, x, C, n[k - 1], h[k - 1]);
       for (int64_t i = 0; i < m; ++i) {
         const int64_t l = row[i], b = col[i];
-        for (int j = 0; j < 7; ++j) ys[((l * (K + 1) + k) * 7 + j) * B + b] = x[j][i];
+        for (int j = 0; j < 3; ++j) w[at.w(l, b, k, j)] = x[j][i];
+        for (int j = 0; j < 4; ++j) q[at.q(l, b, k, j)] = x[3 + j][i];
       }
     }
   }
@@ -215,13 +232,16 @@ void StepBack(int64_t n, const T (*__restrict x)[kBlock], const T (*__restrict C
   }
 }
 
-// Cotangents of y0, coef and h from those of ys, for one group of bodies (see Group). Each
-// output interval is reversed from its saved start state: its steps are recomputed in segments
-// of S (all of them when n ≤ 512, else S ≈ √n with checkpoints between segments).
+// Cotangents of w0, q0, coef (per body) and h (per body) from those of w, q (gw, gq), for one
+// group of bodies (see Group). Each output interval is reversed from its saved start state: its
+// steps are recomputed in segments of S (all of them when n ≤ 512, else S ≈ √n with checkpoints
+// between segments).
 template <typename T>
-void GroupBack(const T* ys, const T* coef, const int32_t* n, const T* h, const T* g, T* y0b,
-               T* coefb, T* hb, int64_t first, int64_t count, int64_t B, int64_t K) {
+void GroupBack(const T* w, const T* q, const T* coef, const int32_t* n, const T* h, const T* gw,
+               const T* gq, T* w0b, T* q0b, T* coefb, T* hb, int64_t first, int64_t count,
+               const Layout& at) {
   const int64_t blocks = (count + kBlock - 1) / kBlock;
+  const int64_t K = at.K;
 #pragma omp parallel for schedule(static)
   for (int64_t blk = 0; blk < blocks; ++blk) {
     alignas(64) T x[7][kBlock];
@@ -232,25 +252,33 @@ void GroupBack(const T* ys, const T* coef, const int32_t* n, const T* h, const T
     std::vector<T> saved;
     const int64_t start = blk * kBlock, m = std::min(kBlock, count - start);
     int64_t row[kBlock], col[kBlock];
-    Place(first, start, m, B, row, col);
-    auto at = [&](int64_t i, int64_t k, int j) {
-      const int64_t l = row[i], b = col[i];
-      return ((l * (K + 1) + k) * 7 + j) * B + b;
+    Place(first, start, m, at.B, row, col);
+    auto add_cotangent = [&](int64_t k) {
+      for (int64_t i = 0; i < m; ++i) {
+        const int64_t l = row[i], b = col[i];
+        for (int j = 0; j < 3; ++j) lam[j][i] += gw[at.w(l, b, k, j)];
+        for (int j = 0; j < 4; ++j) lam[3 + j][i] += gq[at.q(l, b, k, j)];
+      }
     };
     for (int64_t i = 0; i < m; ++i) {
       const int64_t l = row[i], b = col[i];
-      for (int j = 0; j < 3; ++j) C[j][i] = coef[(l * 3 + j) * B + b], cb[j][i] = T(0);
-      for (int j = 0; j < 7; ++j) lam[j][i] = g[at(i, K, j)];
+      for (int j = 0; j < 3; ++j) C[j][i] = coef[at.c(l, b, j)], cb[j][i] = T(0);
+      for (int j = 0; j < 7; ++j) lam[j][i] = T(0);
     }
+    add_cotangent(K);
     for (int64_t k = K - 1; k >= 0; --k) {
       const int64_t steps = n[k];
-      const int64_t S = steps <= 512 ? steps : static_cast<int64_t>(std::ceil(std::sqrt(double(steps))));
+      const int64_t S =
+          steps <= 512 ? steps : static_cast<int64_t>(std::ceil(std::sqrt(double(steps))));
       const int64_t segments = (steps + S - 1) / S;
       saved.resize(static_cast<size_t>((segments + S) * 7 * kBlock));
-      T (*ckpt)[7][kBlock] = reinterpret_cast<T (*)[7][kBlock]>(saved.data());
-      T (*states)[7][kBlock] = ckpt + segments;
-      for (int64_t i = 0; i < m; ++i)
-        for (int j = 0; j < 7; ++j) x[j][i] = ys[at(i, k, j)];
+      T(*ckpt)[7][kBlock] = reinterpret_cast<T(*)[7][kBlock]>(saved.data());
+      T(*states)[7][kBlock] = ckpt + segments;
+      for (int64_t i = 0; i < m; ++i) {
+        const int64_t l = row[i], b = col[i];
+        for (int j = 0; j < 3; ++j) x[j][i] = w[at.w(l, b, k, j)];
+        for (int j = 0; j < 4; ++j) x[3 + j][i] = q[at.q(l, b, k, j)];
+      }
       for (int64_t s = 0; s < segments; ++s) {
         std::memcpy(ckpt[s], x, sizeof(x));
         if (s + 1 < segments) Steps<T>(m, x, C, S, h[k]);
@@ -265,16 +293,14 @@ void GroupBack(const T* ys, const T* coef, const int32_t* n, const T* h, const T
         }
         for (int64_t j = len - 1; j >= 0; --j) StepBack<T>(m, states[j], C, h[k], lam, cb, hsum);
       }
-      for (int64_t i = 0; i < m; ++i) {
-        const int64_t l = row[i], b = col[i];
-        hb[(l * K + k) * B + b] = hsum[i];
-        for (int j = 0; j < 7; ++j) lam[j][i] += g[at(i, k, j)];
-      }
+      for (int64_t i = 0; i < m; ++i) hb[(row[i] * K + k) * at.B + col[i]] = hsum[i];
+      add_cotangent(k);
     }
     for (int64_t i = 0; i < m; ++i) {
       const int64_t l = row[i], b = col[i];
-      for (int j = 0; j < 7; ++j) y0b[(l * 7 + j) * B + b] = lam[j][i];
-      for (int j = 0; j < 3; ++j) coefb[(l * 3 + j) * B + b] = cb[j][i];
+      for (int j = 0; j < 3; ++j) w0b[at.w0(l, b, j)] = lam[j][i];
+      for (int j = 0; j < 4; ++j) q0b[at.q0(l, b, j)] = lam[3 + j][i];
+      for (int j = 0; j < 3; ++j) coefb[(l * 3 + j) * at.B + b] = cb[j][i];
     }
   }
 }
@@ -290,73 +316,86 @@ bool Shared(const int32_t* n, const T* h, int64_t L, int64_t K) {
   return true;
 }
 
-template <ffi::DataType DT>
-ffi::Error FreeBodyRK4(ffi::Buffer<DT> y0, ffi::Buffer<DT> coef, ffi::Buffer<ffi::S32> n,
-                       ffi::Buffer<DT> h, ffi::ResultBuffer<DT> ys) {
-  using T = ffi::NativeType<DT>;
-  const auto dims = y0.dimensions();
-  if (dims.size() < 2 || dims[dims.size() - 2] != 7) {
-    return ffi::Error::InvalidArgument("free_body_rk4: y0 must have shape (..., 7, B)");
+// The batch size L, bodies B, intervals K and coefficient columns Bc of the arguments, or an
+// error naming the inconsistency.
+template <typename T>
+ffi::Error Shapes(size_t w0, size_t q0, const ffi::Span<const int64_t>& cdims, size_t n,
+                  size_t h, Layout* at, int64_t* L) {
+  if (cdims.size() < 2 || cdims[cdims.size() - 2] != 3) {
+    return ffi::Error::InvalidArgument("free_body_rk4: coef must have shape (..., 3, B or 1)");
   }
-  const int64_t B = dims[dims.size() - 1];
-  const int64_t L = static_cast<int64_t>(y0.element_count()) / (7 * B);
-  const auto ndims = n.dimensions();
-  const int64_t K = ndims.size() == 0 ? 0 : ndims[ndims.size() - 1];
-  if (coef.element_count() != static_cast<size_t>(L * 3 * B) ||
-      n.element_count() != static_cast<size_t>(L * K) ||
-      h.element_count() != static_cast<size_t>(L * K) ||
-      ys->element_count() != static_cast<size_t>(L * (K + 1) * 7 * B)) {
+  const int64_t Bc = cdims[cdims.size() - 1];
+  int64_t rows = 1;
+  for (size_t i = 0; i + 2 < cdims.size(); ++i) rows *= cdims[i];
+  if (rows == 0 || w0 % (3 * rows) != 0 || q0 * 3 != w0 * 4 || n != h || n % rows != 0) {
     return ffi::Error::InvalidArgument("free_body_rk4: inconsistent shapes");
+  }
+  const int64_t B = static_cast<int64_t>(w0) / (3 * rows);
+  if (Bc != 1 && Bc != B) {
+    return ffi::Error::InvalidArgument("free_body_rk4: coef must have B or 1 columns");
+  }
+  *at = Layout{B, static_cast<int64_t>(n) / rows, Bc};
+  *L = rows;
+  return ffi::Error::Success();
+}
+
+template <ffi::DataType DT>
+ffi::Error FreeBodyRK4(ffi::Buffer<DT> w0, ffi::Buffer<DT> q0, ffi::Buffer<DT> coef,
+                       ffi::Buffer<ffi::S32> n, ffi::Buffer<DT> h, ffi::ResultBuffer<DT> w,
+                       ffi::ResultBuffer<DT> q) {
+  using T = ffi::NativeType<DT>;
+  Layout at;
+  int64_t L;
+  ffi::Error e = Shapes<T>(w0.element_count(), q0.element_count(), coef.dimensions(),
+                           n.element_count(), h.element_count(), &at, &L);
+  if (e.failure()) return e;
+  if (w->element_count() != static_cast<size_t>(L * at.B * (at.K + 1) * 3) ||
+      q->element_count() != static_cast<size_t>(L * at.B * (at.K + 1) * 4)) {
+    return ffi::Error::InvalidArgument("free_body_rk4: inconsistent output shapes");
   }
   const int32_t* nn = n.typed_data();
   const T* hh = h.typed_data();
   // Batch rows with the same steps are one group, so that a vmapped single body still fills
   // the vector lanes; rows with their own steps (vmapped output times) go one by one.
-  const bool shared = Shared<T>(nn, hh, L, K);
-  if (shared) {
-    Group<T>(y0.typed_data(), coef.typed_data(), nn, hh, ys->typed_data(), 0, L * B, B, K);
+  if (Shared<T>(nn, hh, L, at.K)) {
+    Group<T>(w0.typed_data(), q0.typed_data(), coef.typed_data(), nn, hh, w->typed_data(),
+             q->typed_data(), 0, L * at.B, at);
   } else {
     for (int64_t l = 0; l < L; ++l) {
-      Group<T>(y0.typed_data(), coef.typed_data(), nn + l * K, hh + l * K, ys->typed_data(), l,
-               B, B, K);
+      Group<T>(w0.typed_data(), q0.typed_data(), coef.typed_data(), nn + l * at.K,
+               hh + l * at.K, w->typed_data(), q->typed_data(), l, at.B, at);
     }
   }
   return ffi::Error::Success();
 }
 
-
 template <ffi::DataType DT>
-ffi::Error FreeBodyRK4Back(ffi::Buffer<DT> ys, ffi::Buffer<DT> coef, ffi::Buffer<ffi::S32> n,
-                           ffi::Buffer<DT> h, ffi::Buffer<DT> g, ffi::ResultBuffer<DT> y0b,
-                           ffi::ResultBuffer<DT> coefb, ffi::ResultBuffer<DT> hb) {
+ffi::Error FreeBodyRK4Back(ffi::Buffer<DT> w, ffi::Buffer<DT> q, ffi::Buffer<DT> coef,
+                           ffi::Buffer<ffi::S32> n, ffi::Buffer<DT> h, ffi::Buffer<DT> gw,
+                           ffi::Buffer<DT> gq, ffi::ResultBuffer<DT> w0b,
+                           ffi::ResultBuffer<DT> q0b, ffi::ResultBuffer<DT> coefb,
+                           ffi::ResultBuffer<DT> hb) {
   using T = ffi::NativeType<DT>;
-  const auto dims = coef.dimensions();
-  if (dims.size() < 2 || dims[dims.size() - 2] != 3) {
-    return ffi::Error::InvalidArgument("free_body_rk4_back: coef must have shape (..., 3, B)");
-  }
-  const int64_t B = dims[dims.size() - 1];
-  const int64_t L = static_cast<int64_t>(coef.element_count()) / (3 * B);
-  const auto ndims = n.dimensions();
-  const int64_t K = ndims.size() == 0 ? 0 : ndims[ndims.size() - 1];
-  if (ys.element_count() != static_cast<size_t>(L * (K + 1) * 7 * B) ||
-      g.element_count() != ys.element_count() ||
-      n.element_count() != static_cast<size_t>(L * K) ||
-      h.element_count() != static_cast<size_t>(L * K) ||
-      y0b->element_count() != static_cast<size_t>(L * 7 * B) ||
-      coefb->element_count() != coef.element_count() ||
-      hb->element_count() != static_cast<size_t>(L * K * B)) {
+  Layout at;
+  int64_t L;
+  ffi::Error e = Shapes<T>(w0b->element_count(), q0b->element_count(), coef.dimensions(),
+                           n.element_count(), h.element_count(), &at, &L);
+  if (e.failure()) return e;
+  const size_t ws = static_cast<size_t>(L * at.B * (at.K + 1) * 3);
+  if (w.element_count() != ws || gw.element_count() != ws || q.element_count() * 3 != ws * 4 ||
+      gq.element_count() * 3 != ws * 4 ||
+      coefb->element_count() != static_cast<size_t>(L * 3 * at.B) ||
+      hb->element_count() != static_cast<size_t>(L * at.K * at.B)) {
     return ffi::Error::InvalidArgument("free_body_rk4_back: inconsistent shapes");
   }
   const int32_t* nn = n.typed_data();
   const T* hh = h.typed_data();
-  if (Shared<T>(nn, hh, L, K)) {
-    GroupBack<T>(ys.typed_data(), coef.typed_data(), nn, hh, g.typed_data(), y0b->typed_data(),
-                 coefb->typed_data(), hb->typed_data(), 0, L * B, B, K);
-  } else {
-    for (int64_t l = 0; l < L; ++l) {
-      GroupBack<T>(ys.typed_data(), coef.typed_data(), nn + l * K, hh + l * K, g.typed_data(),
-                   y0b->typed_data(), coefb->typed_data(), hb->typed_data(), l, B, B, K);
-    }
+  const bool shared = Shared<T>(nn, hh, L, at.K);
+  for (int64_t l = 0; l < (shared ? 1 : L); ++l) {
+    GroupBack<T>(w.typed_data(), q.typed_data(), coef.typed_data(), nn + l * at.K,
+                 hh + l * at.K, gw.typed_data(), gq.typed_data(), w0b->typed_data(),
+                 q0b->typed_data(), coefb->typed_data(), hb->typed_data(), shared ? 0 : l,
+                 shared ? L * at.B : at.B, at);
   }
   return ffi::Error::Success();
 }
@@ -367,36 +406,46 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(RigidjaxFreeBodyRK4F64, FreeBodyRK4<ffi::F64>,
                               ffi::Ffi::Bind()
                                   .Arg<ffi::Buffer<ffi::F64>>()
                                   .Arg<ffi::Buffer<ffi::F64>>()
+                                  .Arg<ffi::Buffer<ffi::F64>>()
                                   .Arg<ffi::Buffer<ffi::S32>>()
                                   .Arg<ffi::Buffer<ffi::F64>>()
+                                  .Ret<ffi::Buffer<ffi::F64>>()
+                                  .Ret<ffi::Buffer<ffi::F64>>());
+
+XLA_FFI_DEFINE_HANDLER_SYMBOL(RigidjaxFreeBodyRK4BackF64, FreeBodyRK4Back<ffi::F64>,
+                              ffi::Ffi::Bind()
+                                  .Arg<ffi::Buffer<ffi::F64>>()
+                                  .Arg<ffi::Buffer<ffi::F64>>()
+                                  .Arg<ffi::Buffer<ffi::F64>>()
+                                  .Arg<ffi::Buffer<ffi::S32>>()
+                                  .Arg<ffi::Buffer<ffi::F64>>()
+                                  .Arg<ffi::Buffer<ffi::F64>>()
+                                  .Arg<ffi::Buffer<ffi::F64>>()
+                                  .Ret<ffi::Buffer<ffi::F64>>()
+                                  .Ret<ffi::Buffer<ffi::F64>>()
+                                  .Ret<ffi::Buffer<ffi::F64>>()
                                   .Ret<ffi::Buffer<ffi::F64>>());
 
 XLA_FFI_DEFINE_HANDLER_SYMBOL(RigidjaxFreeBodyRK4F32, FreeBodyRK4<ffi::F32>,
                               ffi::Ffi::Bind()
                                   .Arg<ffi::Buffer<ffi::F32>>()
                                   .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Arg<ffi::Buffer<ffi::F32>>()
                                   .Arg<ffi::Buffer<ffi::S32>>()
                                   .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Ret<ffi::Buffer<ffi::F32>>()
                                   .Ret<ffi::Buffer<ffi::F32>>());
-
-XLA_FFI_DEFINE_HANDLER_SYMBOL(RigidjaxFreeBodyRK4BackF64, FreeBodyRK4Back<ffi::F64>,
-                              ffi::Ffi::Bind()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::S32>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Ret<ffi::Buffer<ffi::F64>>()
-                                  .Ret<ffi::Buffer<ffi::F64>>()
-                                  .Ret<ffi::Buffer<ffi::F64>>());
 
 XLA_FFI_DEFINE_HANDLER_SYMBOL(RigidjaxFreeBodyRK4BackF32, FreeBodyRK4Back<ffi::F32>,
                               ffi::Ffi::Bind()
                                   .Arg<ffi::Buffer<ffi::F32>>()
                                   .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Arg<ffi::Buffer<ffi::F32>>()
                                   .Arg<ffi::Buffer<ffi::S32>>()
                                   .Arg<ffi::Buffer<ffi::F32>>()
                                   .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Ret<ffi::Buffer<ffi::F32>>()
                                   .Ret<ffi::Buffer<ffi::F32>>()
                                   .Ret<ffi::Buffer<ffi::F32>>()
                                   .Ret<ffi::Buffer<ffi::F32>>());

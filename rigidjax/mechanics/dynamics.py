@@ -266,55 +266,45 @@ def _kernel_serves(options: SolveOptions, torque: Torque | None, dtype) -> bool:
 
 
 def _kernel_solve(
-    term: diffrax.AbstractTerm, ts: Array, y0, options: SolveOptions, args
-) -> tuple[tuple, dict[str, Array], diffrax.RESULTS]:
-    """`solve_saved` for the component state through the CPU kernel: the same steps (`n` equal
-    steps per output interval) and arithmetic. Reverse mode (`jax.custom_vjp`): the kernel's
-    discrete adjoint of the same steps (`kernel.free_body_rk4_back`); forward mode is not
-    available (a clear error that names `adjoint=diffrax.ForwardMode()`, which takes the Diffrax
-    path)."""
+    ts: Array, omega0: Array, q0: Array, options: SolveOptions, args
+) -> tuple[tuple[Array, Array], dict[str, Array], diffrax.RESULTS]:
+    """The component path's solve through the CPU kernel, from `omega0 (B, 3)`, `q0 (B, 4)` and
+    the component args `(c, J)`: the same steps (`n` equal steps per output interval) and
+    arithmetic as `solve_saved`; returns `((Ω (T, B, 3), q (T, B, 4)), stats, result)`. Reverse
+    mode (`jax.custom_vjp`): the kernel's discrete adjoint of the same steps
+    (`kernel.free_body_rk4_back`); forward mode is a clear error that names
+    `adjoint=diffrax.ForwardMode()` (which takes the Diffrax path)."""
     dt0 = jnp.asarray(options.dt0, ts.dtype)
-    one = jtu.tree_leaves(y0)[0].ndim == 0  # one body: scalar components
-    B = 1 if one else jtu.tree_leaves(y0)[0].shape[0]
 
-    def columns(tree):  # component tuple -> (..., m, B)
-        comps = [a[..., None] if one or a.ndim == 0 else a for a in jtu.tree_leaves(tree)]
-        return jnp.stack([jnp.broadcast_to(a, (*a.shape[:-1], B)) for a in comps], axis=-2)
+    def coefficients(c):  # (3, B), or (3, 1) for one body shared by the batch
+        return jnp.stack([jnp.reshape(ci, (-1,)) for ci in c])
 
-    def rows(ys):  # (..., 7, B) -> component tuple
-        comps = [ys[..., i, 0] if one else ys[..., i, :] for i in range(7)]
-        return tuple(comps[:3]), tuple(comps[3:])
-
-    def forward(ts, y0, args):
-        state, coef = columns(y0), columns(args[0])
+    def forward(ts, omega0, q0, c):
         n, h, taken = kernel.steps(ts, dt0, options.max_steps)
-        ys = kernel.free_body_rk4(state, coef, taken, h)  # (T, 7, B)
-        return rows(ys), (ts, ys, coef, n, h, taken, args)
+        w, q = kernel.free_body_rk4(omega0, q0, coefficients(c), taken, h)
+        return (w, q), (ts, w, q, c, n, h, taken)
 
     @jax.custom_vjp
-    def run(ts, y0, args):
-        return forward(ts, y0, args)[0]
+    def run(ts, omega0, q0, c):
+        return forward(ts, omega0, q0, c)[0]
 
     def run_bwd(residuals, g):
-        ts, ys, coef, n, h, taken, args = residuals
-        y0b, coefb, hb = kernel.free_body_rk4_back(ys, coef, taken, h, columns(g))
+        ts, w, q, c, n, h, taken = residuals
+        w0b, q0b, cb, hb = kernel.free_body_rk4_back(w, q, coefficients(c), taken, h, *g)
         hbar = jnp.sum(hb, axis=-1) / n  # h_k = (t_{k+1} − t_k) / n_k
         tsb = jnp.zeros_like(ts).at[1:].add(hbar).at[:-1].add(-hbar)
-        cb = tuple(
-            jnp.sum(coefb[i]) if jnp.ndim(c) == 0 else coefb[i] for i, c in enumerate(args[0])
-        )
-        return tsb, rows(y0b), (cb, jtu.tree_map(jnp.zeros_like, args[1]))
+        cb = tuple(jnp.sum(cb[i]) if jnp.ndim(ci) == 0 else cb[i] for i, ci in enumerate(c))
+        return tsb, w0b, q0b, cb
 
     run.defvjp(forward, run_bwd)
     try:
-        ys = run(ts, y0, args)
+        w, q = run(ts, omega0, q0, args[0])  # (B, T, 3), (B, T, 4)
     except TypeError as e:
         raise_forward_mode(e)
     n, _, taken = kernel.steps(ts, dt0, options.max_steps)
     # the first failing interval: more steps than max_steps, or a non-finite state at its end
-    finite = jnp.all(jnp.stack([jnp.isfinite(a) for a in jtu.tree_leaves(ys)]), axis=0)
-    finite = finite.reshape(finite.shape[0], -1).all(axis=1)[1:]
-    fails = (n > options.max_steps) | ~finite
+    finite = jnp.all(jnp.isfinite(w), axis=(0, 2)) & jnp.all(jnp.isfinite(q), axis=(0, 2))
+    fails = (n > options.max_steps) | ~finite[1:]
     first = jnp.argmax(fails)
     result = diffrax.RESULTS.where(
         jnp.any(fails),
@@ -332,6 +322,7 @@ def _kernel_solve(
         num_rejected_steps=0 * num_steps,
         num_valid=1 + jnp.where(jnp.any(fails), first, n.shape[0]),
     )
+    ys = (jnp.moveaxis(w, 1, 0), jnp.moveaxis(q, 1, 0))
     if options.throw:
         ys = raise_failure(result, stats["num_valid"], ts, ys, options.max_steps)
     return ys, stats, result
@@ -491,7 +482,8 @@ def simulate(
         stats = dict(num_steps=n, num_accepted_steps=n, num_rejected_steps=0 * n, num_valid=n + 1)
         result = diffrax.RESULTS.successful
     elif fast:
-        ys, stats, result = _kernel_solve(term, ts, y0, options, args)
+        ys, stats, result = _kernel_solve(ts, omega0, q0, options, args)
+        finish = tuple  # already (Ω (T, B, 3), q (T, B, 4))
     else:
         ys, stats, result = solve_saved(
             term,
