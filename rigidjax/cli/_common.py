@@ -117,11 +117,14 @@ def check_positive(args, *names: str) -> None:
             raise UsageError(f"--{name.replace('_', '-')} must be positive and finite, got {v}")
 
 
-def enable_x64(float32: bool) -> None:
-    """float64 unless `float32`: the application's choice (the library never sets it)."""
-    if not float32:
-        import jax
+def set_precision(float32: bool) -> None:
+    """float64 unless `float32`, and full-precision matrix products (no TF32 on GPUs, whose
+    10-bit mantissa would cost float32 runs three digits): the application's choice (the
+    library never sets either)."""
+    import jax
 
+    jax.config.update("jax_default_matmul_precision", "highest")
+    if not float32:
         jax.config.update("jax_enable_x64", True)
 
 

@@ -179,12 +179,12 @@ def _rows(repeat: int) -> list[dict]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ._common import UsageError, check_out, enable_x64
+    from ._common import UsageError, check_out, set_precision
 
     if args.repeat < 1:
         raise UsageError(f"--repeat must be at least 1, got {args.repeat}")
     check_out(args.out)
-    enable_x64(False)
+    set_precision(False)
     import jax
 
     from .. import __version__

@@ -21,9 +21,9 @@ from ._common import (
     check_out,
     check_positive,
     checked,
-    enable_x64,
     pyplot,
     save_figure,
+    set_precision,
     write_atomic,
 )
 from ._data import read
@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     data = read(args.data, attitude=False)
     out: Path = args.out or Path(f"{args.data.stem}_out")
     check_out(out)
-    enable_x64(False)
+    set_precision(False)
     import jax.numpy as jnp
 
     from .._checks import check_unit_norm, vector

@@ -22,9 +22,9 @@ from ._common import (
     check_out,
     check_positive,
     checked,
-    enable_x64,
     pyplot,
     save_figure,
+    set_precision,
     write_atomic,
 )
 from ._data import read
@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     data = read(args.data, attitude=not args.gyro_only)
     out: Path = args.out or Path(f"{args.data.stem}_out")
     check_out(out)
-    enable_x64(False)
+    set_precision(False)
     import jax.numpy as jnp
 
     from ..fit import identify_inertia

@@ -293,11 +293,11 @@ def _summary(args: argparse.Namespace, r: dict, times: dict, paths: dict[str, Pa
 
 def run(args: argparse.Namespace) -> int:
     """The command: check, compile, run, write. Raises UsageError for bad input."""
-    from ._common import RunError, check_out, enable_x64
+    from ._common import RunError, check_out, set_precision
 
     check_options(args)
     check_out(args.out)
-    enable_x64(args.float32)
+    set_precision(args.float32)
     inputs = _inputs(args)
     r, times = _compile_and_run(args, inputs)
     if r["failure"] is not None:

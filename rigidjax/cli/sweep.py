@@ -173,14 +173,14 @@ def _plot(path: str, ds, c: Config) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ._common import check_out, enable_x64
+    from ._common import check_out, set_precision
 
     c = load(args.config)
     out: Path = args.out or Path(f"{args.config.stem}_out")
     check_out(out)
     _same_config(out, c)
     _distributed(args)
-    enable_x64(c.float32)
+    set_precision(c.float32)
     design = checked(f"{c.path}: [design]", lambda: make_design(c))
     check_points(c, design)
     model = make_model(c)

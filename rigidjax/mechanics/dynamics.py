@@ -178,6 +178,11 @@ def _stack_components(ys) -> tuple[Array, Array]:
     return (w, q) if w.ndim == 3 else (w[:, None], q[:, None])
 
 
+def _time_first(ys) -> tuple[Array, Array]:
+    """`(Ω (T, B, 3), q (T, B, 4))` from the kernel's `(B, T, ·)` outputs."""
+    return jnp.moveaxis(ys[0], 1, 0), jnp.moveaxis(ys[1], 1, 0)
+
+
 def _from_lie(ys) -> tuple[Array, Array]:
     """`(Ω, q)` from the saved RKMK state `(R, Ω)`."""
     return ys[1], quat.from_matrix(ys[0], assume_valid=True)
@@ -270,7 +275,7 @@ def _kernel_solve(
 ) -> tuple[tuple[Array, Array], dict[str, Array], diffrax.RESULTS]:
     """The component path's solve through the CPU kernel, from `omega0 (B, 3)`, `q0 (B, 4)` and
     the component args `(c, J)`: the same steps (`n` equal steps per output interval) and
-    arithmetic as `solve_saved`; returns `((Ω (T, B, 3), q (T, B, 4)), stats, result)`. Reverse
+    arithmetic as `solve_saved`; returns `((Ω (B, T, 3), q (B, T, 4)), stats, result)`. Reverse
     mode (`jax.custom_vjp`): the kernel's discrete adjoint of the same steps
     (`kernel.free_body_rk4_back`); forward mode is a clear error that names
     `adjoint=diffrax.ForwardMode()` (which takes the Diffrax path)."""
@@ -322,7 +327,7 @@ def _kernel_solve(
         num_rejected_steps=0 * num_steps,
         num_valid=1 + jnp.where(jnp.any(fails), first, n.shape[0]),
     )
-    ys = (jnp.moveaxis(w, 1, 0), jnp.moveaxis(q, 1, 0))
+    ys = (w, q)
     if options.throw:
         ys = raise_failure(result, stats["num_valid"], ts, ys, options.max_steps)
     return ys, stats, result
@@ -483,7 +488,7 @@ def simulate(
         result = diffrax.RESULTS.successful
     elif fast:
         ys, stats, result = _kernel_solve(ts, omega0, q0, options, args)
-        finish = tuple  # already (Ω (T, B, 3), q (T, B, 4))
+        finish = _time_first  # (B, T, ·): moved back below, which XLA cancels
     else:
         ys, stats, result = solve_saved(
             term,
