@@ -8,6 +8,7 @@ import ctypes
 import functools
 import hashlib
 import os
+import platform
 import shlex
 import subprocess
 import tempfile
@@ -33,6 +34,17 @@ def _compiler() -> list[str]:
     return shlex.split(os.environ.get("CXX", "c++"))
 
 
+def _cpu() -> str:
+    """This CPU's model and instruction sets (`-march=native` builds for them: a cache folder
+    shared by machines with other CPUs must not hand them this build)."""
+    try:
+        lines = Path("/proc/cpuinfo").read_text().splitlines()
+    except OSError:
+        return platform.machine() + platform.processor()
+    keep = [line for line in lines if line.startswith(("model name", "flags", "Features"))]
+    return "\n".join(dict.fromkeys(keep))
+
+
 def _key(source: bytes, compiler: list[str]) -> str:
     try:
         version = subprocess.run(
@@ -41,7 +53,7 @@ def _key(source: bytes, compiler: list[str]) -> str:
     except (OSError, subprocess.SubprocessError) as e:
         raise KernelUnavailable(f"no C++ compiler ({' '.join(compiler)}: {e})") from e
     h = hashlib.sha256(source)
-    for part in (version, " ".join(FLAGS), jax.__version__, jax.ffi.include_dir()):
+    for part in (version, " ".join(FLAGS), jax.__version__, jax.ffi.include_dir(), _cpu()):
         h.update(part.encode())
     return h.hexdigest()[:16]
 
