@@ -256,9 +256,11 @@ def run(args) -> dict:
     ratios = [p["ratio_vs_c"] for p in points if "ratio_vs_c" in p]
     large = [p["ratio_vs_c"] for p in points if "ratio_vs_c" in p and p["B"] >= 10_000]
     flat = min(rates) / max(rates)
+    c_rates = [p["c_body_steps_per_s"] for p in points if "c_body_steps_per_s" in p]
     summary = dict(
         best_rigidjax_body_steps_per_s=max(rates),
         worst_over_best_rigidjax=flat,
+        worst_over_best_c=min(c_rates) / max(c_rates) if c_rates else None,
         min_ratio_vs_c=min(ratios) if ratios else None,
         min_ratio_vs_c_at_large_batches=min(large) if large else None,
         gradient_over_forward_kernel=gradient["kernel_ratio"],
