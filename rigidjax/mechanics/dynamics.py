@@ -284,26 +284,28 @@ def _kernel_solve(
     def coefficients(c):  # (3, B), or (3, 1) for one body shared by the batch
         return jnp.stack([jnp.reshape(ci, (-1,)) for ci in c])
 
-    def forward(ts, omega0, q0, c):
+    # every array is an argument (none closed over: under an outer `jax.jit` it is a tracer);
+    # dt0 only sets the step counts, so its cotangent is zero
+    def forward(ts, omega0, q0, c, dt0):
         n, h, taken = kernel.steps(ts, dt0, options.max_steps)
         w, q = kernel.free_body_rk4(omega0, q0, coefficients(c), taken, h)
-        return (w, q), (ts, w, q, c, n, h, taken)
+        return (w, q), (ts, w, q, c, n, h, taken, dt0)
 
     @jax.custom_vjp
-    def run(ts, omega0, q0, c):
-        return forward(ts, omega0, q0, c)[0]
+    def run(ts, omega0, q0, c, dt0):
+        return forward(ts, omega0, q0, c, dt0)[0]
 
     def run_bwd(residuals, g):
-        ts, w, q, c, n, h, taken = residuals
+        ts, w, q, c, n, h, taken, dt0 = residuals
         w0b, q0b, cb, hb = kernel.free_body_rk4_back(w, q, coefficients(c), taken, h, *g)
         hbar = jnp.sum(hb, axis=-1) / n  # h_k = (t_{k+1} − t_k) / n_k
         tsb = jnp.zeros_like(ts).at[1:].add(hbar).at[:-1].add(-hbar)
         cb = tuple(jnp.sum(cb[i]) if jnp.ndim(ci) == 0 else cb[i] for i, ci in enumerate(c))
-        return tsb, w0b, q0b, cb
+        return tsb, w0b, q0b, cb, jnp.zeros_like(dt0)
 
     run.defvjp(forward, run_bwd)
     try:
-        w, q = run(ts, omega0, q0, args[0])  # (B, T, 3), (B, T, 4)
+        w, q = run(ts, omega0, q0, args[0], dt0)  # (B, T, 3), (B, T, 4)
     except TypeError as e:
         raise_forward_mode(e)
     n, _, taken = kernel.steps(ts, dt0, options.max_steps)

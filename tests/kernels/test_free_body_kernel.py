@@ -126,6 +126,19 @@ def test_gradient_is_the_diffrax_paths():
     np.testing.assert_allclose(fast, fd, rtol=1e-6)
 
 
+def test_gradient_of_a_jitted_function():
+    """`jax.grad(jax.jit(f))`: the kernel's derivative rule is traced inside the jit (nothing
+    may be closed over); the same gradient as `jax.jit(jax.grad(f))`."""
+    w, q = _inputs(2)
+
+    def f(x):
+        tr = rj.simulate(rj.RigidBody(x[:3]), x[3:6], None, TS, solver=rj.RK4(), **FIXED)
+        return jnp.sum(tr.omega[-1] * jnp.array([1.0, -2.0, 0.5])) + tr.quat[-1, 1]
+
+    x = jnp.concatenate([jnp.array([1.0, 2.0, 2.5]), w[0]])
+    np.testing.assert_allclose(jax.grad(jax.jit(f))(x), jax.jit(jax.grad(f))(x), rtol=1e-13)
+
+
 def test_forward_mode_names_the_remedy():
     w, q = _inputs(2)
 
