@@ -259,6 +259,13 @@ def raise_forward_mode(e: TypeError) -> NoReturn:
     ) from e
 
 
+def fixed_step_count(width: Array, dt0: Array) -> Array:
+    """The fewest equal steps of at most `dt0` over an output interval of `width` (to a relative
+    1e-6, so that rounding in the output times never adds a step), as a float: the steps of
+    every fixed-step solve (`solve_saved`, and `simulate`'s CPU kernel)."""
+    return jnp.maximum(jnp.ceil(width / dt0 * (1 - 1e-6)), 1)
+
+
 @eqx.filter_jit  # one compilation per problem structure, as `diffrax.diffeqsolve` itself
 def _solve_intervals(
     term, solver, stepsize_controller, ts, y0, args, dt0, max_steps, adjoint, meter
@@ -290,8 +297,7 @@ def _solve_intervals(
             # just takes its n steps: the step count then depends on the times only, so under
             # `jax.vmap` (a sweep) the loop stays unbatched instead of masking every step
             width = t01[1] - t01[0]
-            n = jnp.maximum(jnp.ceil(width / dt0 * (1 - 1e-6)), 1)
-            h = width / n * (1 + 4 * jnp.finfo(width.dtype).eps)
+            h = width / fixed_step_count(width, dt0) * (1 + 4 * jnp.finfo(width.dtype).eps)
         sol = diffrax.diffeqsolve(
             term,
             solver,

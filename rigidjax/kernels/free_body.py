@@ -27,15 +27,17 @@ def available(dtype) -> bool:
     )
 
 
-def steps(
-    ts: Float[Array, " T"], dt0: Float[Array, ""], max_steps: int
-) -> tuple[Int[Array, " T-1"], Float[Array, " T-1"], Int[Array, " T-1"]]:
-    """Per output interval: the fewest equal steps `n` of at most `dt0` (to a relative 1e-6, so
-    that rounding in `ts` never adds a step; as `solve_saved`), their size `h`, and the steps
-    taken `min(n, max_steps)` (an interval that needs more stops where Diffrax stops)."""
-    width = ts[1:] - ts[:-1]
-    n = jnp.maximum(jnp.ceil(width / dt0 * (1 - 1e-6)), 1)
-    return n.astype(jnp.int32), width / n, jnp.minimum(n, max_steps).astype(jnp.int32)
+def _call(targets: dict[str, str], dtype, shapes: list[tuple[int, ...]], *args: Array) -> list:
+    """The kernel `targets[dtype]` on `args` (floats cast to `dtype`, step counts to int32),
+    with outputs of `shapes`. The kernel takes leading batch dimensions (`jax.vmap`
+    broadcasts every argument): one is added here and removed from the outputs."""
+    call = jax.ffi.ffi_call(
+        targets[jnp.dtype(dtype).name],
+        [jax.ShapeDtypeStruct((1, *shape), dtype) for shape in shapes],
+        vmap_method="broadcast_all",
+    )
+    cast = [a.astype(jnp.int32 if jnp.issubdtype(a.dtype, jnp.integer) else dtype) for a in args]
+    return [out[0] for out in call(*(a[None] for a in cast))]
 
 
 def free_body_rk4(
@@ -50,24 +52,9 @@ def free_body_rk4(
     after each step; `coef = (c1, c2, c3)`, `c1 = (I2 − I3)/I1` (cyclic), per body `(3, B)` or
     shared `(3, 1)`. Under `jax.vmap` the mapped bodies join one kernel call. No derivatives of
     its own: `free_body_rk4_back` gives them, and the caller joins the two (`jax.custom_vjp`)."""
-    dtype = w0.dtype
     K, B = h.shape[0], w0.shape[0]
-    call = jax.ffi.ffi_call(
-        _TARGETS[jnp.dtype(dtype).name],
-        (
-            jax.ShapeDtypeStruct((1, B, K + 1, 3), dtype),
-            jax.ShapeDtypeStruct((1, B, K + 1, 4), dtype),
-        ),
-        vmap_method="broadcast_all",
-    )
-    w, q = call(
-        w0[None],
-        q0.astype(dtype)[None],
-        coef.astype(dtype)[None],
-        n.astype(jnp.int32)[None],
-        h.astype(dtype)[None],
-    )
-    return w[0], q[0]
+    w, q = _call(_TARGETS, w0.dtype, [(B, K + 1, 3), (B, K + 1, 4)], w0, q0, coef, n, h)
+    return w, q
 
 
 def free_body_rk4_back(
@@ -83,25 +70,7 @@ def free_body_rk4_back(
     those of `w0`, `q0`, `coef` (per body) and `h` (per body). The discrete adjoint of the same
     RK4 steps with renormalisation; each output interval is reversed from its saved start
     state, its steps recomputed (in checkpointed segments of about √n steps when n > 512)."""
-    dtype = w.dtype
     K, B = h.shape[0], w.shape[0]
-    call = jax.ffi.ffi_call(
-        _BACK[jnp.dtype(dtype).name],
-        (
-            jax.ShapeDtypeStruct((1, B, 3), dtype),
-            jax.ShapeDtypeStruct((1, B, 4), dtype),
-            jax.ShapeDtypeStruct((1, 3, B), dtype),
-            jax.ShapeDtypeStruct((1, K, B), dtype),
-        ),
-        vmap_method="broadcast_all",
-    )
-    w0b, q0b, coefb, hb = call(
-        w[None],
-        q[None],
-        coef.astype(dtype)[None],
-        n.astype(jnp.int32)[None],
-        h.astype(dtype)[None],
-        gw.astype(dtype)[None],
-        gq.astype(dtype)[None],
-    )
-    return w0b[0], q0b[0], coefb[0], hb[0]
+    shapes = [(B, 3), (B, 4), (3, B), (K, B)]
+    w0b, q0b, coefb, hb = _call(_BACK, w.dtype, shapes, w, q, coef, n, h, gw, gq)
+    return w0b, q0b, coefb, hb

@@ -26,6 +26,7 @@ from .._custom_types import Frame, RealLike
 from .._integrate import (
     SolveKwargs,
     SolveOptions,
+    fixed_step_count,
     raise_failure,
     raise_forward_mode,
     solve_saved,
@@ -279,36 +280,35 @@ def _kernel_solve(
     mode (`jax.custom_vjp`): the kernel's discrete adjoint of the same steps
     (`kernel.free_body_rk4_back`); forward mode is a clear error that names
     `adjoint=diffrax.ForwardMode()` (which takes the Diffrax path)."""
-    dt0 = jnp.asarray(options.dt0, ts.dtype)
+    width = ts[1:] - ts[:-1]
+    n = fixed_step_count(width, jnp.asarray(options.dt0, ts.dtype))
+    h = width / n
+    taken = jnp.minimum(n, options.max_steps).astype(jnp.int32)  # where Diffrax stops
 
     def coefficients(c):  # (3, B), or (3, 1) for one body shared by the batch
         return jnp.stack([jnp.reshape(ci, (-1,)) for ci in c])
 
     # every array is an argument (none closed over: under an outer `jax.jit` it is a tracer);
-    # dt0 only sets the step counts, so its cotangent is zero
-    def forward(ts, omega0, q0, c, dt0):
-        n, h, taken = kernel.steps(ts, dt0, options.max_steps)
-        w, q = kernel.free_body_rk4(omega0, q0, coefficients(c), taken, h)
-        return (w, q), (ts, w, q, c, n, h, taken, dt0)
+    # the output times are differentiated through the step sizes h
+    def forward(omega0, q0, c, h, taken):
+        return kernel.free_body_rk4(omega0, q0, coefficients(c), taken, h)
 
-    @jax.custom_vjp
-    def run(ts, omega0, q0, c, dt0):
-        return forward(ts, omega0, q0, c, dt0)[0]
+    def run_fwd(omega0, q0, c, h, taken):
+        out = forward(omega0, q0, c, h, taken)
+        return out, (out, c, h, taken)
 
     def run_bwd(residuals, g):
-        ts, w, q, c, n, h, taken, dt0 = residuals
+        (w, q), c, h, taken = residuals
         w0b, q0b, cb, hb = kernel.free_body_rk4_back(w, q, coefficients(c), taken, h, *g)
-        hbar = jnp.sum(hb, axis=-1) / n  # h_k = (t_{k+1} − t_k) / n_k
-        tsb = jnp.zeros_like(ts).at[1:].add(hbar).at[:-1].add(-hbar)
         cb = tuple(jnp.sum(cb[i]) if jnp.ndim(ci) == 0 else cb[i] for i, ci in enumerate(c))
-        return tsb, w0b, q0b, cb, jnp.zeros_like(dt0)
+        return w0b, q0b, cb, jnp.sum(hb, axis=-1), None
 
-    run.defvjp(forward, run_bwd)
+    run = jax.custom_vjp(forward)
+    run.defvjp(run_fwd, run_bwd)
     try:
-        w, q = run(ts, omega0, q0, args[0], dt0)  # (B, T, 3), (B, T, 4)
+        w, q = run(omega0, q0, args[0], h, taken)  # (B, T, 3), (B, T, 4)
     except TypeError as e:
         raise_forward_mode(e)
-    n, _, taken = kernel.steps(ts, dt0, options.max_steps)
     # the first failing interval: more steps than max_steps, or a non-finite state at its end
     finite = jnp.all(jnp.isfinite(w), axis=(0, 2)) & jnp.all(jnp.isfinite(q), axis=(0, 2))
     fails = (n > options.max_steps) | ~finite[1:]

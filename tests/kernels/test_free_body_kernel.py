@@ -213,3 +213,16 @@ def test_adjoint_matches_central_differences(case):
     plus = loss(*(a + eps * d for a, d in zip(x, v, strict=True)))
     minus = loss(*(a - eps * d for a, d in zip(x, v, strict=True)))
     np.testing.assert_allclose(along, (plus - minus) / (2 * eps), rtol=2e-6)
+
+
+def test_step_count_beyond_int32_is_max_steps():
+    """1e10 steps in an interval (more than int32 holds) stop at max_steps, as Diffrax does."""
+    w, q = _inputs(2)
+    kw = dict(stepsize_controller=diffrax.ConstantStepSize(), dt0=1e-9, max_steps=50)
+    ts = jnp.array([0.0, 10.0])
+    fast = rj.simulate(BODY, w, q, ts, solver=rj.RK4(), throw=False, **kw)
+    slow = rj.simulate(BODY, w, q, ts, solver=ExplicitRK(rj.RK4()), throw=False, **kw)
+    assert fast.result == slow.result == diffrax.RESULTS.max_steps_reached
+    assert int(fast.stats["num_steps"]) == int(slow.stats["num_steps"]) == 50
+    with pytest.raises(rj.IntegrationError, match="max_steps = 50"):
+        rj.simulate(BODY, w, q, ts, solver=rj.RK4(), **kw)
