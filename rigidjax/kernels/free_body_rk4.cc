@@ -32,47 +32,65 @@ namespace {
 
 constexpr int64_t kBlock = 64;
 
-#define RJ_RHS(k, w1, w2, w3, a, b, cq, d)                                    \
-  const T k##0 = c1 * (w2) * (w3), k##1 = c2 * (w3) * (w1),                   \
-          k##2 = c3 * (w1) * (w2);                                            \
-  const T k##3 = T(0.5) * (-(b) * (w1) - (cq) * (w2) - (d) * (w3));           \
-  const T k##4 = T(0.5) * ((a) * (w1) + (cq) * (w3) - (d) * (w2));            \
-  const T k##5 = T(0.5) * ((a) * (w2) + (d) * (w1) - (b) * (w3));             \
-  const T k##6 = T(0.5) * ((a) * (w3) + (b) * (w2) - (cq) * (w1))
+// f(z) of one body (Euler + quaternion kinematics) into k.
+template <typename T>
+inline void F(const T* z, T c1, T c2, T c3, T* k) {
+  k[0] = c1 * z[1] * z[2];
+  k[1] = c2 * z[2] * z[0];
+  k[2] = c3 * z[0] * z[1];
+  k[3] = T(0.5) * (-z[4] * z[0] - z[5] * z[1] - z[6] * z[2]);
+  k[4] = T(0.5) * (z[3] * z[0] + z[5] * z[2] - z[6] * z[1]);
+  k[5] = T(0.5) * (z[3] * z[1] + z[6] * z[0] - z[4] * z[2]);
+  k[6] = T(0.5) * (z[3] * z[2] + z[4] * z[1] - z[5] * z[0]);
+}
 
-#define RJ_STAGE(k, kp, f)                                                    \
-  RJ_RHS(k, y0 + (f) * kp##0, y1 + (f) * kp##1, y2 + (f) * kp##2,             \
-         y3 + (f) * kp##3, y4 + (f) * kp##4, y5 + (f) * kp##5,                \
-         y6 + (f) * kp##6)
+// zb += J_f(z)^T v;  cb += (∂f/∂c)^T v.
+template <typename T>
+inline void FT(const T* z, T c1, T c2, T c3, const T* v, T* zb, T* cb) {
+  const T w1 = z[0], w2 = z[1], w3 = z[2], a = z[3], b = z[4], cq = z[5], d = z[6];
+  zb[0] += v[1] * c2 * w3 + v[2] * c3 * w2 + T(0.5) * (-b * v[3] + a * v[4] + d * v[5] - cq * v[6]);
+  zb[1] += v[0] * c1 * w3 + v[2] * c3 * w1 + T(0.5) * (-cq * v[3] - d * v[4] + a * v[5] + b * v[6]);
+  zb[2] += v[0] * c1 * w2 + v[1] * c2 * w1 + T(0.5) * (-d * v[3] + cq * v[4] - b * v[5] + a * v[6]);
+  zb[3] += T(0.5) * (w1 * v[4] + w2 * v[5] + w3 * v[6]);
+  zb[4] += T(0.5) * (-w1 * v[3] - w3 * v[5] + w2 * v[6]);
+  zb[5] += T(0.5) * (-w2 * v[3] + w3 * v[4] - w1 * v[6]);
+  zb[6] += T(0.5) * (-w3 * v[3] - w2 * v[4] + w1 * v[5]);
+  cb[0] += v[0] * w2 * w3;
+  cb[1] += v[1] * w3 * w1;
+  cb[2] += v[2] * w1 * w2;
+}
 
-#define RJ_UPDATE(j) (y##j + h6 * (k1##j + T(2) * k2##j + T(2) * k3##j + k4##j))
+// One RK4 step of one body from y: the stages k1 … k4, their arguments z2 = y + h/2 k1,
+// z3 = y + h/2 k2, z4 = y + h k3, and the end state u before renormalisation.
+template <typename T>
+inline void Stages(const T* y, T c1, T c2, T c3, T h, T* k1, T* k2, T* k3, T* k4, T* z2, T* z3,
+                   T* z4, T* u) {
+  const T h2 = T(0.5) * h, h6 = h / T(6);
+  F(y, c1, c2, c3, k1);
+  for (int j = 0; j < 7; ++j) z2[j] = y[j] + h2 * k1[j];
+  F(z2, c1, c2, c3, k2);
+  for (int j = 0; j < 7; ++j) z3[j] = y[j] + h2 * k2[j];
+  F(z3, c1, c2, c3, k3);
+  for (int j = 0; j < 7; ++j) z4[j] = y[j] + h * k3[j];
+  F(z4, c1, c2, c3, k4);
+  for (int j = 0; j < 7; ++j) u[j] = y[j] + h6 * (k1[j] + T(2) * k2[j] + T(2) * k3[j] + k4[j]);
+}
 
-// `steps` RK4 steps of size h on the n ≤ kBlock bodies of x (7 rows of kBlock), coefficients C.
+// `steps` RK4 steps of size h on the n ≤ kBlock bodies of x (7 rows of kBlock), coefficients C,
+// the quaternion renormalised after each. The loop over bodies is the vectorised one (GCC
+// scalarises the small arrays; `omp simd` would privatise them into memory instead).
 template <typename T>
 void Steps(int64_t n, T (*__restrict x)[kBlock], const T (*__restrict C)[kBlock],
            int64_t steps, T h) {
-  const T h2 = T(0.5) * h, h6 = h / T(6);
-  T *__restrict x0 = x[0], *__restrict x1 = x[1], *__restrict x2 = x[2], *__restrict x3 = x[3],
-                *__restrict x4 = x[4], *__restrict x5 = x[5], *__restrict x6 = x[6];
   for (int64_t s = 0; s < steps; ++s) {
-#pragma omp simd
+#pragma GCC ivdep
     for (int64_t i = 0; i < n; ++i) {
-      const T c1 = C[0][i], c2 = C[1][i], c3 = C[2][i];
-      const T y0 = x0[i], y1 = x1[i], y2 = x2[i], y3 = x3[i], y4 = x4[i], y5 = x5[i],
-              y6 = x6[i];
-      RJ_RHS(k1, y0, y1, y2, y3, y4, y5, y6);
-      RJ_STAGE(k2, k1, h2);
-      RJ_STAGE(k3, k2, h2);
-      RJ_STAGE(k4, k3, h);
-      const T a = RJ_UPDATE(3), b = RJ_UPDATE(4), cq = RJ_UPDATE(5), d = RJ_UPDATE(6);
-      const T r = T(1) / std::sqrt(a * a + b * b + cq * cq + d * d);
-      x0[i] = RJ_UPDATE(0);
-      x1[i] = RJ_UPDATE(1);
-      x2[i] = RJ_UPDATE(2);
-      x3[i] = a * r;
-      x4[i] = b * r;
-      x5[i] = cq * r;
-      x6[i] = d * r;
+      T y[7], k1[7], k2[7], k3[7], k4[7], z2[7], z3[7], z4[7], u[7];
+      for (int j = 0; j < 7; ++j) y[j] = x[j][i];
+      Stages(y, C[0][i], C[1][i], C[2][i], h, k1, k2, k3, k4, z2, z3, z4, u);
+      const T r = T(1) / std::sqrt(u[3] * u[3] + u[4] * u[4] + u[5] * u[5] + u[6] * u[6]);
+      for (int j = 0; j < 3; ++j) x[j][i] = u[j];
+      for (int j = 3; j < 7; ++j) x[j][i] = u[j] * r;
     }
   }
 }
@@ -134,34 +152,6 @@ void Group(const T* w0, const T* q0, const T* coef, const int32_t* n, const T* h
 
 // ---------------------------------------------------------------- reverse mode (adjoint)
 
-// f(z) of one body (Euler + quaternion kinematics) into k.
-template <typename T>
-inline void F(const T* z, T c1, T c2, T c3, T* k) {
-  k[0] = c1 * z[1] * z[2];
-  k[1] = c2 * z[2] * z[0];
-  k[2] = c3 * z[0] * z[1];
-  k[3] = T(0.5) * (-z[4] * z[0] - z[5] * z[1] - z[6] * z[2]);
-  k[4] = T(0.5) * (z[3] * z[0] + z[5] * z[2] - z[6] * z[1]);
-  k[5] = T(0.5) * (z[3] * z[1] + z[6] * z[0] - z[4] * z[2]);
-  k[6] = T(0.5) * (z[3] * z[2] + z[4] * z[1] - z[5] * z[0]);
-}
-
-// zb += J_f(z)^T v;  cb += (∂f/∂c)^T v.
-template <typename T>
-inline void FT(const T* z, T c1, T c2, T c3, const T* v, T* zb, T* cb) {
-  const T w1 = z[0], w2 = z[1], w3 = z[2], a = z[3], b = z[4], cq = z[5], d = z[6];
-  zb[0] += v[1] * c2 * w3 + v[2] * c3 * w2 + T(0.5) * (-b * v[3] + a * v[4] + d * v[5] - cq * v[6]);
-  zb[1] += v[0] * c1 * w3 + v[2] * c3 * w1 + T(0.5) * (-cq * v[3] - d * v[4] + a * v[5] + b * v[6]);
-  zb[2] += v[0] * c1 * w2 + v[1] * c2 * w1 + T(0.5) * (-d * v[3] + cq * v[4] - b * v[5] + a * v[6]);
-  zb[3] += T(0.5) * (w1 * v[4] + w2 * v[5] + w3 * v[6]);
-  zb[4] += T(0.5) * (-w1 * v[3] - w3 * v[5] + w2 * v[6]);
-  zb[5] += T(0.5) * (-w2 * v[3] + w3 * v[4] - w1 * v[6]);
-  zb[6] += T(0.5) * (-w3 * v[3] - w2 * v[4] + w1 * v[5]);
-  cb[0] += v[0] * w2 * w3;
-  cb[1] += v[1] * w3 * w1;
-  cb[2] += v[2] * w1 * w2;
-}
-
 // Reverse one step from the states x (7 rows of kBlock) it started from: lam (7 rows), the
 // cotangent of the step's end state, becomes that of its start; cb (3 rows) and hb (1 row)
 // collect the cotangents of the coefficients and of the step size.
@@ -174,14 +164,7 @@ void StepBack(int64_t n, const T (*__restrict x)[kBlock], const T (*__restrict C
     const T c1 = C[0][i], c2 = C[1][i], c3 = C[2][i];
     T y[7], k1[7], k2[7], k3[7], k4[7], z2[7], z3[7], z4[7], u[7];
     for (int j = 0; j < 7; ++j) y[j] = x[j][i];
-    F(y, c1, c2, c3, k1);
-    for (int j = 0; j < 7; ++j) z2[j] = y[j] + h2 * k1[j];
-    F(z2, c1, c2, c3, k2);
-    for (int j = 0; j < 7; ++j) z3[j] = y[j] + h2 * k2[j];
-    F(z3, c1, c2, c3, k3);
-    for (int j = 0; j < 7; ++j) z4[j] = y[j] + h * k3[j];
-    F(z4, c1, c2, c3, k4);
-    for (int j = 0; j < 7; ++j) u[j] = y[j] + h6 * (k1[j] + T(2) * k2[j] + T(2) * k3[j] + k4[j]);
+    Stages(y, c1, c2, c3, h, k1, k2, k3, k4, z2, z3, z4, u);
     // end state (u_Ω, u_q / |u_q|): ū_q = (λ_q − n (n·λ_q)) / |u_q|, n = u_q / |u_q|
     const T r = T(1) / std::sqrt(u[3] * u[3] + u[4] * u[4] + u[5] * u[5] + u[6] * u[6]);
     T ub[7];
@@ -357,14 +340,10 @@ ffi::Error FreeBodyRK4(ffi::Buffer<DT> w0, ffi::Buffer<DT> q0, ffi::Buffer<DT> c
   const T* hh = h.typed_data();
   // Batch rows with the same steps are one group, so that a vmapped single body still fills
   // the vector lanes; rows with their own steps (vmapped output times) go one by one.
-  if (Shared<T>(nn, hh, L, at.K)) {
-    Group<T>(w0.typed_data(), q0.typed_data(), coef.typed_data(), nn, hh, w->typed_data(),
-             q->typed_data(), 0, L * at.B, at);
-  } else {
-    for (int64_t l = 0; l < L; ++l) {
-      Group<T>(w0.typed_data(), q0.typed_data(), coef.typed_data(), nn + l * at.K,
-               hh + l * at.K, w->typed_data(), q->typed_data(), l, at.B, at);
-    }
+  const bool shared = Shared<T>(nn, hh, L, at.K);
+  for (int64_t l = 0; l < (shared ? 1 : L); ++l) {
+    Group<T>(w0.typed_data(), q0.typed_data(), coef.typed_data(), nn + l * at.K, hh + l * at.K,
+             w->typed_data(), q->typed_data(), shared ? 0 : l, shared ? L * at.B : at.B, at);
   }
   return ffi::Error::Success();
 }
@@ -402,50 +381,30 @@ ffi::Error FreeBodyRK4Back(ffi::Buffer<DT> w, ffi::Buffer<DT> q, ffi::Buffer<DT>
 
 }  // namespace
 
-XLA_FFI_DEFINE_HANDLER_SYMBOL(RigidjaxFreeBodyRK4F64, FreeBodyRK4<ffi::F64>,
-                              ffi::Ffi::Bind()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::S32>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Ret<ffi::Buffer<ffi::F64>>()
-                                  .Ret<ffi::Buffer<ffi::F64>>());
+// The forward and reverse handlers for one element type.
+#define RJ_HANDLERS(DT)                                                                    \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(RigidjaxFreeBodyRK4##DT, FreeBodyRK4<ffi::DT>,             \
+                                ffi::Ffi::Bind()                                           \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                           \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                           \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                           \
+                                    .Arg<ffi::Buffer<ffi::S32>>()                          \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                           \
+                                    .Ret<ffi::Buffer<ffi::DT>>()                           \
+                                    .Ret<ffi::Buffer<ffi::DT>>());                         \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(RigidjaxFreeBodyRK4Back##DT, FreeBodyRK4Back<ffi::DT>,     \
+                                ffi::Ffi::Bind()                                           \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                           \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                           \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                           \
+                                    .Arg<ffi::Buffer<ffi::S32>>()                          \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                           \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                           \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                           \
+                                    .Ret<ffi::Buffer<ffi::DT>>()                           \
+                                    .Ret<ffi::Buffer<ffi::DT>>()                           \
+                                    .Ret<ffi::Buffer<ffi::DT>>()                           \
+                                    .Ret<ffi::Buffer<ffi::DT>>())
 
-XLA_FFI_DEFINE_HANDLER_SYMBOL(RigidjaxFreeBodyRK4BackF64, FreeBodyRK4Back<ffi::F64>,
-                              ffi::Ffi::Bind()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::S32>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Ret<ffi::Buffer<ffi::F64>>()
-                                  .Ret<ffi::Buffer<ffi::F64>>()
-                                  .Ret<ffi::Buffer<ffi::F64>>()
-                                  .Ret<ffi::Buffer<ffi::F64>>());
-
-XLA_FFI_DEFINE_HANDLER_SYMBOL(RigidjaxFreeBodyRK4F32, FreeBodyRK4<ffi::F32>,
-                              ffi::Ffi::Bind()
-                                  .Arg<ffi::Buffer<ffi::F32>>()
-                                  .Arg<ffi::Buffer<ffi::F32>>()
-                                  .Arg<ffi::Buffer<ffi::F32>>()
-                                  .Arg<ffi::Buffer<ffi::S32>>()
-                                  .Arg<ffi::Buffer<ffi::F32>>()
-                                  .Ret<ffi::Buffer<ffi::F32>>()
-                                  .Ret<ffi::Buffer<ffi::F32>>());
-
-XLA_FFI_DEFINE_HANDLER_SYMBOL(RigidjaxFreeBodyRK4BackF32, FreeBodyRK4Back<ffi::F32>,
-                              ffi::Ffi::Bind()
-                                  .Arg<ffi::Buffer<ffi::F32>>()
-                                  .Arg<ffi::Buffer<ffi::F32>>()
-                                  .Arg<ffi::Buffer<ffi::F32>>()
-                                  .Arg<ffi::Buffer<ffi::S32>>()
-                                  .Arg<ffi::Buffer<ffi::F32>>()
-                                  .Arg<ffi::Buffer<ffi::F32>>()
-                                  .Arg<ffi::Buffer<ffi::F32>>()
-                                  .Ret<ffi::Buffer<ffi::F32>>()
-                                  .Ret<ffi::Buffer<ffi::F32>>()
-                                  .Ret<ffi::Buffer<ffi::F32>>()
-                                  .Ret<ffi::Buffer<ffi::F32>>());
+RJ_HANDLERS(F64);
+RJ_HANDLERS(F32);
