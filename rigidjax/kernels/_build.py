@@ -97,7 +97,7 @@ def load(name: str, targets: tuple[str, ...]) -> str | None:
     except (KernelUnavailable, OSError, AttributeError) as e:
         warnings.warn(
             f"rigidjax could not build its CPU kernel {name} ({e}); the same integration runs "
-            "through XLA instead, about 4x slower. Install a C++ compiler with OpenMP (g++, or "
+            "through Diffrax and XLA instead, about 3.4x slower (benchmarks/results/dynamics.json). Install a C++ compiler with OpenMP (g++, or "
             "clang++ with libomp; $CXX chooses it) to get it.",
             RuntimeWarning,
             stacklevel=2,

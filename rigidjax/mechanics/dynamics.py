@@ -388,9 +388,10 @@ def simulate(
     quaternions, no interpolation; `max_steps` bounds each output interval). Torque-free bodies
     in principal axes with `solver=RK4()`, `diffrax.ConstantStepSize()` and `dt0` (reverse-mode
     or no derivatives) run on the CPU in a hand-written kernel, `rigidjax.kernels.free_body`,
-    built on first use: the same steps and numbers, at 0.9–1.0× a hand-written C kernel and
-    about 3× the Diffrax path, with its own adjoint for `jax.grad`
-    (benchmarks/bench_kernel.py); `ExplicitRK(RK4())` runs the same scheme through Diffrax.
+    built on first use: the same steps and numbers, measured at 0.96–1.07× a hand-written C
+    kernel and 3.4× the XLA-compiled path, with its own adjoint for `jax.grad`
+    (benchmarks/results/kernel.json, dynamics.json); `ExplicitRK(RK4())` runs the same scheme
+    through Diffrax.
     `solver=rigidjax.ExactFreeBody()` (no torque) steps by the exact Euler–Poinsot flow, exact
     to rounding for any step (by default one step from `ts[0]` to each output time, without a
     Diffrax loop; with `dt0`, Diffrax steps of at most `dt0`);

@@ -6,12 +6,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from scipy.integrate import solve_ivp
 
 import rigidjax as rj
 from rigidjax.kernels import _build
 from rigidjax.kernels import free_body as kernel
 from rigidjax.solvers import ExplicitRK
+from tests.helpers import rigid_body_dop853
 
 pytestmark = pytest.mark.skipif(
     not kernel.available(jnp.float64), reason="the CPU kernel could not be built here"
@@ -44,44 +44,23 @@ def test_batch_equals_diffrax_path():
     assert fast.result == diffrax.RESULTS.successful
 
 
-def test_matches_scipy_on_one_body():
-    w, q = _inputs(1, seed=3)
-    tr = rj.simulate(BODY, w[0], q[0], TS, solver=rj.RK4(), **FIXED)
-    I = np.array([1.0, 2.0, 3.0])
-
-    def rhs(t, s):
-        W, Q = s[:3], s[3:]
-        dW = np.array(
-            [
-                (I[1] - I[2]) / I[0] * W[1] * W[2],
-                (I[2] - I[0]) / I[1] * W[2] * W[0],
-                (I[0] - I[1]) / I[2] * W[0] * W[1],
-            ]
-        )
-        a, b, c, d = Q
-        dQ = 0.5 * np.array(
-            [
-                -b * W[0] - c * W[1] - d * W[2],
-                a * W[0] + c * W[2] - d * W[1],
-                a * W[1] + d * W[0] - b * W[2],
-                a * W[2] + b * W[1] - c * W[0],
-            ]
-        )
-        return np.concatenate([dW, dQ])
-
-    ref = solve_ivp(
-        rhs,
-        (0, 1),
-        np.concatenate([w[0], q[0]]),
-        "DOP853",
-        t_eval=np.asarray(TS),
-        rtol=1e-13,
-        atol=1e-13,
-    ).y.T
-    np.testing.assert_allclose(tr.omega, ref[:, :3], atol=1e-7)  # RK4 at h = 0.02: ~1e-8
-    np.testing.assert_allclose(
-        tr.quat, ref[:, 3:] / np.linalg.norm(ref[:, 3:], axis=1)[:, None], atol=1e-7
-    )
+@pytest.mark.parametrize("case", ["one_body", "per_body_moments"])
+def test_matches_scipy(case):
+    """Against SciPy DOP853 at 1e-13 (tests.helpers): one body with the moments shared, and a
+    batch with its own moments per body (the kernel's per-body coefficients)."""
+    B = 1 if case == "one_body" else 4  # (4, 3): principal moments (a (3, 3) is a tensor)
+    w, q = _inputs(B, seed=3)
+    moments = np.array([[1.0, 2.0, 3.0], [1.5, 1.7, 2.4], [2.0, 2.5, 3.5], [1.0, 1.0, 1.5]])[:B]
+    if case == "one_body":
+        tr = rj.simulate(BODY, w[0], q[0], TS, solver=rj.RK4(), **FIXED)
+        omega, quat = tr.omega[None], tr.quat[None]
+    else:
+        tr = rj.simulate(rj.RigidBody(jnp.asarray(moments)), w, q, TS, solver=rj.RK4(), **FIXED)
+        omega, quat = tr.omega, tr.quat
+    for i in range(B):
+        w_ref, q_ref = rigid_body_dop853(moments[i], w[i], q[i], TS)
+        np.testing.assert_allclose(omega[i], w_ref, atol=1e-7)  # RK4 at h = 0.02: ~1e-8
+        np.testing.assert_allclose(quat[i], q_ref, atol=1e-7)
 
 
 def test_vmap_single_bodies_and_per_row_times():
