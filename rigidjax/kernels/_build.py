@@ -26,6 +26,10 @@ FLAGS = ("-std=c++17", "-O3", "-march=native", "-fno-math-errno", "-fopenmp", "-
 library is built for the machine it runs on."""
 
 
+Headers = tuple[tuple[str, str], ...]
+"""Generated header files of a kernel: (file name, text) pairs."""
+
+
 class KernelUnavailable(RuntimeError):
     """The kernel could not be built or loaded here (no C++ compiler, no OpenMP, ...)."""
 
@@ -45,7 +49,7 @@ def _cpu() -> str:
     return "\n".join(dict.fromkeys(keep))
 
 
-def _key(source: bytes, compiler: list[str]) -> str:
+def _key(source: bytes, headers: Headers, compiler: list[str]) -> str:
     try:
         version = subprocess.run(
             [*compiler, "--version"], capture_output=True, text=True, timeout=30, check=True
@@ -53,18 +57,21 @@ def _key(source: bytes, compiler: list[str]) -> str:
     except (OSError, subprocess.SubprocessError) as e:
         raise KernelUnavailable(f"no C++ compiler ({' '.join(compiler)}: {e})") from e
     h = hashlib.sha256(source)
+    for name, text in headers:
+        h.update(f"{name}\n{text}".encode())
     for part in (version, " ".join(FLAGS), jax.__version__, jax.ffi.include_dir(), _cpu()):
         h.update(part.encode())
     return h.hexdigest()[:16]
 
 
-def build(name: str) -> Path:
-    """The shared library of `rigidjax/kernels/{name}.cc`, compiled if not in the cache yet (to
-    a temporary file renamed into place, so that parallel processes never load half a file)."""
+def build(name: str, headers: Headers = ()) -> Path:
+    """The shared library of `rigidjax/kernels/{name}.cc` with the generated `headers` (file
+    name, text) beside it, compiled if not in the cache yet (to a temporary file renamed into
+    place, so that parallel processes never load half a file)."""
     source = resources.files("rigidjax.kernels").joinpath(f"{name}.cc").read_bytes()
     compiler = _compiler()
     folder = user_cache_dir() / "kernels"
-    path = folder / f"{name}-{_key(source, compiler)}.so"
+    path = folder / f"{name}-{_key(source, headers, compiler)}.so"
     if path.exists():
         return path
     try:
@@ -72,6 +79,8 @@ def build(name: str) -> Path:
         with tempfile.TemporaryDirectory(dir=folder) as tmp:
             src = Path(tmp) / f"{name}.cc"
             src.write_bytes(source)
+            for header, text in headers:
+                (Path(tmp) / header).write_text(text)
             out = Path(tmp) / path.name
             command = [*compiler, *FLAGS, f"-I{jax.ffi.include_dir()}", str(src), "-o", str(out)]
             done = subprocess.run(command, capture_output=True, text=True, timeout=600)
@@ -86,11 +95,12 @@ def build(name: str) -> Path:
 
 
 @functools.cache
-def load(name: str, targets: tuple[str, ...]) -> str | None:
-    """Build `name` and register its handler symbols `targets` as XLA FFI targets of the same
-    names on the CPU; returns None, after one warning, where that is not possible."""
+def load(name: str, targets: tuple[str, ...], headers: Headers = ()) -> str | None:
+    """Build `name` (with `headers`, see `build`) and register its handler symbols `targets` as
+    XLA FFI targets of the same names on the CPU; returns None, after one warning, where that
+    is not possible."""
     try:
-        library = ctypes.CDLL(str(build(name)))
+        library = ctypes.CDLL(str(build(name, headers)))
         for target in targets:
             handler = jax.ffi.pycapsule(getattr(library, target))
             jax.ffi.register_ffi_target(target, handler, platform="cpu")

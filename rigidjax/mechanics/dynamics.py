@@ -36,7 +36,6 @@ from ..kernels import free_body as kernel
 from ..kinematics.formulations import AbstractKinematics, Quaternion, lookup
 from ..rotations import quat
 from ..solvers.exact_free_body import ExactFreeBody, RigidBodyField, flow_from_start
-from ..solvers.rk4 import RK4
 from ..solvers.rkmk import LieTerm
 from ..solvers.splitting import LiePoissonSplitting
 from .body import RigidBody, euler_rhs
@@ -257,18 +256,23 @@ def _structured(
 
 
 def _kernel_serves(options: SolveOptions, torque: Torque | None, dtype) -> bool:
-    """Whether the CPU kernel (`rigidjax.kernels.free_body`) integrates this component-path
-    solve: no torque, `RK4()` at fixed steps `dt0`, reverse-mode (default) adjoint, no Diffrax
-    progress meter, float32/float64 on the CPU with the kernel built."""
+    """Whether a CPU kernel (`rigidjax.kernels.free_body`) integrates this component-path
+    solve: no torque, an explicit Runge–Kutta method with a kernel (`RK4()`, `diffrax.Dopri8()`,
+    the default Tsit5, ...: `free_body.METHODS`) at fixed steps `dt0`, reverse-mode (default)
+    adjoint, no Diffrax progress meter, float32/float64 on the CPU with the kernel built."""
     return (
         torque is None
-        and type(options.solver) is RK4
         and isinstance(options.stepsize_controller, diffrax.ConstantStepSize)
         and options.dt0 is not None
         and isinstance(options.adjoint, None | diffrax.RecursiveCheckpointAdjoint)
         and isinstance(options.progress_meter, None | diffrax.NoProgressMeter)
-        and kernel.available(dtype)
+        and kernel.serves(_method(options), dtype)
     )
+
+
+def _method(options: SolveOptions) -> diffrax.AbstractSolver:
+    """The solver of `options` (default: Tsit5, as `solve_saved` runs it)."""
+    return diffrax.Tsit5() if options.solver is None else options.solver
 
 
 def _kernel_solve(
@@ -278,7 +282,7 @@ def _kernel_solve(
     the component args `(c, J)`: the same steps (`n` equal steps per output interval) and
     arithmetic as `solve_saved`; returns `((Ω (B, T, 3), q (B, T, 4)), stats, result)`. Reverse
     mode (`jax.custom_vjp`): the kernel's discrete adjoint of the same steps
-    (`kernel.free_body_rk4_back`); forward mode is a clear error that names
+    (`kernel.free_body_back`); forward mode is a clear error that names
     `adjoint=diffrax.ForwardMode()` (which takes the Diffrax path)."""
     width = ts[1:] - ts[:-1]
     n = fixed_step_count(width, jnp.asarray(options.dt0, ts.dtype))
@@ -290,8 +294,10 @@ def _kernel_solve(
 
     # every array is an argument (none closed over: under an outer `jax.jit` it is a tracer);
     # the output times are differentiated through the step sizes h
+    method = _method(options)
+
     def forward(omega0, q0, c, h, taken):
-        return kernel.free_body_rk4(omega0, q0, coefficients(c), taken, h)
+        return kernel.free_body(method, omega0, q0, coefficients(c), taken, h)
 
     def run_fwd(omega0, q0, c, h, taken):
         out = forward(omega0, q0, c, h, taken)
@@ -299,7 +305,7 @@ def _kernel_solve(
 
     def run_bwd(residuals, g):
         (w, q), c, h, taken = residuals
-        w0b, q0b, cb, hb = kernel.free_body_rk4_back(w, q, coefficients(c), taken, h, *g)
+        w0b, q0b, cb, hb = kernel.free_body_back(method, w, q, coefficients(c), taken, h, *g)
         cb = tuple(jnp.sum(cb[i]) if jnp.ndim(ci) == 0 else cb[i] for i, ci in enumerate(c))
         return w0b, q0b, cb, jnp.sum(hb, axis=-1), None
 

@@ -1,5 +1,6 @@
-"""The CPU kernel of `simulate(..., solver=RK4(), ConstantStepSize, dt0)` against the Diffrax
-path on the same steps (`ExplicitRK(RK4())`, which never takes the kernel), and against SciPy."""
+"""The CPU kernels of `simulate(..., solver=method, ConstantStepSize, dt0)` against the Diffrax
+path on the same steps (`ExplicitRK(method)`, which never takes a kernel), against SciPy and
+against central differences."""
 
 import diffrax
 import jax
@@ -14,12 +15,13 @@ from rigidjax.solvers import ExplicitRK
 from tests.helpers import rigid_body_dop853
 
 pytestmark = pytest.mark.skipif(
-    not kernel.available(jnp.float64), reason="the CPU kernel could not be built here"
+    not kernel.serves(rj.RK4(), jnp.float64), reason="the CPU kernel could not be built here"
 )
 
 BODY = rj.RigidBody(jnp.array([1.0, 2.0, 3.0]))
 TS = jnp.linspace(0.0, 1.0, 5)
 FIXED = dict(stepsize_controller=diffrax.ConstantStepSize(), dt0=0.02)
+QUICK_METHODS = (diffrax.Bosh3, diffrax.Tsit5, diffrax.Dopri8)  # others: slow tests
 
 
 def _inputs(B, seed=0):
@@ -42,6 +44,45 @@ def test_batch_equals_diffrax_path():
     for key in ("num_steps", "num_accepted_steps", "num_rejected_steps", "num_valid"):
         assert int(fast.stats[key]) == int(slow.stats[key])
     assert fast.result == diffrax.RESULTS.successful
+
+
+@pytest.mark.parametrize(
+    "method",
+    [
+        pytest.param(m, marks=[] if m in QUICK_METHODS else pytest.mark.slow, id=m.__name__)
+        for m in kernel.METHODS
+        if m is not rj.RK4  # the test above
+    ],
+)
+def test_each_method_equals_diffrax_path(method):
+    """Every tableau with a kernel (RK4 above): the same numbers as `ExplicitRK(method)`, the
+    Diffrax path, with stages that never reach the solution (first-same-as-last) dropped. The
+    kernels build on first use (10-25 s each), so the quick suite takes three."""
+    w, q = _inputs(67)
+    kw = dict(ts=TS, stepsize_controller=diffrax.ConstantStepSize(), dt0=0.1)
+    assert kernel.serves(method(), jnp.float64)
+    fast = rj.simulate(BODY, w, q, solver=method(), **kw)
+    slow = rj.simulate(BODY, w, q, solver=ExplicitRK(method()), **kw)
+    np.testing.assert_allclose(fast.omega, slow.omega, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(fast.quat, slow.quat, rtol=0, atol=1e-13)
+
+
+def test_tableau_drops_only_dead_stages():
+    """The kernels' tableau: Diffrax's coefficients, without the stages that reach neither the
+    solution nor a stage that does (the last, first-same-as-last stage of Dopri5/Dopri8)."""
+    for method, stages in (
+        (rj.RK4, 4),
+        (diffrax.Bosh3, 3),
+        (diffrax.Dopri5, 6),
+        (diffrax.Dopri8, 13),
+    ):
+        a = kernel.coefficients(method)
+        tab = method.tableau
+        assert a.shape == (stages + 1, stages)
+        np.testing.assert_array_equal(a[-1], tab.b_sol[:stages])
+        assert not np.any(tab.b_sol[stages:])
+        for i in range(1, stages):
+            np.testing.assert_array_equal(a[i, :i], tab.a_lower[i - 1])
 
 
 @pytest.mark.parametrize("case", ["one_body", "per_body_moments"])
@@ -146,10 +187,12 @@ def test_failures_as_the_diffrax_path(case):
 def test_no_compiler_is_a_clear_failure(monkeypatch, tmp_path):
     monkeypatch.setenv("CXX", str(tmp_path / "no-such-compiler"))
     with pytest.raises(_build.KernelUnavailable, match="no C\\+\\+ compiler"):
-        _build.build("free_body_rk4")
+        _build.build("free_body")
 
 
-@pytest.mark.parametrize("case", ["batch", "one_body", "vmapped_times", "checkpointed"])
+@pytest.mark.parametrize(
+    "case", ["batch", "one_body", "vmapped_times", "checkpointed", "dopri8", "bosh3"]
+)
 def test_adjoint_matches_central_differences(case):
     """The kernel's reverse mode against central differences of its forward run, along a
     random direction of every input (initial states, per-body moments, output times)."""
@@ -160,6 +203,7 @@ def test_adjoint_matches_central_differences(case):
     # off the dt0 grid, so that the differences never change a step count
     ts = jnp.array([0.0, 0.313, 0.671, 1.029])
     dt0 = 9.7e-4 if case == "checkpointed" else 0.02  # > 512 steps an interval: segments
+    solver = {"dopri8": diffrax.Dopri8(), "bosh3": diffrax.Bosh3()}.get(case, rj.RK4())
     weights = jnp.asarray(rng.normal(size=(4, 7)))
 
     def loss(w, q, I, ts):
@@ -169,7 +213,7 @@ def test_adjoint_matches_central_differences(case):
                 w,
                 q,
                 ts,
-                solver=rj.RK4(),
+                solver=solver,
                 stepsize_controller=diffrax.ConstantStepSize(),
                 dt0=dt0,
                 check=False,  # the perturbed q0 is off the unit sphere by eps
