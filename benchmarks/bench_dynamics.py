@@ -9,7 +9,8 @@ Problem
     ``kinematics="quat"`` does that, so the lean kernels and NumPy do the same work).
 
 Contenders (same run, same inputs)
-    rigidjax (batch = one fused state, ``simulate(RigidBody(I), Ω0, q0, [0, T], ...)``):
+    rigidjax (batch = one fused state, ``simulate(RigidBody(I), Ω0, q0, [0, T], ...)``; the
+    fixed-step explicit Runge–Kutta rows run in rigidjax's CPU kernels, rigidjax/kernels/):
         ``rigidjax_rk4``      solver=RK4(), ConstantStepSize, dt0=dt      <- the headline
         ``rigidjax_rk4_saved21``  the same, saving 21 equally spaced times (cost of output)
         ``rigidjax_tsit5``    simulate's default solver (Tsit5, unrolled), constant step dt
@@ -34,9 +35,9 @@ Contenders (same run, same inputs)
     ``rigidjax_exact``: simulate with ``solver=ExactFreeBody()``, the exact Euler–Poinsot flow in
         one step per body from 0 to T, whole batch, timed after the interleaved rounds.
     ``rigidjax_dopri8_equal_accuracy``: rigidjax's side of the same calibration — simulate with
-        ``diffrax.Dopri8`` (DOP853's own 8(5,3) tableau) at the largest constant step of a sweep
-        (T/8 … T/50) whose error on the S trajectories is ≤ rigidjax_rk4's; whole batch, timed
-        after the interleaved rounds.
+        ``diffrax.Dopri8`` (DOP853's own 8(5,3) tableau; the CPU kernel) at the largest constant
+        step of a sweep (T/8 … T/50) whose error on the S trajectories is ≤ rigidjax_rk4's;
+        whole batch, timed after the interleaved rounds.
 
 Reference and accuracy
     For the S subset trajectories: the same RK4 at dt/8 in NumPy extended precision
@@ -540,7 +541,8 @@ def dopri8_part(cfg, wj, qj, w_ref, q_ref, target_err: float, repeats: int, log)
     )
     return dict(
         group="rigidjax",
-        description=f"simulate, batch as one state, solver=diffrax.Dopri8(), ConstantStepSize, "
+        description=f"simulate (CPU kernel), batch as one state, solver=diffrax.Dopri8(), "
+        "ConstantStepSize, "
         f"dt0={pick['dt']:g} ({pick['steps']} steps): the largest step of the sweep reaching "
         "rigidjax_rk4's error (timed after the interleaved rounds)",
         dt=pick["dt"],

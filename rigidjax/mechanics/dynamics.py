@@ -392,12 +392,13 @@ def simulate(
     `"geometric"`), PID at `rtol = atol = 1e-10` in float64 (1e-6 in float32).
     Steps end at every output time and the values at `ts` are step-end states (unit
     quaternions, no interpolation; `max_steps` bounds each output interval). Torque-free bodies
-    in principal axes with `solver=RK4()`, `diffrax.ConstantStepSize()` and `dt0` (reverse-mode
-    or no derivatives) run on the CPU in a hand-written kernel, `rigidjax.kernels.free_body`,
-    built on first use: the same steps and numbers, measured at 0.96–1.07× a hand-written C
-    kernel and 3.4× the XLA-compiled path, with its own adjoint for `jax.grad`
-    (benchmarks/results/kernel.json, dynamics.json); `ExplicitRK(RK4())` runs the same scheme
-    through Diffrax.
+    in principal axes with an explicit Runge–Kutta method (`RK4()`, the default Tsit5,
+    `diffrax.Dopri8()`, ...: `rigidjax.kernels.free_body.METHODS`), `diffrax.ConstantStepSize()`
+    and `dt0` (reverse-mode or no derivatives) run on the CPU in hand-written kernels,
+    `rigidjax.kernels.free_body`, built on first use: the same steps and numbers, with their own
+    adjoint for `jax.grad`; RK4 measured at about the speed of a hand-written C kernel and 3.4×
+    the XLA-compiled path (benchmarks/results/kernel.json, dynamics.json);
+    `ExplicitRK(method)` runs the same scheme through Diffrax.
     `solver=rigidjax.ExactFreeBody()` (no torque) steps by the exact Euler–Poinsot flow, exact
     to rounding for any step (by default one step from `ts[0]` to each output time, without a
     Diffrax loop; with `dt0`, Diffrax steps of at most `dt0`);
