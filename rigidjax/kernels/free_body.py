@@ -75,11 +75,14 @@ def serves(solver: diffrax.AbstractSolver, dtype) -> bool:
     """Whether a kernel integrates `solver` (one of `METHODS`) in `dtype` on the default backend:
     the CPU, float32 or float64, and the kernels built here (the first use of a method and
     element type builds them: 10-25 s on a 2-core CPU, once per machine)."""
-    method = type(solver)
     if not (
-        method in METHODS and jax.default_backend() == "cpu" and jnp.dtype(dtype).name in _DTYPES
+        isinstance(solver, diffrax.AbstractERK)
+        and type(solver) in METHODS
+        and jax.default_backend() == "cpu"
+        and jnp.dtype(dtype).name in _DTYPES
     ):
         return False
+    method = type(solver)
     headers = (("tableaux.h", _header(method, dtype)),)
     return load(_NAME, _targets(method, dtype), headers) is not None
 
@@ -98,7 +101,7 @@ def _call(target: str, dtype, shapes: list[tuple[int, ...]], *args: Array) -> li
 
 
 def free_body(
-    solver: diffrax.AbstractERK,
+    solver: diffrax.AbstractSolver,
     w0: Float[Array, "B 3"],
     q0: Float[Array, "B 4"],
     coef: Float[Array, "3 Bc"],
@@ -118,7 +121,7 @@ def free_body(
 
 
 def free_body_back(
-    solver: diffrax.AbstractERK,
+    solver: diffrax.AbstractSolver,
     w: Float[Array, "B T 3"],
     q: Float[Array, "B T 4"],
     coef: Float[Array, "3 Bc"],
