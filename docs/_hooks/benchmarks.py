@@ -500,7 +500,7 @@ SECTIONS: dict[str, tuple[str, Callable[[dict], str]]] = {
     "identify.json": ("Inertia identification and gradient cost", _identify),
     "checks.json": ("What the input checks cost", _checks),
     "sweep.json": ("Sweeps: throughput, devices, memory", _sweep),
-    "kernel.json": ("The CPU kernel against hand-written C, 1e3 to 1e7 bodies", _generic),
+    "kernel.json": ("The CPU kernels against hand-written C, 1e3 to 1e7 bodies", _generic),
 }
 
 
