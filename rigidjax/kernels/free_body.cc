@@ -421,31 +421,32 @@ ffi::Error FreeBodyStepsBack(ffi::Buffer<DT> w, ffi::Buffer<DT> q, ffi::Buffer<D
 
 }  // namespace
 
+// The five inputs both handlers take: w0 or w, q0 or q, coef, n, h (see the shapes above).
+template <ffi::DataType DT>
+auto BindInputs() {
+  return ffi::Ffi::Bind()
+      .template Arg<ffi::Buffer<DT>>()
+      .template Arg<ffi::Buffer<DT>>()
+      .template Arg<ffi::Buffer<DT>>()
+      .template Arg<ffi::Buffer<ffi::S32>>()
+      .template Arg<ffi::Buffer<DT>>();
+}
+
 // The forward and reverse handlers of one tableau for one element type: RigidjaxFreeBody<TAB><DT>
 // and RigidjaxFreeBodyBack<TAB><DT>.
-#define RJ_HANDLERS(TAB, DT)                                                               \
-  XLA_FFI_DEFINE_HANDLER_SYMBOL(RigidjaxFreeBody##TAB##DT, (FreeBodySteps<TAB, ffi::DT>),  \
-                                ffi::Ffi::Bind()                                           \
-                                    .Arg<ffi::Buffer<ffi::DT>>()                           \
-                                    .Arg<ffi::Buffer<ffi::DT>>()                           \
-                                    .Arg<ffi::Buffer<ffi::DT>>()                           \
-                                    .Arg<ffi::Buffer<ffi::S32>>()                          \
-                                    .Arg<ffi::Buffer<ffi::DT>>()                           \
-                                    .Ret<ffi::Buffer<ffi::DT>>()                           \
-                                    .Ret<ffi::Buffer<ffi::DT>>());                         \
-  XLA_FFI_DEFINE_HANDLER_SYMBOL(RigidjaxFreeBodyBack##TAB##DT,                             \
-                                (FreeBodyStepsBack<TAB, ffi::DT>),                         \
-                                ffi::Ffi::Bind()                                           \
-                                    .Arg<ffi::Buffer<ffi::DT>>()                           \
-                                    .Arg<ffi::Buffer<ffi::DT>>()                           \
-                                    .Arg<ffi::Buffer<ffi::DT>>()                           \
-                                    .Arg<ffi::Buffer<ffi::S32>>()                          \
-                                    .Arg<ffi::Buffer<ffi::DT>>()                           \
-                                    .Arg<ffi::Buffer<ffi::DT>>()                           \
-                                    .Arg<ffi::Buffer<ffi::DT>>()                           \
-                                    .Ret<ffi::Buffer<ffi::DT>>()                           \
-                                    .Ret<ffi::Buffer<ffi::DT>>()                           \
-                                    .Ret<ffi::Buffer<ffi::DT>>()                           \
+#define RJ_HANDLERS(TAB, DT)                                                                  \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(RigidjaxFreeBody##TAB##DT, (FreeBodySteps<TAB, ffi::DT>),     \
+                                BindInputs<ffi::DT>()                                         \
+                                    .Ret<ffi::Buffer<ffi::DT>>()                              \
+                                    .Ret<ffi::Buffer<ffi::DT>>());                            \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(RigidjaxFreeBodyBack##TAB##DT,                                \
+                                (FreeBodyStepsBack<TAB, ffi::DT>),                            \
+                                BindInputs<ffi::DT>()                                         \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                              \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                              \
+                                    .Ret<ffi::Buffer<ffi::DT>>()                              \
+                                    .Ret<ffi::Buffer<ffi::DT>>()                              \
+                                    .Ret<ffi::Buffer<ffi::DT>>()                              \
                                     .Ret<ffi::Buffer<ffi::DT>>());
 
 RJ_KERNELS(RJ_HANDLERS)  // the tableau and element type of this build (tableaux.h)
