@@ -36,6 +36,7 @@ from ..kernels import free_body as kernel
 from ..kinematics.formulations import AbstractKinematics, Quaternion, lookup
 from ..rotations import quat
 from ..solvers.exact_free_body import ExactFreeBody, RigidBodyField, flow_from_start
+from ..solvers.explicit_rk import ExplicitRK
 from ..solvers.rkmk import LieTerm
 from ..solvers.splitting import LiePoissonSplitting
 from .body import RigidBody, euler_rhs
@@ -271,8 +272,9 @@ def _kernel_serves(options: SolveOptions, torque: Torque | None, dtype) -> bool:
 
 
 def _method(options: SolveOptions) -> diffrax.AbstractSolver:
-    """The solver of `options` (default: Tsit5, as `solve_saved` runs it)."""
-    return diffrax.Tsit5() if options.solver is None else options.solver
+    """The solver of `options`; without one, the method `solve_saved` runs by default
+    (`ExplicitRK`'s)."""
+    return ExplicitRK().method if options.solver is None else options.solver
 
 
 def _kernel_solve(
