@@ -74,7 +74,7 @@ def _targets(method: type, dtype) -> tuple[str, str]:
 def serves(solver: diffrax.AbstractSolver, dtype) -> bool:
     """Whether a kernel integrates `solver` (one of `METHODS`) in `dtype` on the default backend:
     the CPU, float32 or float64, and the kernels built here (the first use of a method and
-    element type builds them: 10-25 s on a 2-core CPU, once per machine)."""
+    element type builds them: 6-12 s measured on a 2-core CPU, once per machine)."""
     if not (
         isinstance(solver, diffrax.AbstractERK)
         and type(solver) in METHODS
