@@ -18,10 +18,12 @@ Parts (one run)
               N = max(200, 2e8 / B) steps: ~1 s of work per point up to 1e6 bodies, and at least
               200 steps, so that reading the inputs and writing the trajectory (a pass over
               memory that the C reference, working in place, does not make) stays small.
-              The sweep over B runs --passes times (default 2); each B is reported from its pass
-              with the best rigidjax rate (all passes are kept): this shared 2-core machine
-              drifts by 20% over minutes, for both kernels alike, which a single sweep reads as
-              a dependence on B.
+    flat      Every batch size in one fresh process, both kernels compiled and warmed up
+              first, then --flat-repeats rounds (default 3) that each time every size once,
+              rigidjax then C; best per size. This shared 2-core machine drifts by about 20%
+              over minutes, for both kernels alike: separate processes minutes apart read that
+              drift as a dependence on B, interleaved rounds do not. The flat-scaling figure
+              (worst size over best) comes from this part.
     gradient  B = 1e4 bodies, 500 steps: ``jax.value_and_grad`` of a loss of the final states with
               respect to the principal moments, over the forward run alone, for the kernel path
               (``RK4()``) and, for contrast, the Diffrax path (``ExplicitRK(RK4())``), timed in
@@ -32,7 +34,8 @@ Targets (issue 14): ≥ 0.8× the C kernel at large batches; every batch from 1e
 0.9× of the best; gradient ≤ 3× forward.
 
 Usage
-    python benchmarks/bench_kernel.py [--quick] [--repeats 3] [--out benchmarks/results/kernel.json]
+    python benchmarks/bench_kernel.py [--quick] [--repeats 3] [--flat-repeats 3]
+        [--out benchmarks/results/kernel.json]
 """
 
 from __future__ import annotations
@@ -107,45 +110,62 @@ def steps_for(B: int) -> int:
     return max(200, int(2e8 // B))
 
 
-def probe(B: int, repeats: int) -> dict:
-    """One batch size, in this (fresh) process: rigidjax, then the C reference."""
+def contenders(B: int) -> tuple[Timing, Timing | None, dict]:
+    """rigidjax (compiled ahead of time and warmed up) and the C reference (None without a
+    compiler) for B bodies and N = steps_for(B) steps, after checking that their final states
+    agree to 1e-10; and what was recorded on the way."""
     N = steps_for(B)
     w0, q0 = make_inputs(B)
-    wj, qj = jnp.asarray(w0), jnp.asarray(q0)
-    t_rj = Timing(forward(N), wj, qj)
+    t_rj = Timing(forward(N), jnp.asarray(w0), jnp.asarray(q0))
     w, q = (np.asarray(a) for a in t_rj.warm_up())
-    rss_rigidjax = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-    out = dict(B=B, N=N, compile_s=t_rj.trace_lower_compile_s, peak_rss_bytes=rss_rigidjax)
+    info = dict(
+        B=B,
+        N=N,
+        compile_s=t_rj.trace_lower_compile_s,
+        peak_rss_bytes=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
+    )
     c = CReference.build()
     if c is None:
-        t_rj.run(repeats)
-        out.update(rigidjax_seconds=t_rj.best, c_note=CReference.note)
-    else:
-        state, coef = c.pack(w0, q0, MOMENTS)
-        wc, qc = (a.T for a in np.split(c.advance(state.copy(), coef, N, DT), [3]))
-        diff = float(max(np.max(np.abs(w - wc)), np.max(np.abs(q - qc))))
-        if not diff <= 1e-10:
-            raise SystemExit(f"rigidjax and the C reference disagree by {diff:.3g} at B = {B}")
+        info["c_note"] = CReference.note
+        return t_rj, None, info
+    state, coef = c.pack(w0, q0, MOMENTS)
+    wc, qc = (a.T for a in np.split(c.advance(state.copy(), coef, N, DT), [3]))
+    diff = float(max(np.max(np.abs(w - wc)), np.max(np.abs(q - qc))))
+    if not diff <= 1e-10:
+        raise SystemExit(f"rigidjax and the C reference disagree by {diff:.3g} at B = {B}")
 
-        class _C(Timing):  # the packed state is copied outside the timed call
-            def run(self, repeats=1, min_total=0.0, max_calls=200):
-                self.args = (state.copy(), coef, N, DT)
-                return super().run(repeats, min_total, max_calls)
+    class _C(Timing):  # the packed state is copied outside the timed call
+        def run(self, repeats=1, min_total=0.0, max_calls=200):
+            self.args = (state.copy(), coef, N, DT)
+            return super().run(repeats, min_total, max_calls)
 
-        t_c = _C(c.advance, state.copy(), coef, N, DT, aot=False)
-        interleaved([t_rj, t_c], repeats)
-        out.update(
-            rigidjax_seconds=t_rj.best,
-            c_seconds=t_c.best,
-            max_abs_diff_vs_c=diff,
-            c_vectorized=c.vectorized,
-            c_command=c.command,
-        )
-    out["rigidjax_body_steps_per_s"] = B * N / out["rigidjax_seconds"]
-    if "c_seconds" in out:
-        out["c_body_steps_per_s"] = B * N / out["c_seconds"]
-        out["ratio_vs_c"] = out["c_seconds"] / out["rigidjax_seconds"]
+    info.update(max_abs_diff_vs_c=diff, c_vectorized=c.vectorized, c_command=c.command)
+    return t_rj, _C(c.advance, state.copy(), coef, N, DT, aot=False), info
+
+
+def measured(t_rj: Timing, t_c: Timing | None, info: dict) -> dict:
+    """`info` with the best times, rates and their ratio."""
+    B, N = info["B"], info["N"]
+    out = dict(info, rigidjax_seconds=t_rj.best, rigidjax_body_steps_per_s=B * N / t_rj.best)
+    if t_c is not None:
+        out.update(c_seconds=t_c.best, c_body_steps_per_s=B * N / t_c.best)
+        out["ratio_vs_c"] = t_c.best / t_rj.best
     return out
+
+
+def probe(B: int, repeats: int) -> dict:
+    """One batch size, in this (fresh) process: rigidjax and the C reference, interleaved."""
+    t_rj, t_c, info = contenders(B)
+    interleaved([t for t in (t_rj, t_c) if t is not None], repeats)
+    return measured(t_rj, t_c, info)
+
+
+def flat_probe(batches: tuple[int, ...], repeats: int) -> list[dict]:
+    """Every batch size in one process, timed in interleaved rounds (each round calls every
+    size once, rigidjax then C): a drift of the machine's speed hits all sizes alike."""
+    pairs = [contenders(B) for B in batches]
+    interleaved([t for t_rj, t_c, _ in pairs for t in (t_rj, t_c) if t is not None], repeats)
+    return [measured(*pair) for pair in pairs]
 
 
 def gradient_part(repeats: int, log) -> dict:
@@ -222,6 +242,15 @@ def float32_part(repeats: int) -> dict:
     )
 
 
+def with_peak_fraction(res: dict, peak: dict) -> dict:
+    """`res` with each rate as a fraction of the fp64 peak (FLOPS_PER_BODY_STEP per step)."""
+    for who in ("rigidjax", "c"):
+        rate = res.get(f"{who}_body_steps_per_s")
+        if rate is not None and peak["flops"]:
+            res[f"{who}_fraction_of_fp64_peak"] = rate * FLOPS_PER_BODY_STEP / peak["flops"]
+    return res
+
+
 def run(args) -> dict:
     t_start = time.perf_counter()
 
@@ -231,47 +260,53 @@ def run(args) -> dict:
     batches = QUICK_BATCHES if args.quick else FULL_BATCHES
     peak = peak_fp64_flops()
     log(f"bench_kernel: batches {batches}, repeats {args.repeats}, load {LOADAVG_START}")
-    probes = []
-    for pass_ in range(args.passes):
-        for B in batches:
-            res, wall, proc = fresh_process(
-                __file__, "--_probe", str(B), "--repeats", str(args.repeats)
-            )
-            if res is None:
-                raise SystemExit(f"probe B={B} failed:\n{proc.stderr[-3000:]}")
-            res.update(process_wall_s=wall, pass_index=pass_)
-            for who in ("rigidjax", "c"):
-                rate = res.get(f"{who}_body_steps_per_s")
-                if rate is not None and peak["flops"]:
-                    res[f"{who}_fraction_of_fp64_peak"] = rate * FLOPS_PER_BODY_STEP / peak["flops"]
-            probes.append(res)
-            log(
-                f"  pass {pass_} B={B:>9,} N={res['N']:>6}: rigidjax "
-                f"{res['rigidjax_body_steps_per_s']:.3g}, C "
-                f"{res.get('c_body_steps_per_s', float('nan')):.3g} body-steps/s, ratio "
-                f"{res.get('ratio_vs_c', float('nan')):.2f}, peak RSS "
-                f"{res['peak_rss_bytes'] / 2**20:.0f} MiB"
-            )
-    # per batch size, the pass with the best rigidjax rate (its C rate from the same process)
-    points = [
-        max((p for p in probes if p["B"] == B), key=lambda p: p["rigidjax_body_steps_per_s"])
-        for B in batches
-    ]
+    points = []
+    for B in batches:
+        res, wall, proc = fresh_process(
+            __file__, "--_probe", str(B), "--repeats", str(args.repeats)
+        )
+        if res is None:
+            raise SystemExit(f"probe B={B} failed:\n{proc.stderr[-3000:]}")
+        res["process_wall_s"] = wall
+        points.append(with_peak_fraction(res, peak))
+        log(
+            f"  B={B:>9,} N={res['N']:>6}: rigidjax {res['rigidjax_body_steps_per_s']:.3g}, C "
+            f"{res.get('c_body_steps_per_s', float('nan')):.3g} body-steps/s, ratio "
+            f"{res.get('ratio_vs_c', float('nan')):.2f}, peak RSS "
+            f"{res['peak_rss_bytes'] / 2**20:.0f} MiB"
+        )
+    log("flat scaling: every batch size in one process, interleaved rounds")
+    sizes = ",".join(map(str, batches))
+    flat_points, _, proc = fresh_process(
+        __file__, "--_flat", sizes, "--repeats", str(args.flat_repeats)
+    )
+    if flat_points is None:
+        raise SystemExit(f"flat-scaling probe failed:\n{proc.stderr[-3000:]}")
+    flat_points = [with_peak_fraction(p, peak) for p in flat_points["points"]]
+    for p in flat_points:
+        log(
+            f"  B={p['B']:>9,}: rigidjax {p['rigidjax_body_steps_per_s']:.3g}, C "
+            f"{p.get('c_body_steps_per_s', float('nan')):.3g} body-steps/s"
+        )
     log("gradient vs forward")
     gradient = gradient_part(args.repeats, log)
     log("float32")
     f32 = float32_part(args.repeats)
     log(f"  float32 {f32['speedup']:.2f}x float64, error {f32['max_abs_error_vs_float64']:.1e}")
 
-    rates = [p["rigidjax_body_steps_per_s"] for p in points]
+    def spread(pts, who):
+        r = [p[f"{who}_body_steps_per_s"] for p in pts if f"{who}_body_steps_per_s" in p]
+        return min(r) / max(r) if r else None
+
     ratios = [p["ratio_vs_c"] for p in points if "ratio_vs_c" in p]
     large = [p["ratio_vs_c"] for p in points if "ratio_vs_c" in p and p["B"] >= 10_000]
-    flat = min(rates) / max(rates)
-    c_rates = [p["c_body_steps_per_s"] for p in points if "c_body_steps_per_s" in p]
+    flat = spread(flat_points, "rigidjax")
     summary = dict(
-        best_rigidjax_body_steps_per_s=max(rates),
+        best_rigidjax_body_steps_per_s=max(p["rigidjax_body_steps_per_s"] for p in flat_points),
         worst_over_best_rigidjax=flat,
-        worst_over_best_c=min(c_rates) / max(c_rates) if c_rates else None,
+        worst_over_best_c=spread(flat_points, "c"),
+        worst_over_best_rigidjax_separate_processes=spread(points, "rigidjax"),
+        worst_over_best_c_separate_processes=spread(points, "c"),
         min_ratio_vs_c=min(ratios) if ratios else None,
         min_ratio_vs_c_at_large_batches=min(large) if large else None,
         gradient_over_forward_kernel=gradient["kernel_ratio"],
@@ -304,17 +339,18 @@ def run(args) -> dict:
             dt=DT,
             steps="max(200, 2e8 / B)",
             repeats=args.repeats,
-            passes=args.passes,
+            flat_repeats=args.flat_repeats,
             flops_per_body_step=FLOPS_PER_BODY_STEP,
             fp64_peak=peak,
-            timing_statistic="best of the repeats after one warm-up, interleaved rounds; "
-            "per batch size, the pass with the best rigidjax rate",
+            timing_statistic="best of the repeats after one warm-up, interleaved rounds "
+            "(scaling: rigidjax and C per batch size, each size in a fresh process; flat: every "
+            "size and both kernels in one process)",
         ),
         machine=machine_info(),
         load_average_start=LOADAVG_START,
         load_average_end=load_average(),
         scaling=points,
-        scaling_all_passes=probes,
+        flat=flat_points,
         gradient=gradient,
         float32=f32,
         summary=summary,
@@ -329,7 +365,7 @@ def plot(out: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    pts = out["scaling"]
+    pts = out["flat"]
     B = [p["B"] for p in pts]
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     ax.plot(B, [p["rigidjax_body_steps_per_s"] for p in pts], "o-", label="rigidjax simulate, RK4")
@@ -339,7 +375,7 @@ def plot(out: dict, path: Path) -> None:
     ax.set_ylim(bottom=0)
     ax.set_xlabel("bodies B")
     ax.set_ylabel("body-steps / s")
-    ax.set_title("Fixed-step free body, float64, same run")
+    ax.set_title("Fixed-step free body, float64, one process, interleaved rounds")
     ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -351,13 +387,18 @@ def main(argv=None) -> None:
     p.add_argument("--quick", action="store_true", help="1e3 … 1e5 bodies only")
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument(
-        "--passes", type=int, default=2, help="sweeps over the batch sizes (best per size)"
+        "--flat-repeats", type=int, default=3, help="rounds of the one-process flat-scaling part"
     )
     p.add_argument("--out", type=Path, default=DEFAULT_OUT)
     p.add_argument("--_probe", type=int, default=None, help=argparse.SUPPRESS)
+    p.add_argument("--_flat", default=None, help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args._probe is not None:
         print(json.dumps(probe(args._probe, args.repeats)))
+        return
+    if args._flat is not None:
+        sizes = tuple(int(b) for b in args._flat.split(","))
+        print(json.dumps(dict(points=flat_probe(sizes, args.repeats))))
         return
     out = run(args)
     write_json(args.out, out)
