@@ -466,7 +466,12 @@ def _sweep(d: dict) -> str:
         [_g(r.get("num_devices")), _g(r.get("body_steps_per_s"))] for r in _list(d.get("devices"))
     ]
     memory = [
-        [_g(r.get("points")), _bytes(r.get("peak_rss_bytes")), _g(r.get("wall_time_s"))]
+        [
+            _g(r.get("points")),
+            _bytes(r.get("peak_rss_bytes")),
+            _g(r.get("seconds")),
+            _g(r.get("body_steps_per_s")),
+        ]
         for r in _list(d.get("memory"))
     ]
     return "\n\n".join(
@@ -480,8 +485,10 @@ def _sweep(d: dict) -> str:
             + _table(["points", "chunk", "body-steps/s", "÷ best raw"], sweeps),
             "**Virtual CPU devices** (`--xla_force_host_platform_device_count`):\n\n"
             + _table(["devices", "body-steps/s"], devices),
-            f"**Memory** (a Zarr store; peak RSS ratio {_ratio(d.get('memory_ratio'))}):\n\n"
-            + _table(["points", "peak RSS", "wall s"], memory),
+            f"**Memory** (a Zarr store; peak RSS, largest sweep ÷ smallest "
+            f"{_ratio(d.get('memory_ratio'))} for {_g(d.get('memory_ratio_points'))}× the "
+            "points):\n\n"
+            + _table(["points", "peak RSS", "seconds (no compiling)", "body-steps/s"], memory),
         ]
     )
 
