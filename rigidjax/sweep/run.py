@@ -194,7 +194,9 @@ def run(
     default from the memory per point; the last chunk padded), each chunk split over all local
     devices. With `store` (a directory), results go to a Zarr v3 store as each chunk finishes,
     a chunk is marked done only after its data are written, and calling `run` again with the
-    same design and store computes only the missing chunks. After `jax.distributed.initialize`,
+    same design and store computes only the missing chunks; the Dataset returned then reads
+    its values from the store when they are used (`.load()` brings them into memory), so a
+    sweep larger than memory stays bounded by the chunk. After `jax.distributed.initialize`,
     every process runs the same call and takes every `num_processes`-th chunk; each returns the
     complete Dataset (a store is required then)."""
     t0 = time.perf_counter()
@@ -313,7 +315,7 @@ def run(
                 warnings.filterwarnings("ignore", "Consolidated metadata", UserWarning)
                 zarr.consolidate_metadata(str(path))
         _barrier("store closed")
-        ds = xr.open_zarr(str(path)).load()
+        ds = xr.open_zarr(str(path), chunks=None)  # read from the store on access
     else:
         assert arrays is not None
         ds = _dataset(design, outputs, arrays)
