@@ -398,7 +398,7 @@ def simulate(
     `diffrax.Dopri8()`, ...: `rigidjax.kernels.free_body.METHODS`), `diffrax.ConstantStepSize()`
     and `dt0` (reverse-mode or no derivatives) run on the CPU in hand-written kernels,
     `rigidjax.kernels.free_body`, built on first use: the same steps and numbers, with their own
-    adjoint for `jax.grad`; RK4 measured at 0.81–0.98× a hand-written C kernel and 3.3× the
+    adjoint for `jax.grad`; RK4 measured at 0.81–0.95× a hand-written C kernel and 3.3× the
     XLA-compiled path (benchmarks/results/kernel.json, dynamics.json);
     `ExplicitRK(method)` runs the same scheme through Diffrax.
     `solver=rigidjax.ExactFreeBody()` (no torque) steps by the exact Euler–Poinsot flow, exact
