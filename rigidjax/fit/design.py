@@ -31,6 +31,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from .._checks import as_float, check_finite, vector
+from .._compile import quick_compile_jit
 from .._custom_types import RealLike
 from ..mechanics.inertia import as_tensor, check_inertia
 from ..rotations import quat
@@ -201,7 +202,7 @@ def design_excitation(
     )
 
 
-@eqx.filter_jit
+@quick_compile_jit
 def _ascend(I, w0, q0, ts, z0, bound, sigma_omega, sigma_angle, lr, steps: int, substeps: int):
     def phi(z):
         F = fisher_information(

@@ -17,6 +17,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from .._checks import validate
+from .._compile import quick_compile_jit
 from .._custom_types import Frame, RealLike
 from ..mechanics.inertia import as_tensor, principal_axes
 from ..rotations import quat
@@ -244,7 +245,7 @@ def _linear_guess(data: Experiments, q_ref: Array, model: _Model) -> Array:
     return linear_inertia(data.ts, w, K)
 
 
-@eqx.filter_jit
+@quick_compile_jit
 def _fit(
     data: Experiments,
     guesses: tuple[Array | None, Array | None, Array | None],

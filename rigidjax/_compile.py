@@ -1,0 +1,49 @@
+"""`quick_compile_jit`: `eqx.filter_jit` for the large programs that rigidjax compiles once per
+call and runs briefly (the fits), with XLA options that halve their compile time.
+
+XLA:CPU's fusion emitters (its default since 2025) build one LLVM module per fusion; a fit's
+program has hundreds of fusions (XLA keeps every division, square root and arctangent of the
+forward-mode Jacobian in a fusion of its own), so LLVM dominates the first call. Its classic
+loop emitters (`xla_cpu_use_fusion_emitters=False`) compile the attitude fit of
+`benchmarks/bench_identify.py` in 1.9 s instead of 4.4 s, and run it as fast. The option is a
+CPU one (other backends ignore it) and is left out where this XLA does not know it.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from typing import Any
+
+import equinox as eqx
+import jax
+
+QUICK_COMPILE = {"xla_cpu_use_fusion_emitters": False}
+
+
+@functools.cache
+def quick_compile_options() -> dict[str, Any]:
+    """`QUICK_COMPILE` if this XLA accepts it (one tiny compile to find out), else `{}`."""
+    try:
+        jax.jit(lambda x: x, compiler_options=QUICK_COMPILE).lower(0.0).compile()
+    except Exception:  # noqa: BLE001 - an XLA without the option: its default emitters
+        return {}
+    return dict(QUICK_COMPILE)
+
+
+class quick_compile_jit:  # noqa: N801 - used as a decorator, like eqx.filter_jit
+    """`eqx.filter_jit(fn)` compiled with `quick_compile_options()`, built at the first call
+    (the options need a backend, which importing rigidjax must not start)."""
+
+    def __init__(self, fn: Callable):
+        self._fn = fn
+        self._jitted: Callable | None = None
+        functools.update_wrapper(self, fn)
+
+    def __call__(self, *args, **kwargs):
+        if self._jitted is None:
+            # filter_jit hands keyword arguments other than `donate` to jax.jit (its
+            # `jitkwargs`, not in its typed signature)
+            jit: Callable[..., Callable] = eqx.filter_jit
+            self._jitted = jit(self._fn, compiler_options=quick_compile_options())
+        return self._jitted(*args, **kwargs)
