@@ -56,8 +56,12 @@ def levenberg_marquardt(
         (J, Ja), (r, a) = jax.jacfwd(lambda x: (residuals(x, stage),) * 2, has_aux=True)(p)
         return r, J, a, Ja
 
-    r0, J0, a0, Ja0 = jax.eval_shape(evaluate, p0, jnp.asarray(0))
-    zeros = [jnp.zeros(s.shape, s.dtype) for s in (r0, J0, a0, Ja0)]
+    # the shapes of (r, J, aux, aux_J) from the residuals alone: tracing the Jacobian for
+    # them would double the fit's tracing time
+    r0, a0 = jax.eval_shape(residuals, p0, jnp.asarray(0))
+    zeros = [
+        jnp.zeros(shape, x.dtype) for x in (r0, a0) for shape in (x.shape, (*x.shape, p0.shape[0]))
+    ]
     inf = jnp.asarray(jnp.inf, dtype)
 
     # state: p, (r, J, aux, aux_J) at p, cost, λ, stage, steps, done
