@@ -133,7 +133,7 @@ def free_body_back(
     """Reverse mode of `free_body`: from the cotangents `gw`, `gq` of its outputs `w`, `q`,
     those of `w0`, `q0`, `coef` (per body) and `h` (per body). The discrete adjoint of the same
     steps with renormalisation; each output interval is reversed from its saved start state,
-    its steps recomputed (in checkpointed segments of about √n steps when n > 512)."""
+    its steps recomputed (in checkpointed segments of about √n steps when n > 2048)."""
     K, B = h.shape[0], w.shape[0]
     shapes = [(B, 3), (B, 4), (3, B), (K, B)]
     target = _targets(type(solver), w.dtype)[1]
