@@ -169,6 +169,31 @@ def test_gradient_is_the_diffrax_paths():
     np.testing.assert_allclose(fast, fd, rtol=1e-6)
 
 
+def test_gradient_over_several_blocks_and_unequal_intervals():
+    """The adjoint reuses one state buffer per thread across its 64-body blocks, grown when an
+    interval has more steps than the ones before (reversed: 5, then 20, then 5 steps here):
+    per-body gradients of the initial Ω in four different blocks against central
+    differences."""
+    B = 200
+    w, q = _inputs(B, seed=5)
+    I = jnp.asarray(np.random.default_rng(6).uniform(1.5, 2.5, size=(B, 3)))
+    ts = jnp.array([0.0, 0.1, 0.5, 0.6])  # 5, 20, 5 steps of 0.02
+    weights = jnp.asarray(np.random.default_rng(8).normal(size=(B, 4, 7)))
+
+    @jax.jit
+    def loss(w):
+        tr = rj.simulate(rj.RigidBody(I), w, q, ts, solver=rj.RK4(), **FIXED, check=False)
+        return jnp.sum(jnp.concatenate([tr.omega, tr.quat], -1) * weights)
+
+    grad = jax.jit(jax.grad(loss))(w)
+    eps = 1e-6
+    for b in (0, 70, 130, 199):  # blocks 0, 1, 2, 3
+        for j in range(3):
+            d = jnp.zeros_like(w).at[b, j].set(eps)
+            fd = (loss(w + d) - loss(w - d)) / (2 * eps)
+            np.testing.assert_allclose(grad[b, j], fd, rtol=1e-7, atol=1e-9)
+
+
 def test_gradient_of_a_jitted_function():
     """`jax.grad(jax.jit(f))`: the kernel's derivative rule is traced inside the jit (nothing
     may be closed over); the same gradient as `jax.jit(jax.grad(f))`."""
