@@ -18,8 +18,10 @@ Parts (each in a fresh Python process, so compile caches and memory do not carry
                   machine has 2 cores: more devices than cores cannot be faster);
     ``memory``    peak RSS (`ru_maxrss`) of sweeps of 1e5, 1e6 and 1e7 points with a Zarr store
                   (goal: the largest within 2× the smallest; `memory_ratio`). The chunk is
-                  integrated and written, then dropped; what grows with the points is the
-                  design and the returned Dataset (a few numbers per point).
+                  integrated and written, then dropped, and the returned Dataset reads the
+                  store when used; what grows with the points is the design (sampling 1e7
+                  points alone peaks at 730 MiB) and the status vector read for the summary
+                  (one byte per point).
 Times exclude compilation: the raw call is timed after a warm-up call; a sweep is timed after a
 warm-up sweep of the same design (which compiles; `run` keeps the compiled program), and the
 store sweeps subtract the compile time `run` reports (`compile_time_s`).
