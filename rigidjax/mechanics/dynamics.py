@@ -33,6 +33,7 @@ from .._integrate import (
 )
 from .._trajectory import AbstractTrajectory
 from ..kernels import free_body as kernel
+from ..kernels import free_body_pallas as pallas_kernel
 from ..kinematics.formulations import AbstractKinematics, Quaternion, lookup
 from ..rotations import quat
 from ..solvers.exact_free_body import ExactFreeBody, RigidBodyField, flow_from_start
@@ -256,19 +257,27 @@ def _structured(
     return term, options, args[0]
 
 
-def _kernel_serves(options: SolveOptions, torque: Torque | None, dtype) -> bool:
-    """Whether a CPU kernel (`rigidjax.kernels.free_body`) integrates this component-path
-    solve: no torque, an explicit Runge–Kutta method with a kernel (`RK4()`, `diffrax.Dopri8()`,
-    the default Tsit5, ...: `free_body.METHODS`) at fixed steps `dt0`, reverse-mode (default)
-    adjoint, no Diffrax progress meter, float32/float64 on the CPU with the kernel built."""
-    return (
+def _kernel_for(options: SolveOptions, torque: Torque | None, dtype) -> str | None:
+    """Which kernel integrates this component-path solve, if any: `"cpu"` (the C++ kernel,
+    `rigidjax.kernels.free_body`) or `"gpu"` (the Pallas kernel,
+    `rigidjax.kernels.free_body_pallas`). Both need no torque, an explicit Runge–Kutta method
+    with a kernel (`RK4()`, `diffrax.Dopri8()`, the default Tsit5, ...: `free_body.METHODS`)
+    at fixed steps `dt0`, reverse-mode (default) adjoint, no Diffrax progress meter, float32 or
+    float64, and the kernel working on this backend (built, or checked once)."""
+    if not (
         torque is None
         and isinstance(options.stepsize_controller, diffrax.ConstantStepSize)
         and options.dt0 is not None
         and isinstance(options.adjoint, None | diffrax.RecursiveCheckpointAdjoint)
         and isinstance(options.progress_meter, None | diffrax.NoProgressMeter)
-        and kernel.serves(_method(options), dtype)
-    )
+    ):
+        return None
+    method = _method(options)
+    if kernel.serves(method, dtype):
+        return "cpu"
+    if pallas_kernel.serves(method, dtype):
+        return "gpu"
+    return None
 
 
 def _method(options: SolveOptions) -> diffrax.AbstractSolver:
@@ -277,29 +286,21 @@ def _method(options: SolveOptions) -> diffrax.AbstractSolver:
     return ExplicitRK().method if options.solver is None else options.solver
 
 
-def _kernel_solve(
-    ts: Array, omega0: Array, q0: Array, options: SolveOptions, args
-) -> tuple[tuple[Array, Array], dict[str, Array], diffrax.RESULTS]:
-    """The component path's solve through the CPU kernel, from `omega0 (B, 3)`, `q0 (B, 4)` and
-    the component args `(c, J)`: the same steps (`n` equal steps per output interval) and
-    arithmetic as `solve_saved`; returns `((Ω (B, T, 3), q (B, T, 4)), stats, result)`. Reverse
-    mode (`jax.custom_vjp`): the kernel's discrete adjoint of the same steps
-    (`kernel.free_body_back`); forward mode is a clear error that names
-    `adjoint=diffrax.ForwardMode()` (which takes the Diffrax path)."""
-    width = ts[1:] - ts[:-1]
-    n = fixed_step_count(width, jnp.asarray(options.dt0, ts.dtype))
-    h = width / n
-    taken = jnp.minimum(n, options.max_steps).astype(jnp.int32)  # where Diffrax stops
+def _coefficients(c) -> Array:
+    """The kernels' `coef`: `(3, B)`, or `(3, 1)` for one body shared by the batch."""
+    return jnp.stack([jnp.reshape(ci, (-1,)) for ci in c])
 
-    def coefficients(c):  # (3, B), or (3, 1) for one body shared by the batch
-        return jnp.stack([jnp.reshape(ci, (-1,)) for ci in c])
 
-    # every array is an argument (none closed over: under an outer `jax.jit` it is a tracer);
-    # the output times are differentiated through the step sizes h
-    method = _method(options)
+def _cpu_kernel(
+    method: diffrax.AbstractSolver, omega0: Array, q0: Array, c, h: Array, taken: Array
+) -> tuple[Array, Array]:
+    """`(Ω (B, T, 3), q (B, T, 4))` from the C++ kernel, reverse mode by its discrete adjoint
+    of the same steps (`kernel.free_body_back`). Every array is an argument (none closed
+    over: under an outer `jax.jit` it is a tracer); the output times are differentiated
+    through the step sizes h."""
 
     def forward(omega0, q0, c, h, taken):
-        return kernel.free_body(method, omega0, q0, coefficients(c), taken, h)
+        return kernel.free_body(method, omega0, q0, _coefficients(c), taken, h)
 
     def run_fwd(omega0, q0, c, h, taken):
         out = forward(omega0, q0, c, h, taken)
@@ -307,14 +308,65 @@ def _kernel_solve(
 
     def run_bwd(residuals, g):
         (w, q), c, h, taken = residuals
-        w0b, q0b, cb, hb = kernel.free_body_back(method, w, q, coefficients(c), taken, h, *g)
+        w0b, q0b, cb, hb = kernel.free_body_back(method, w, q, _coefficients(c), taken, h, *g)
         cb = tuple(jnp.sum(cb[i]) if jnp.ndim(ci) == 0 else cb[i] for i, ci in enumerate(c))
         return w0b, q0b, cb, jnp.sum(hb, axis=-1), None
 
     run = jax.custom_vjp(forward)
     run.defvjp(run_fwd, run_bwd)
+    return run(omega0, q0, c, h, taken)
+
+
+def _gpu_kernel(
+    method: diffrax.AbstractSolver, options: SolveOptions, omega0: Array, q0: Array, args, ts
+) -> tuple[Array, Array]:
+    """`(Ω (B, T, 3), q (B, T, 4))` from the Pallas kernel (in Pallas' interpreter where the
+    backend is not a GPU: the tests). The kernel has no adjoint of its own: reverse mode runs
+    the same steps through Diffrax (`solve_saved`, the component path), whose reverse mode
+    differentiates them."""
+    term = diffrax.ODETerm(_QuaternionComponents(None, "body"))
+    quiet = dataclasses.replace(options, throw=False)  # the caller reports failures
+
+    def forward(omega0, q0, args, ts):
+        width = ts[1:] - ts[:-1]
+        n = fixed_step_count(width, jnp.asarray(options.dt0, ts.dtype))
+        taken = jnp.minimum(n, options.max_steps).astype(jnp.int32)
+        interpret = jax.default_backend() != "gpu"
+        c = _coefficients(args[0])
+        return pallas_kernel.free_body_pallas(
+            type(method), omega0, q0, c, taken, width / n, interpret=interpret
+        )
+
+    def through_diffrax(omega0, q0, args, ts):
+        y0 = (tuple(omega0.T), tuple(q0.T))
+        ys, _, _ = solve_saved(term, ts, y0, quiet, args=args, step_end=_normalize_components)
+        w, q = _stack_components(ys)
+        return jnp.moveaxis(w, 0, 1), jnp.moveaxis(q, 0, 1)
+
+    run = jax.custom_vjp(forward)
+    run.defvjp(lambda *a: jax.vjp(through_diffrax, *a), lambda pullback, g: pullback(g))
+    return run(omega0, q0, args, ts)
+
+
+def _kernel_solve(
+    ts: Array, omega0: Array, q0: Array, options: SolveOptions, args, device: str
+) -> tuple[tuple[Array, Array], dict[str, Array], diffrax.RESULTS]:
+    """The component path's solve through the kernel for `device` (`_kernel_for`), from
+    `omega0 (B, 3)`, `q0 (B, 4)` and the component args `(c, J)`: the same steps (`n` equal
+    steps per output interval) and arithmetic as `solve_saved`; returns
+    `((Ω (B, T, 3), q (B, T, 4)), stats, result)`. Reverse mode (`jax.custom_vjp`); forward
+    mode is a clear error that names `adjoint=diffrax.ForwardMode()` (which takes the Diffrax
+    path)."""
+    width = ts[1:] - ts[:-1]
+    n = fixed_step_count(width, jnp.asarray(options.dt0, ts.dtype))
+    h = width / n
+    taken = jnp.minimum(n, options.max_steps).astype(jnp.int32)  # where Diffrax stops
+    method = _method(options)
     try:
-        w, q = run(omega0, q0, args[0], h, taken)  # (B, T, 3), (B, T, 4)
+        if device == "cpu":
+            w, q = _cpu_kernel(method, omega0, q0, args[0], h, taken)  # (B, T, 3), (B, T, 4)
+        else:
+            w, q = _gpu_kernel(method, options, omega0, q0, args, ts)
     except TypeError as e:
         raise_forward_mode(e)
     # the first failing interval: more steps than max_steps, or a non-finite state at its end
@@ -447,7 +499,7 @@ def simulate(
     )
     structured = isinstance(options.solver, ExactFreeBody | LiePoissonSplitting)
     components = body.diagonal and quaternion and not structured
-    fast = False  # the CPU kernel (set on the component path)
+    device = None  # the kernel's, where one serves (set on the component path)
     direct = (
         isinstance(options.solver, ExactFreeBody)
         and options.dt0 is None
@@ -473,7 +525,7 @@ def simulate(
         I = body.operator()[0].astype(dtype)
         args = _component_args(I if body.batch_shape == () else args[0])
         finish = _stack_components
-        fast = _kernel_serves(options, torque, dtype)
+        device = _kernel_for(options, torque, dtype)
 
     elif kinematics == "geometric":
         solver = options.rkmk("body")
@@ -498,8 +550,8 @@ def simulate(
         n = jnp.asarray(ts.shape[0] - 1)
         stats = dict(num_steps=n, num_accepted_steps=n, num_rejected_steps=0 * n, num_valid=n + 1)
         result = diffrax.RESULTS.successful
-    elif fast:
-        ys, stats, result = _kernel_solve(ts, omega0, q0, options, args)
+    elif device is not None:
+        ys, stats, result = _kernel_solve(ts, omega0, q0, options, args, device)
         finish = _time_first  # (B, T, ·): moved back below, which XLA cancels
     else:
         ys, stats, result = solve_saved(

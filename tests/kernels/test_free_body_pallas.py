@@ -1,0 +1,152 @@
+"""The Pallas kernel (the GPU fast path of `simulate(..., solver=method, ConstantStepSize,
+dt0)`), run in Pallas' interpreter on the CPU, against the Diffrax path on the same steps
+(`ExplicitRK(method)`, which never takes a kernel); and its wiring into `simulate`, with the
+backend's choice forced to the GPU kernel."""
+
+import warnings
+
+import diffrax
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import rigidjax as rj
+from rigidjax.kernels import free_body_pallas as pk
+from rigidjax.mechanics import dynamics
+from rigidjax.solvers import ExplicitRK
+
+BODY = rj.RigidBody(jnp.array([1.0, 2.0, 3.0]))
+TS = jnp.asarray([0.0, 0.1, 0.12, 0.35])  # 5, 1 and 12 steps of at most 0.02
+FIXED = dict(stepsize_controller=diffrax.ConstantStepSize(), dt0=0.02)
+
+
+def _inputs(B, seed=0, dtype=jnp.float64):
+    rng = np.random.default_rng(seed)
+    q = rng.normal(size=(B, 4))
+    w, q = rng.normal(size=(B, 3)), q / np.linalg.norm(q, axis=1)[:, None]
+    return jnp.asarray(w, dtype), jnp.asarray(q, dtype)
+
+
+def _diffrax_path(method, w, q, body=BODY, ts=TS, **kw):
+    return rj.simulate(body, w, q, ts=ts, solver=ExplicitRK(method()), **FIXED, **kw)
+
+
+@pytest.fixture
+def on_gpu_kernel(monkeypatch):
+    """`simulate` takes the GPU kernel wherever the CPU kernel would serve (or any kernel
+    could: with no C++ compiler here, the conditions alone), run in the interpreter."""
+    chosen = dynamics._kernel_for
+
+    def forced(options, torque, dtype):
+        if chosen(options, torque, dtype) is not None:
+            return "gpu"
+        forcible = torque is None and isinstance(
+            options.stepsize_controller, diffrax.ConstantStepSize
+        )
+        method = dynamics._method(options)
+        return "gpu" if forcible and type(method) in pk.METHODS else None
+
+    monkeypatch.setattr(dynamics, "_kernel_for", forced)
+
+
+@pytest.mark.parametrize(
+    "method", [rj.RK4, diffrax.Tsit5, diffrax.Dopri8], ids=lambda m: m.__name__
+)
+def test_kernel_equals_diffrax_path(method):
+    """Every body of a full and a partial block (padded with resting bodies), per-body
+    coefficients, three intervals of unequal steps: the Diffrax path's numbers."""
+    B = pk.BLOCK + 5
+    w, q = _inputs(B)
+    I = jnp.asarray(np.random.default_rng(1).uniform(1.5, 2.5, size=(B, 3)))
+    body = rj.RigidBody(I)
+    want = _diffrax_path(method, w, q, body=body)
+    I1, I2, I3 = I.T
+    coef = jnp.stack([(I2 - I3) / I1, (I3 - I1) / I2, (I1 - I2) / I3])
+    n = jnp.asarray([5, 1, 12], jnp.int32)
+    h = jnp.diff(TS) / n
+    got_w, got_q = pk.free_body_pallas(method, w, q, coef, n, h, interpret=True)
+    np.testing.assert_allclose(got_w, want.omega, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(got_q, want.quat, rtol=0, atol=1e-13)
+
+
+def test_shared_coefficients_float32_and_vmap():
+    """One body for the whole batch (`coef (3, 1)`), an interval without steps (the state
+    kept), float32 against float64, and `jax.vmap` over the kernel (a batch of step
+    sequences) equal to a loop."""
+    w, q = _inputs(7)
+    coef = jnp.asarray([[-1.0], [1.0], [-1.0 / 3.0]])
+    n, h = jnp.asarray([4, 0, 6], jnp.int32), jnp.asarray([0.05, 0.1, 0.02])
+    w64, q64 = pk.free_body_pallas(rj.RK4, w, q, coef, n, h, interpret=True)
+    assert w64.shape == (7, 4, 3) and q64.shape == (7, 4, 4)
+    np.testing.assert_array_equal(w64[:, 2], w64[:, 1])
+    np.testing.assert_array_equal(q64[:, 2], q64[:, 1])
+    w32, q32 = pk.free_body_pallas(
+        rj.RK4, w.astype(jnp.float32), q.astype(jnp.float32), coef, n, h, interpret=True
+    )
+    assert w32.dtype == jnp.float32
+    np.testing.assert_allclose(w32, w64, rtol=0, atol=2e-6)
+    np.testing.assert_allclose(q32, q64, rtol=0, atol=2e-6)
+    hs = jnp.stack([h, 2 * h])
+    mapped = jax.vmap(lambda h: pk.free_body_pallas(rj.RK4, w, q, coef, n, h, interpret=True))(hs)
+    for i in range(2):
+        one = pk.free_body_pallas(rj.RK4, w, q, coef, n, hs[i], interpret=True)
+        np.testing.assert_allclose(mapped[0][i], one[0], rtol=0, atol=1e-15)
+        np.testing.assert_allclose(mapped[1][i], one[1], rtol=0, atol=1e-15)
+
+
+def test_simulate_takes_gpu_kernel_with_diffrax_gradients(on_gpu_kernel):
+    """`simulate` through the GPU kernel: the Diffrax path's trajectory and statistics, and
+    reverse-mode gradients (through Diffrax, the kernel having no adjoint) with respect to the
+    moments, the initial state and the output times equal to the Diffrax path's, under
+    `jax.jit`."""
+    w, q = _inputs(3)
+    jaxpr = jax.make_jaxpr(lambda w: rj.simulate(BODY, w, q, TS, solver=rj.RK4(), **FIXED).omega)
+    assert "pallas_call" in str(jaxpr(w))
+    fast = rj.simulate(BODY, w, q, TS, solver=rj.RK4(), **FIXED)
+    slow = _diffrax_path(rj.RK4, w, q)
+    np.testing.assert_allclose(fast.omega, slow.omega, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(fast.quat, slow.quat, rtol=0, atol=1e-13)
+    assert int(fast.stats["num_steps"]) == int(slow.stats["num_steps"]) == 18  # 5 + 1 + 12
+
+    def loss(I, w, ts, solver):
+        tr = rj.simulate(rj.RigidBody(I), w, q, ts, solver=solver, **FIXED)
+        q_end = tr.quat[:, -1, 1:] * jnp.arange(1.0, 4.0)
+        return jnp.sum(tr.omega[:, 1:] ** 2) + jnp.sum(q_end)
+
+    args = (jnp.asarray([1.0, 2.0, 3.0]), w, TS)
+    grads = jax.jit(jax.grad(loss, argnums=(0, 1, 2)), static_argnums=3)
+    want = grads(*args, ExplicitRK(rj.RK4()))
+    for g, r in zip(grads(*args, rj.RK4()), want, strict=True):
+        np.testing.assert_allclose(g, r, rtol=1e-10, atol=1e-12)
+
+
+def test_simulate_gpu_kernel_reports_max_steps(on_gpu_kernel):
+    """An interval with more steps than `max_steps` is the same clear error as on the
+    Diffrax path."""
+    w, q = _inputs(2)
+    with pytest.raises(rj.IntegrationError, match="max_steps"):
+        rj.simulate(BODY, w, q, TS, solver=rj.RK4(), max_steps=4, **FIXED)
+
+
+def test_served_only_where_checked(monkeypatch):
+    """Not on the CPU; on a GPU only after a small batch, compiled, gave the interpreter's
+    states: a kernel that fails to lower, or gives other numbers, warns once and is not
+    served."""
+    assert not pk.serves(rj.RK4(), jnp.float64)
+    assert not pk.serves(ExplicitRK(rj.RK4()), jnp.float64)
+    with pytest.warns(RuntimeWarning, match="Pallas kernel for RK4 in float64"):
+        assert not pk._checked.__wrapped__(rj.RK4, "float64")  # Pallas can't compile for CPU
+    run = pk.free_body_pallas
+
+    def interpreted(*args, interpret=False, shift=0.0):
+        w, q = run(*args, interpret=True)
+        return w + (0.0 if interpret else shift), q
+
+    monkeypatch.setattr(pk, "free_body_pallas", interpreted)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert pk._checked.__wrapped__(rj.RK4, "float64")
+    monkeypatch.setattr(pk, "free_body_pallas", lambda *a, **k: interpreted(*a, **k, shift=1e-6))
+    with pytest.warns(RuntimeWarning, match="differ from Pallas' interpreter"):
+        assert not pk._checked.__wrapped__(rj.RK4, "float64")
