@@ -451,7 +451,9 @@ def simulate(
     and `dt0` (reverse-mode or no derivatives) run on the CPU in hand-written kernels,
     `rigidjax.kernels.free_body`, built on first use: the same steps and numbers, with their own
     adjoint for `jax.grad`; RK4 measured at 0.81–0.95× a hand-written C kernel and 3.3× the
-    XLA-compiled path (benchmarks/results/kernel.json, dynamics.json);
+    XLA-compiled path (benchmarks/results/kernel.json, dynamics.json); on a GPU, in a Pallas
+    kernel that fuses the time loop (`rigidjax.kernels.free_body_pallas`; gradients through
+    Diffrax; not yet measured on a GPU);
     `ExplicitRK(method)` runs the same scheme through Diffrax.
     `solver=rigidjax.ExactFreeBody()` (no torque) steps by the exact Euler–Poinsot flow, exact
     to rounding for any step (by default one step from `ts[0]` to each output time, without a
