@@ -3,6 +3,7 @@ dt0)`), run in Pallas' interpreter on the CPU, against the Diffrax path on the s
 (`ExplicitRK(method)`, which never takes a kernel); and its wiring into `simulate`, with the
 backend's choice forced to the GPU kernel."""
 
+import functools
 import warnings
 
 import diffrax
@@ -150,3 +151,48 @@ def test_served_only_where_checked(monkeypatch):
     monkeypatch.setattr(pk, "free_body_pallas", lambda *a, **k: interpreted(*a, **k, shift=1e-6))
     with pytest.warns(RuntimeWarning, match="differ from Pallas' interpreter"):
         assert not pk._checked.__wrapped__(rj.RK4, "float64")
+
+
+@pytest.fixture
+def triton_lowering_on_cpu():
+    """Pallas' Triton (GPU) lowering registered for the CPU, with the CUDA tables: lowering a
+    kernel then builds its Triton module without a GPU. Private JAX modules: skipped where this
+    JAX lays them out otherwise."""
+    try:
+        from jax._src.interpreters import mlir
+        from jax._src.pallas import pallas_call
+        from jax._src.pallas.triton import pallas_call_registration as triton
+    except ImportError as e:
+        pytest.skip(f"this JAX has no Pallas Triton lowering where expected: {e}")
+    import dataclasses
+
+    def rule(ctx, *args, **params):
+        return triton.pallas_call_lowering(
+            dataclasses.replace(ctx, platforms=("cuda",)), *args, **params
+        )
+
+    registry = mlir._platform_specific_lowerings["cpu"]
+    before = registry.get(pallas_call.pallas_call_p)
+    mlir.register_lowering(pallas_call.pallas_call_p, rule, platform="cpu")
+    yield
+    if before is None:
+        del registry[pallas_call.pallas_call_p]
+    else:
+        registry[pallas_call.pallas_call_p] = before
+
+
+@pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
+def test_kernel_lowers_to_triton(triton_lowering_on_cpu, dtype):
+    """The kernel builds a Triton module for an NVIDIA GPU (ops, dynamic loops, loads and
+    stores all in what Triton takes, in float32 and float64), and the time loop is inside it:
+    the lowered program is one Triton call and no loop of XLA's, also under `jax.vmap` (a
+    sweep). What remains untested without a GPU, Triton's compile and the numbers, `serves`
+    checks on the GPU before first use."""
+    w, q = _inputs(pk.BLOCK + 5, dtype=dtype)
+    coef = jnp.ones((3, 1), dtype)
+    n, h = jnp.asarray([3, 4], jnp.int32), jnp.asarray([0.1, 0.2], dtype)
+    run = functools.partial(pk.free_body_pallas, rj.RK4)
+    for f, hs in ((run, h), (jax.vmap(run, in_axes=(None, None, None, None, 0)), h * h[:, None])):
+        text = jax.jit(f).lower(w, q, coef, n, hs).as_text()
+        assert text.count("__gpu$xla.gpu.triton") == 1
+        assert "stablehlo.while" not in text
