@@ -63,13 +63,15 @@ def _combine(row: np.ndarray, ks: list[State], y: State, h: Array) -> State:
 
 def step(a: np.ndarray, c: tuple[Array, Array, Array], h: Array, y: State) -> State:
     """One step of the tableau `a` (`free_body.coefficients`: rows `a_il`, last row `b_l`) from
-    `y`, the quaternion renormalised: `q ← u_q / |u_q|`."""
+    `y`, the quaternion renormalised: `q ← u_q · (1 / sqrt(u_q · u_q))`, as in the C++ kernel
+    (in float64 on NVIDIA GPUs, IEEE `sqrt.rn` and `div.rn`; `rsqrt` would lower to the
+    approximate `rsqrt.approx.f64`)."""
     S = a.shape[1]
     ks = [_field(c, y)]
     for i in range(1, S):
         ks.append(_field(c, _combine(a[i], ks, y, h)))
     u = _combine(a[S], ks, y, h)
-    r = jax.lax.rsqrt(u[3] * u[3] + u[4] * u[4] + u[5] * u[5] + u[6] * u[6])
+    r = 1 / jnp.sqrt(u[3] * u[3] + u[4] * u[4] + u[5] * u[5] + u[6] * u[6])
     return (u[0], u[1], u[2], u[3] * r, u[4] * r, u[5] * r, u[6] * r)
 
 

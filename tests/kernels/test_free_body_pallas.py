@@ -4,6 +4,7 @@ dt0)`), run in Pallas' interpreter on the CPU, against the Diffrax path on the s
 backend's choice forced to the GPU kernel."""
 
 import functools
+import re
 import warnings
 
 import diffrax
@@ -154,10 +155,10 @@ def test_served_only_where_checked(monkeypatch):
 
 
 @pytest.fixture
-def triton_lowering_on_cpu():
+def triton_lowering_on_cpu(monkeypatch):
     """Pallas' Triton (GPU) lowering registered for the CPU, with the CUDA tables: lowering a
-    kernel then builds its Triton module without a GPU. Private JAX modules: skipped where this
-    JAX lays them out otherwise."""
+    kernel then builds its Triton module without a GPU. Yields the list into which each
+    module's text goes. Private JAX modules: skipped where this JAX lays them out otherwise."""
     try:
         from jax._src.interpreters import mlir
         from jax._src.pallas import pallas_call
@@ -166,15 +167,24 @@ def triton_lowering_on_cpu():
         pytest.skip(f"this JAX has no Pallas Triton lowering where expected: {e}")
     import dataclasses
 
+    modules = []
+    lower = triton.lowering.lower_jaxpr_to_triton_module
+
+    def lower_and_keep(*args, **kwargs):
+        result = lower(*args, **kwargs)
+        modules.append(result.module.operation.get_asm())
+        return result
+
     def rule(ctx, *args, **params):
         return triton.pallas_call_lowering(
             dataclasses.replace(ctx, platforms=("cuda",)), *args, **params
         )
 
+    monkeypatch.setattr(triton.lowering, "lower_jaxpr_to_triton_module", lower_and_keep)
     registry = mlir._platform_specific_lowerings["cpu"]
     before = registry.get(pallas_call.pallas_call_p)
     mlir.register_lowering(pallas_call.pallas_call_p, rule, platform="cpu")
-    yield
+    yield modules
     if before is None:
         del registry[pallas_call.pallas_call_p]
     else:
@@ -186,8 +196,9 @@ def test_kernel_lowers_to_triton(triton_lowering_on_cpu, dtype):
     """The kernel builds a Triton module for an NVIDIA GPU (ops, dynamic loops, loads and
     stores all in what Triton takes, in float32 and float64), and the time loop is inside it:
     the lowered program is one Triton call and no loop of XLA's, also under `jax.vmap` (a
-    sweep). What remains untested without a GPU, Triton's compile and the numbers, `serves`
-    checks on the GPU before first use."""
+    sweep). The renormalisation is `1 / sqrt`, not `rsqrt`, which Triton lowers to the
+    approximate `rsqrt.approx.f64` (seen in its PTX). What remains untested without a GPU,
+    Triton's compile and the numbers, `serves` checks on the GPU before first use."""
     w, q = _inputs(pk.BLOCK + 5, dtype=dtype)
     coef = jnp.ones((3, 1), dtype)
     n, h = jnp.asarray([3, 4], jnp.int32), jnp.asarray([0.1, 0.2], dtype)
@@ -196,3 +207,7 @@ def test_kernel_lowers_to_triton(triton_lowering_on_cpu, dtype):
         text = jax.jit(f).lower(w, q, coef, n, hs).as_text()
         assert text.count("__gpu$xla.gpu.triton") == 1
         assert "stablehlo.while" not in text
+    assert len(triton_lowering_on_cpu) == 2
+    for module in triton_lowering_on_cpu:
+        assert re.findall(r'symbol = "(\w*sqrt\w*)"', module) in (["__nv_sqrt"], ["__nv_sqrtf"])
+        assert module.count("scf.for") == 2  # the intervals and, inside, their steps
