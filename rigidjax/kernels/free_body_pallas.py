@@ -24,6 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.experimental import pallas as pl
+from jax.experimental.pallas import triton as pltriton
 from jaxtyping import Array, Float, Int
 
 from .free_body import _DTYPES, METHODS, coefficients
@@ -129,6 +130,8 @@ def free_body_pallas(
             pl.BlockSpec((3, BLOCK), lambda i: (0, i)),
         ],
         out_specs=pl.BlockSpec((K + 1, 7, BLOCK), lambda i: (0, 0, i)),
+        # Triton, one body per thread (Pallas' default on NVIDIA GPUs is Mosaic GPU)
+        compiler_params=pltriton.CompilerParams(num_warps=BLOCK // 32, num_stages=1),
         interpret=interpret,
     )(n.astype(jnp.int32), h.astype(dtype), x0, c)
     out = jnp.moveaxis(out[:, :, :B], 2, 0)  # (B, T, 7)

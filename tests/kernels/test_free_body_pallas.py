@@ -155,46 +155,30 @@ def test_served_only_where_checked(monkeypatch):
 
 
 @pytest.fixture
-def triton_lowering_on_cpu(monkeypatch):
-    """Pallas' Triton (GPU) lowering registered for the CPU, with the CUDA tables: lowering a
-    kernel then builds its Triton module without a GPU. Yields the list into which each
-    module's text goes. Private JAX modules: skipped where this JAX lays them out otherwise."""
+def triton_modules(monkeypatch):
+    """The list into which the text of each Triton module that Pallas builds goes (a private
+    JAX function wrapped: skipped where this JAX lays it out otherwise)."""
     try:
-        from jax._src.interpreters import mlir
-        from jax._src.pallas import pallas_call
-        from jax._src.pallas.triton import pallas_call_registration as triton
+        from jax._src.pallas.triton import lowering
     except ImportError as e:
         pytest.skip(f"this JAX has no Pallas Triton lowering where expected: {e}")
-    import dataclasses
-
     modules = []
-    lower = triton.lowering.lower_jaxpr_to_triton_module
+    lower = lowering.lower_jaxpr_to_triton_module
 
     def lower_and_keep(*args, **kwargs):
         result = lower(*args, **kwargs)
         modules.append(result.module.operation.get_asm())
         return result
 
-    def rule(ctx, *args, **params):
-        return triton.pallas_call_lowering(
-            dataclasses.replace(ctx, platforms=("cuda",)), *args, **params
-        )
-
-    monkeypatch.setattr(triton.lowering, "lower_jaxpr_to_triton_module", lower_and_keep)
-    registry = mlir._platform_specific_lowerings["cpu"]
-    before = registry.get(pallas_call.pallas_call_p)
-    mlir.register_lowering(pallas_call.pallas_call_p, rule, platform="cpu")
-    yield modules
-    if before is None:
-        del registry[pallas_call.pallas_call_p]
-    else:
-        registry[pallas_call.pallas_call_p] = before
+    monkeypatch.setattr(lowering, "lower_jaxpr_to_triton_module", lower_and_keep)
+    return modules
 
 
 @pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
-def test_kernel_lowers_to_triton(triton_lowering_on_cpu, dtype):
-    """The kernel builds a Triton module for an NVIDIA GPU (ops, dynamic loops, loads and
-    stores all in what Triton takes, in float32 and float64), and the time loop is inside it:
+def test_kernel_lowers_to_triton(triton_modules, dtype):
+    """Lowered for CUDA on a machine without a GPU, the kernel takes Pallas' Triton backend
+    (not Mosaic GPU, Pallas' default), whose module Triton takes (ops, dynamic loops, loads
+    and stores, in float32 and float64), and the time loop is inside it:
     the lowered program is one Triton call and no loop of XLA's, also under `jax.vmap` (a
     sweep). The renormalisation is `1 / sqrt`, not `rsqrt`, which Triton lowers to the
     approximate `rsqrt.approx.f64` (seen in its PTX). What remains untested without a GPU,
@@ -204,10 +188,10 @@ def test_kernel_lowers_to_triton(triton_lowering_on_cpu, dtype):
     n, h = jnp.asarray([3, 4], jnp.int32), jnp.asarray([0.1, 0.2], dtype)
     run = functools.partial(pk.free_body_pallas, rj.RK4)
     for f, hs in ((run, h), (jax.vmap(run, in_axes=(None, None, None, None, 0)), h * h[:, None])):
-        text = jax.jit(f).lower(w, q, coef, n, hs).as_text()
-        assert text.count("__gpu$xla.gpu.triton") == 1
+        text = jax.jit(f).trace(w, q, coef, n, hs).lower(lowering_platforms=("cuda",)).as_text()
+        assert text.count("__gpu$xla.gpu.triton") == 1 and "num_warps = 4 " in text
         assert "stablehlo.while" not in text
-    assert len(triton_lowering_on_cpu) == 2
-    for module in triton_lowering_on_cpu:
+    assert len(triton_modules) == 2
+    for module in triton_modules:
         assert re.findall(r'symbol = "(\w*sqrt\w*)"', module) in (["__nv_sqrt"], ["__nv_sqrtf"])
         assert module.count("scf.for") == 2  # the intervals and, inside, their steps
