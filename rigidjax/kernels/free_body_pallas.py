@@ -5,9 +5,10 @@ block of `BLOCK` bodies (one per GPU thread) and keeps their seven state compone
 registers over all steps; only the states at the output times go to memory. XLA's own loop
 (the component path) instead reads and writes the whole batch state several times a step.
 
-Same steps as the CPU kernel and the Diffrax path (`ExplicitRK(method)`): `n[k]` equal steps of
-size `h[k]` per output interval, the tableau's coefficients from `free_body.coefficients` (zero
-terms dropped, sums in Diffrax's order), the quaternion renormalised after each step:
+Same steps and arithmetic as the Diffrax path (`ExplicitRK(method)`, the component path of
+`simulate`): `n[k]` equal steps of size `h[k]` per output interval, the stages unrolled by the
+same code (`solvers._stages`) on the same field (`mechanics._free_field.free_field`), the
+quaternion renormalised after each step:
 
     Euler's equations  dΩ1/dt = c1 Ω2 Ω3, c1 = (I2 − I3)/I1 (cyclic; Zegrya–Parshin 004)
     kinematics         dq/dt = ½ q ∘ (0, Ω)  (Borisov–Mamaev 001)
@@ -27,7 +28,9 @@ from jax.experimental import pallas as pl
 from jax.experimental.pallas import triton as pltriton
 from jaxtyping import Array, Float, Int
 
-from .free_body import _DTYPES, METHODS, coefficients
+from ..mechanics._free_field import free_field
+from ..solvers import _stages
+from .free_body import _DTYPES, METHODS
 
 BLOCK = 128
 """Bodies per program: one per thread of a 4-warp GPU program."""
@@ -36,47 +39,25 @@ State = tuple[Array, Array, Array, Array, Array, Array, Array]
 """Ω1, Ω2, Ω3, q0, q1, q2, q3 of a block of bodies, each `(BLOCK,)`."""
 
 
-def _field(c: tuple[Array, Array, Array], z: State) -> State:
-    """f(z): Euler's equations in principal axes and ½ q ∘ (0, Ω), per component."""
-    w1, w2, w3, a, b, cq, d = z
-    return (
-        c[0] * w2 * w3,
-        c[1] * w3 * w1,
-        c[2] * w1 * w2,
-        0.5 * (-b * w1 - cq * w2 - d * w3),
-        0.5 * (a * w1 + cq * w3 - d * w2),
-        0.5 * (a * w2 + d * w1 - b * w3),
-        0.5 * (a * w3 + b * w2 - cq * w1),
-    )
+def step(tab: diffrax.ButcherTableau, c: tuple[Array, Array, Array], h: Array, y: State) -> State:
+    """One step of the tableau `tab` from `y` (`ExplicitRK`'s stages; a stage that never reaches
+    the solution, first-same-as-last, is left to the compiler to drop), the quaternion
+    renormalised: `q ← u_q · (1 / sqrt(u_q · u_q))`, as in the C++ kernel (in float64 on NVIDIA
+    GPUs, IEEE `sqrt.rn` and `div.rn`; `rsqrt` would lower to the approximate
+    `rsqrt.approx.f64`)."""
 
+    def field(_, inc):
+        z = y if inc is None else tuple(a + b for a, b in zip(y, inc, strict=True))
+        dw, dq = free_field(c, z[:3], z[3:])
+        return dw + dq
 
-def _combine(row: np.ndarray, ks: list[State], y: State, h: Array) -> State:
-    """y + h Σ_l row[l] k_l over the nonzero coefficients, summed in order."""
-    terms = [(float(a), k) for a, k in zip(row, ks, strict=False) if a != 0.0]
-    out = []
-    for j in range(7):
-        s = terms[0][0] * terms[0][1][j]
-        for a, k in terms[1:]:
-            s = s + a * k[j]
-        out.append(y[j] + h * s)
-    return tuple(out)  # pyright: ignore[reportReturnType]
-
-
-def step(a: np.ndarray, c: tuple[Array, Array, Array], h: Array, y: State) -> State:
-    """One step of the tableau `a` (`free_body.coefficients`: rows `a_il`, last row `b_l`) from
-    `y`, the quaternion renormalised: `q ← u_q · (1 / sqrt(u_q · u_q))`, as in the C++ kernel
-    (in float64 on NVIDIA GPUs, IEEE `sqrt.rn` and `div.rn`; `rsqrt` would lower to the
-    approximate `rsqrt.approx.f64`)."""
-    S = a.shape[1]
-    ks = [_field(c, y)]
-    for i in range(1, S):
-        ks.append(_field(c, _combine(a[i], ks, y, h)))
-    u = _combine(a[S], ks, y, h)
+    ks = _stages.stages(tab, 0.0, h, field)
+    u = tuple(a + b for a, b in zip(y, _stages.increment(h, tab.b_sol, ks), strict=True))
     r = 1 / jnp.sqrt(u[3] * u[3] + u[4] * u[4] + u[5] * u[5] + u[6] * u[6])
     return (u[0], u[1], u[2], u[3] * r, u[4] * r, u[5] * r, u[6] * r)
 
 
-def _kernel(a: np.ndarray, K: int):
+def _kernel(tab: diffrax.ButcherTableau, K: int):
     """The kernel of one block: `K` intervals of `n[k]` steps of size `h[k]`, the state
     written at their ends."""
 
@@ -88,7 +69,7 @@ def _kernel(a: np.ndarray, K: int):
 
         def interval(k, y):
             h = h_ref[k]
-            y = jax.lax.fori_loop(0, n_ref[k], lambda _, y: step(a, c, h, y), y)
+            y = jax.lax.fori_loop(0, n_ref[k], lambda _, y: step(tab, c, h, y), y)
             for j in range(7):
                 out_ref[k + 1, j] = y[j]
             return y
@@ -120,7 +101,7 @@ def free_body_pallas(
     x0 = jnp.concatenate([jnp.concatenate([w0, q0], axis=-1), rest]).T  # (7, Bp)
     c = jnp.pad(jnp.broadcast_to(coef.astype(dtype), (3, B)), ((0, 0), (0, Bp - B)))
     out = pl.pallas_call(
-        _kernel(coefficients(method), K),
+        _kernel(_stages.tableau_of(method()), K),
         out_shape=jax.ShapeDtypeStruct((K + 1, 7, Bp), dtype),
         grid=(Bp // BLOCK,),
         in_specs=[

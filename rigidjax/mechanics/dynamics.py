@@ -40,6 +40,7 @@ from ..solvers.exact_free_body import ExactFreeBody, RigidBodyField, flow_from_s
 from ..solvers.explicit_rk import ExplicitRK
 from ..solvers.rkmk import LieTerm
 from ..solvers.splitting import LiePoissonSplitting
+from ._free_field import free_field
 from .body import RigidBody, euler_rhs
 
 if TYPE_CHECKING:
@@ -136,7 +137,8 @@ class _QuaternionComponents(eqx.Module):
     equations are written out component by component (no per-body vmap, no stacking), so XLA
     fuses each step into a few vectorised loops (benchmarks/bench_dynamics.py): Euler's equations
     in principal axes `Ω̇1 = (I2 − I3)/I1 Ω2 Ω3 + K1/I1` (cyclic; Zegrya–Parshin 004) and
-    `q̇ = ½ q ∘ (0, Ω)` (Borisov–Mamaev 001; exercises 002 #101). These are the same equations
+    `q̇ = ½ q ∘ (0, Ω)` (Borisov–Mamaev 001; exercises 002 #101), the torque-free part in
+    `free_field` (which the GPU kernel evaluates too). These are the same equations
     as `euler_rhs` + `Quaternion.vector_field`, which the general path uses.
 
     `args = (c, J)`: `c_i = (I_j − I_k)/I_i` (cyclic) and `J_i = 1/I_i`, each a scalar (one
@@ -146,24 +148,18 @@ class _QuaternionComponents(eqx.Module):
     torque_frame: str = eqx.field(static=True)
 
     def __call__(self, t, y, args):
-        ((w0, w1, w2), (q0, q1, q2, q3)), (c, J) = y, args
-        dw = (c[0] * w1 * w2, c[1] * w2 * w0, c[2] * w0 * w1)
+        (w_c, q_c), (c, J) = y, args
+        dw, dq = free_field(c, w_c, q_c)
         if self.torque is not None:
-            w, q = jnp.stack((w0, w1, w2)), jnp.stack((q0, q1, q2, q3))  # (3, B), (4, B)
+            w, q = jnp.stack(w_c), jnp.stack(q_c)  # (3, B), (4, B)
             torque = self.torque  # one body (scalar components): called as it is
             if w.ndim == 2:
                 torque = jax.vmap(torque, in_axes=(None, -1, -1), out_axes=-1)
             K = torque(t, w, q)
             if self.torque_frame == "space":
                 K = quat.rotate(quat.conj(q.T), K.T).T
-            K = K.astype(w0.dtype)
+            K = K.astype(w.dtype)
             dw = tuple(d + Ji * Ki for d, Ji, Ki in zip(dw, J, K, strict=True))
-        dq = (
-            -0.5 * (q1 * w0 + q2 * w1 + q3 * w2),
-            0.5 * (q0 * w0 + q2 * w2 - q3 * w1),
-            0.5 * (q0 * w1 + q3 * w0 - q1 * w2),
-            0.5 * (q0 * w2 + q1 * w1 - q2 * w0),
-        )
         return dw, dq
 
 
