@@ -37,20 +37,10 @@ def _diffrax_path(method, w, q, body=BODY, ts=TS, **kw):
 
 @pytest.fixture
 def on_gpu_kernel(monkeypatch):
-    """`simulate` takes the GPU kernel wherever the CPU kernel would serve (or any kernel
-    could: with no C++ compiler here, the conditions alone), run in the interpreter."""
-    chosen = dynamics._kernel_for
-
-    def forced(options, torque, dtype):
-        if chosen(options, torque, dtype) is not None:
-            return "gpu"
-        forcible = torque is None and isinstance(
-            options.stepsize_controller, diffrax.ConstantStepSize
-        )
-        method = dynamics._method(options)
-        return "gpu" if forcible and type(method) in pk.METHODS else None
-
-    monkeypatch.setattr(dynamics, "_kernel_for", forced)
+    """`simulate` as on a GPU: no C++ kernel, and the Pallas kernel served for its methods
+    (run in Pallas' interpreter here); `_kernel_for` itself decides."""
+    monkeypatch.setattr(dynamics.kernel, "serves", lambda solver, dtype: False)
+    monkeypatch.setattr(pk, "serves", lambda solver, dtype: type(solver) in pk.METHODS)
 
 
 @pytest.mark.parametrize(
