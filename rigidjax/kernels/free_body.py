@@ -29,7 +29,7 @@ METHODS: tuple[type[diffrax.AbstractERK], ...] = (
     diffrax.Dopri8,
 )
 """The solvers with a kernel (exactly these types: a subclass may change the tableau)."""
-_DTYPES = {"float64": "F64", "float32": "F32"}
+DTYPES = {"float64": "F64", "float32": "F32"}
 
 
 def coefficients(method: type[diffrax.AbstractERK]) -> Float[np.ndarray, "rows stages"]:
@@ -37,6 +37,21 @@ def coefficients(method: type[diffrax.AbstractERK]) -> Float[np.ndarray, "rows s
     coefficients `a_il`, row `S` the weights `b_l`; stages that never reach the solution (the
     first-same-as-last stage, which `ExplicitRK` evaluates only for the error estimate and
     dense output) are dropped."""
+    a, keep = _tableau(method)
+    return a[np.append(keep, a.shape[1])][:, keep]
+
+
+def stage_times(method: type[diffrax.AbstractERK]) -> Float[np.ndarray, " stages"]:
+    """The stage times `c_i` (stage i at `t + c_i h`) of the stages `coefficients` keeps."""
+    tab = method.tableau
+    assert isinstance(tab, diffrax.ButcherTableau)
+    c = np.concatenate([[float(tab.c1)], np.asarray(tab.c, dtype=float)])
+    return c[_tableau(method)[1]]
+
+
+def _tableau(method: type[diffrax.AbstractERK]) -> tuple[np.ndarray, np.ndarray]:
+    """The full `(S + 1, S)` coefficients and the indices of the stages that reach the
+    solution."""
     tab = method.tableau
     assert isinstance(tab, diffrax.ButcherTableau)
     S = tab.num_stages
@@ -47,8 +62,7 @@ def coefficients(method: type[diffrax.AbstractERK]) -> Float[np.ndarray, "rows s
     live = np.zeros(S, bool)
     for i in reversed(range(S)):
         live[i] = a[S, i] != 0 or bool(np.any(live[i + 1 :] & (a[i + 1 : S, i] != 0)))
-    keep = np.flatnonzero(live)
-    return a[np.append(keep, S)][:, keep]
+    return a, np.flatnonzero(live)
 
 
 def _header(method: type[diffrax.AbstractERK], dtype) -> str:
@@ -62,12 +76,12 @@ def _header(method: type[diffrax.AbstractERK], dtype) -> str:
         f"#pragma once\n\nstruct {name} {{\n  static constexpr int S = {a.shape[1]};\n"
         f"  static constexpr double c[{a.shape[0]}][{a.shape[1]}] = {{\n    {rows}}};\n"
         "  static constexpr double a(int i, int l) { return c[i][l]; }\n};\n\n"
-        f"#define RJ_KERNELS(X) X({name}, {_DTYPES[jnp.dtype(dtype).name]})\n"
+        f"#define RJ_KERNELS(X) X({name}, {DTYPES[jnp.dtype(dtype).name]})\n"
     )
 
 
 def _targets(method: type, dtype) -> tuple[str, str]:
-    suffix = method.__name__ + _DTYPES[jnp.dtype(dtype).name]
+    suffix = method.__name__ + DTYPES[jnp.dtype(dtype).name]
     return f"RigidjaxFreeBody{suffix}", f"RigidjaxFreeBodyBack{suffix}"
 
 
@@ -79,7 +93,7 @@ def serves(solver: diffrax.AbstractSolver, dtype) -> bool:
         isinstance(solver, diffrax.AbstractERK)
         and type(solver) in METHODS
         and jax.default_backend() == "cpu"
-        and jnp.dtype(dtype).name in _DTYPES
+        and jnp.dtype(dtype).name in DTYPES
     ):
         return False
     method = type(solver)

@@ -30,7 +30,7 @@ from jaxtyping import Array, Float, Int
 
 from ..mechanics._free_field import free_field
 from ..solvers import _stages
-from .free_body import _DTYPES, METHODS
+from .free_body import DTYPES, METHODS
 
 BLOCK = 128
 """Bodies per program: one per thread of a 4-warp GPU program."""
@@ -128,7 +128,7 @@ def serves(solver: diffrax.AbstractSolver, dtype) -> bool:
         isinstance(solver, diffrax.AbstractERK)
         and type(solver) in METHODS
         and jax.default_backend() == "gpu"
-        and jnp.dtype(dtype).name in _DTYPES
+        and jnp.dtype(dtype).name in DTYPES
         and _checked(type(solver), jnp.dtype(dtype).name)
     )
 

@@ -1,0 +1,253 @@
+"""Any model's ODE `ẏ = f(t, y, p)` at fixed steps of an explicit Runge–Kutta method, as one CPU
+kernel written from the JAX field itself (`model.cc`): the fast path of every model with a
+torque, the heavy top, the satellite and the 6-DOF body.
+
+The field of one body, `f(t, y (N,), p (P,)) -> (N,)`, is traced once; the float constants it
+closes over (torque gains, a target attitude: tracers under `jax.jit`, `jax.vmap` or `jax.grad`)
+are lifted into a runtime parameter vector `c`, so that the C++ depends on the field's structure
+only and is built once per structure (cached on disk, `_build`). `model.h` holds the field as
+C++ statements (`_scalar.unroll` + `_emit.CEmitter`), its transposed Jacobian-vector product
+written the same way from the jaxpr of `jax.vjp`, and the tableau from Diffrax's coefficients.
+The same scalar program, evaluated with JAX on one array per component (`_scalar.Components`),
+is the Diffrax path's field (`field_components`), so the two cannot drift apart."""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Callable, Sequence
+from typing import NamedTuple
+
+import diffrax
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+from . import free_body
+from ._build import load
+from ._emit import CEmitter
+from ._scalar import Components, Unsupported, _const_array, _is_const, scalars, unroll
+
+Field = Callable[[Array, Array, Array], Array]
+"""`f(t, y (N,), p (P,)) -> ẏ (N,)` of one body."""
+_NAME = "model"
+
+
+class Hoisted(NamedTuple):
+    """A field with its float constants lifted out: `fn(t, y, p, c)` and the constants'
+    values `c (Pc,)` (traced or not)."""
+
+    fn: Field
+    c: Array
+
+
+def hoist(field: Field, n: int, p: int, dtype) -> Hoisted:
+    """`field` traced once on `t ()`, `y (n,)`, `p (p,)` of `dtype`, its float constants
+    lifted into `c`. A traced integer constant (an index computed at run time) raises
+    `Unsupported`."""
+    args = (
+        jax.ShapeDtypeStruct((), dtype),
+        jax.ShapeDtypeStruct((n,), dtype),
+        jax.ShapeDtypeStruct((p,), dtype),
+    )
+    closed = jax.make_jaxpr(field)(*args)
+    if len(closed.out_avals) != 1 or closed.out_avals[0].shape != (n,):  # pyright: ignore
+        raise ValueError(f"the model's field must return one array of shape ({n},)")
+    consts = list(closed.consts)
+    floats = [i for i, x in enumerate(consts) if jnp.issubdtype(jnp.result_type(x), jnp.floating)]
+    for i, x in enumerate(consts):
+        if i not in floats and isinstance(x, jax.core.Tracer):
+            raise Unsupported("an integer or boolean computed at run time, closed over")
+    values = [jnp.asarray(consts[i]) for i in floats]
+    c = jnp.concatenate([jnp.ravel(v).astype(dtype) for v in values] + [jnp.zeros((0,), dtype)])
+
+    def fn(t, y, p, c):
+        full, offset = list(consts), 0
+        for i, v in zip(floats, values, strict=True):
+            full[i] = c[offset : offset + v.size].reshape(v.shape).astype(v.dtype)
+            offset += v.size
+        return jax.core.eval_jaxpr(closed.jaxpr, full, t, y, p)[0]
+
+    return Hoisted(fn, c)
+
+
+def _programs(hoisted: Hoisted, n: int, p: int, dtype):
+    """The jaxprs of the field `fn(t, y, p, c)` and of its cotangent map
+    `(t, y, p, c, v) -> (t̄, ȳ, p̄, c̄)`."""
+    t = jax.ShapeDtypeStruct((), dtype)
+    y = jax.ShapeDtypeStruct((n,), dtype)
+    pp = jax.ShapeDtypeStruct((p,), dtype)
+    c = jax.ShapeDtypeStruct(hoisted.c.shape, dtype)
+    forward = jax.make_jaxpr(hoisted.fn)(t, y, pp, c)
+
+    def cotangents(t, y, p, c, v):
+        return jax.vjp(hoisted.fn, t, y, p, c)[1](v)
+
+    backward = jax.make_jaxpr(cotangents)(t, y, pp, c, y)
+    return forward, backward
+
+
+def _inputs(n: int, p: int, pc: int, *extra: str) -> list[np.ndarray]:
+    """The scalar names of `(t, y, p, c, *extra)` in the kernel: the parameters and the lifted
+    constants are one vector `p` of P + Pc per body."""
+    out = [scalars(["t"], ()), scalars([f"y[{i}]" for i in range(n)], (n,))]
+    out.append(scalars([f"p[{i}]" for i in range(p)], (p,)))
+    out.append(scalars([f"p[{p + i}]" for i in range(pc)], (pc,)))
+    out += [scalars([f"{name}[{i}]" for i in range(n)], (n,)) for name in extra]
+    return out
+
+
+def _consts(closed) -> list[np.ndarray]:
+    return [np.asarray(_const_array(x), dtype=object) for x in closed.consts]
+
+
+def model_source(hoisted: Hoisted, n: int, p: int, dtype, unit: Sequence[tuple[int, int]]) -> str:
+    """`struct Model` of `model.cc`: sizes, unit groups, `F` and `FT` as C++."""
+    forward, backward = _programs(hoisted, n, p, dtype)
+    pc = hoisted.c.shape[0]
+    em = CEmitter("f")
+    (k,) = unroll(forward, em, _consts(forward), _inputs(n, p, pc))
+    body_f = em.lines + [f"k[{i}] = {em.operand(x)};" for i, x in enumerate(k)]
+    eb = CEmitter("b")
+    tb, yb, pb, cb = unroll(backward, eb, _consts(backward), _inputs(n, p, pc, "v"))
+    body_b = list(eb.lines)
+    for target, values in (("tb", [tb.item()]), ("yb", yb), ("pb", [*pb, *cb])):
+        for i, x in enumerate(values):
+            lhs = "tb" if target == "tb" else f"{target}[{i}]"
+            if not (_is_const(x) and x == 0):
+                body_b.append(f"{lhs} += {eb.operand(x)};")
+    units = ", ".join(f"{{{a}, {m}}}" for a, m in unit) or "{0, 0}"
+    indent = "\n    "
+    return (
+        "struct Model {\n"
+        f"  static constexpr int N = {n}, P = {p + pc}, NU = {len(unit)};\n"
+        f"  static constexpr int unit[{max(len(unit), 1)}][2] = {{{units}}};\n"
+        "  template <typename T>\n"
+        "  static RJ_INLINE void F(T t, const T* y, const T* p, T* k) {\n    "
+        + indent.join(body_f)
+        + "\n  }\n"
+        "  template <typename T>\n"
+        "  static RJ_INLINE void FT(T t, const T* y, const T* p, const T* v, T* yb, T* pb, "
+        "T& tb) {\n    " + indent.join(body_b) + "\n  }\n};\n"
+    )
+
+
+def _header(method: type[diffrax.AbstractERK], dtype, model: str) -> tuple[str, tuple[str, str]]:
+    """`model.h` and its two handler names (unique to the model, method and element type)."""
+    a, ct = free_body.coefficients(method), free_body.stage_times(method)
+    rows = ",\n    ".join("{" + ", ".join(float(x).hex() for x in row) + "}" for row in a)
+    dt = free_body.DTYPES[jnp.dtype(dtype).name]
+    digest = hashlib.sha256(f"{method.__name__}{dt}{model}".encode()).hexdigest()[:16]
+    names = (f"RigidjaxModel{digest}", f"RigidjaxModelBack{digest}")
+    text = (
+        f"// Generated by rigidjax/kernels/model.py ({method.__name__}).\n#pragma once\n\n"
+        f"struct Tab {{\n  static constexpr int S = {a.shape[1]};\n"
+        f"  static constexpr double c[{a.shape[0]}][{a.shape[1]}] = {{\n    {rows}}};\n"
+        f"  static constexpr double ct[{a.shape[1]}] = "
+        f"{{{', '.join(float(x).hex() for x in ct)}}};\n"
+        "  static constexpr double a(int i, int l) { return c[i][l]; }\n};\n\n"
+        f"{model}\n#define RJ_KERNELS(X) X({names[0]}, {names[1]}, {dt})\n"
+    )
+    return text, names
+
+
+class Kernel(NamedTuple):
+    """A built model kernel: its handler names and sizes (P counts the lifted constants)."""
+
+    forward: str
+    backward: str
+    n: int
+    p: int
+
+
+def build(
+    hoisted: Hoisted,
+    n: int,
+    p: int,
+    unit: Sequence[tuple[int, int]],
+    solver: diffrax.AbstractSolver,
+    dtype,
+) -> Kernel | None:
+    """The kernel of `hoisted` for `solver` (one of `free_body.METHODS`) in `dtype`, built and
+    registered on first use; None where kernels cannot run here (not the CPU, no compiler).
+    `Unsupported` if the field has no scalar form."""
+    if not (
+        type(solver) in free_body.METHODS
+        and jax.default_backend() == "cpu"
+        and jnp.dtype(dtype).name in free_body.DTYPES
+    ):
+        return None
+    text, names = _header(type(solver), dtype, model_source(hoisted, n, p, dtype, unit))
+    if load(_NAME, names, (("model.h", text),)) is None:
+        return None
+    return Kernel(*names, n, p + hoisted.c.shape[0])
+
+
+def _call(target: str, dtype, shapes: list[tuple[int, ...]], *args: Array) -> list:
+    call = jax.ffi.ffi_call(
+        target,
+        [jax.ShapeDtypeStruct((1, *shape), dtype) for shape in shapes],
+        vmap_method="broadcast_all",
+    )
+    cast = [a.astype(jnp.int32 if jnp.issubdtype(a.dtype, jnp.integer) else dtype) for a in args]
+    return [out[0] for out in call(*(a[None] for a in cast))]
+
+
+def run(
+    kernel: Kernel,
+    y0: Float[Array, "B N"],
+    p: Float[Array, "P Bc"],
+    n: Int[Array, " K"],
+    h: Float[Array, " K"],
+    t0: Float[Array, " K"],
+) -> Float[Array, "B T N"]:
+    """States `(B, K + 1, N)` at the start and after each of K intervals of `n[k]` steps of
+    size `h[k]` from `t0[k]`; `p (P, B or 1)` holds the parameters and lifted constants.
+    Reverse mode by the kernel's discrete adjoint of the same steps (`jax.custom_vjp`)."""
+
+    def forward(y0, p, n, h, t0):
+        B, K = y0.shape[0], h.shape[0]
+        return _call(kernel.forward, y0.dtype, [(B, K + 1, kernel.n)], y0, p, n, h, t0)[0]
+
+    def run_fwd(y0, p, n, h, t0):
+        y = forward(y0, p, n, h, t0)
+        return y, (y, p, n, h, t0)
+
+    def run_bwd(residuals, g):
+        y, p, n, h, t0 = residuals
+        B, K = y.shape[0], h.shape[0]
+        shapes = [(B, kernel.n), (kernel.p, B), (K, B), (K, B)]
+        y0b, pb, hb, tb = _call(kernel.backward, y.dtype, shapes, y, p, n, h, t0, g)
+        pb = jnp.sum(pb, axis=1, keepdims=True) if p.shape[1] == 1 else pb
+        return y0b, pb, None, jnp.sum(hb, axis=1), jnp.sum(tb, axis=1)
+
+    solve = jax.custom_vjp(forward)
+    solve.defvjp(run_fwd, run_bwd)
+    return solve(y0, p, n, h, t0)
+
+
+def field_components(hoisted: Hoisted, n: int, p: int, dtype) -> Callable:
+    """The field as the Diffrax path evaluates it: `(t, y, p, c) -> ẏ` on tuples of component
+    arrays (`y`: N arrays, e.g. `(B,)` each; `p`: P arrays, scalars or `(B,)`; `c (Pc,)`), the
+    same scalar operations as the kernel's `F`."""
+
+    forward, _ = _programs(hoisted, n, p, dtype)
+
+    def fn(t, y, pp, c):
+        ins = [
+            scalars([t], ()),
+            scalars(list(y), (n,)),
+            scalars(list(pp), (p,)),
+            scalars([c[i] for i in range(c.shape[0])], c.shape),
+        ]
+        (k,) = unroll(forward, Components(), _consts(forward), ins)
+        like = y[0]
+        return tuple(
+            jnp.broadcast_to(jnp.asarray(x, like.dtype), jnp.shape(like))
+            if _is_const(x)
+            else jnp.broadcast_to(x, jnp.broadcast_shapes(jnp.shape(x), jnp.shape(like)))
+            for x in k.reshape(-1)
+        )
+
+    return fn
+
