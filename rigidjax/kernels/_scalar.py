@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import jax
 import jax.numpy as jnp
@@ -42,6 +42,7 @@ class Unsupported(ValueError):
         self.primitive = primitive
 
 
+@runtime_checkable
 class Backend(Protocol):
     def apply(self, name: str, params: dict, args: Sequence[Scalar], dtype: np.dtype) -> Scalar:
         """The elementwise primitive `name` on scalars `args`, of element type `dtype`."""
@@ -188,9 +189,7 @@ class _Unroller:
         env: dict = {}
 
         def read(v):
-            if isinstance(v, jex_core.Literal):
-                return np.asarray(_cast(np.asarray(v.val).item(), v.aval.dtype), dtype=object)
-            return env[v]
+            return read_literal(v) if isinstance(v, jex_core.Literal) else env[v]
 
         for v, x in zip(jaxpr.constvars, consts, strict=True):
             env[v] = x
@@ -221,9 +220,13 @@ class _Unroller:
         for key in _CALLS:
             if key in p and name not in ("cond", "while", "scan"):
                 closed = p[key]
-                inner, consts = (closed.jaxpr, closed.consts) if hasattr(closed, "consts") else (
-                    closed,
-                    [],
+                inner, consts = (
+                    (closed.jaxpr, closed.consts)
+                    if hasattr(closed, "consts")
+                    else (
+                        closed,
+                        [],
+                    )
                 )
                 consts = [np.asarray(c, dtype=object) for c in map(_const_array, consts)]
                 return self.run(inner, consts, ins)
@@ -231,9 +234,14 @@ class _Unroller:
             x = ins[0]
             axis = p["axis"]
             if name == "unstack":
-                return [np.take(x, i, axis=axis) for i in range(x.shape[axis])]
+                return [
+                    np.asarray(np.take(x, i, axis=axis), dtype=object) for i in range(x.shape[axis])
+                ]
             bounds = np.cumsum([0, *p["sizes"]])
-            return [np.take(x, range(a, b), axis=axis) for a, b in zip(bounds[:-1], bounds[1:])]
+            return [
+                np.take(x, range(a, b), axis=axis)
+                for a, b in zip(bounds[:-1], bounds[1:], strict=False)
+            ]
         structural = _STRUCTURAL.get(name)
         if structural is None:
             raise Unsupported(name)
@@ -303,7 +311,8 @@ def _broadcast_in_dim(u: _Unroller, p, ins, eqn):
 def _slice(u, p, ins, eqn):
     strides = p["strides"] or (1,) * len(p["start_indices"])
     idx = tuple(
-        slice(a, b, s) for a, b, s in zip(p["start_indices"], p["limit_indices"], strides, strict=True)
+        slice(a, b, s)
+        for a, b, s in zip(p["start_indices"], p["limit_indices"], strides, strict=True)
     )
     return ins[0][idx]
 
@@ -317,28 +326,31 @@ def _stack(u, p, ins, eqn):
 
 
 def _pad(u, p, ins, eqn):
+    """`lax.pad`: low, high (negative: cropping) and interior padding per axis."""
     x, value = ins
     value = value.reshape(()).item()
-    for axis, (lo, hi, interior) in enumerate(p["padding_config"]):
-        if interior:
-            n = x.shape[axis]
-            shape = list(x.shape)
-            shape[axis] = n + (n - 1) * interior if n else 0
-            y = np.full(shape, value, dtype=object)
-            sl = [slice(None)] * x.ndim
-            sl[axis] = slice(None, None, interior + 1)
-            y[tuple(sl)] = x
-            x = y
-        if lo < 0:
-            x = np.take(x, range(-lo, x.shape[axis]), axis=axis)
-            lo = 0
-        if hi < 0:
-            x = np.take(x, range(0, x.shape[axis] + hi), axis=axis)
-            hi = 0
-        widths = [(0, 0)] * x.ndim
-        widths[axis] = (lo, hi)
-        x = np.pad(x, widths, mode="constant", constant_values=value)  # type: ignore[arg-type]
-    return x
+    config = p["padding_config"]
+    shape = tuple(
+        int(lo + hi + n + max(n - 1, 0) * interior)
+        for n, (lo, hi, interior) in zip(x.shape, config, strict=True)
+    )
+    out = _filled(shape, value)
+    for idx in np.ndindex(x.shape):
+        at = tuple(
+            lo + i * (interior + 1) for i, (lo, _, interior) in zip(idx, config, strict=True)
+        )
+        if all(0 <= a < n for a, n in zip(at, shape, strict=True)):
+            out[at] = x[idx]
+    return out
+
+
+def _filled(shape: tuple[int, ...], value: Scalar) -> np.ndarray:
+    """An object array of `shape` holding `value` everywhere (element by element: NumPy would
+    convert an array value)."""
+    out = np.empty(shape, dtype=object)
+    for idx in np.ndindex(shape):
+        out[idx] = value
+    return out
 
 
 def _static_index(x: np.ndarray, what: str) -> int:
@@ -458,7 +470,8 @@ def unroll(
 def scalars(names: Sequence[Scalar], shape: tuple[int, ...]) -> np.ndarray:
     """An object array of `shape` holding `names` in order."""
     out = np.empty(len(names), dtype=object)
-    out[:] = list(names)
+    for i, x in enumerate(names):
+        out[i] = x
     return out.reshape(shape)
 
 
@@ -468,7 +481,9 @@ class Components:
     and broadcast."""
 
     def apply(self, name: str, params: dict, args: Sequence[Scalar], dtype) -> Scalar:
-        floats = [a.dtype for a in args if not _is_const(a) and jnp.issubdtype(a.dtype, jnp.floating)]
+        floats = [
+            a.dtype for a in args if not _is_const(a) and jnp.issubdtype(a.dtype, jnp.floating)
+        ]
         real = floats[0] if floats else dtype
         xs = [a if not _is_const(a) else jnp.asarray(a, _const_dtype(a, real)) for a in args]
         shape = jnp.broadcast_shapes(*(jnp.shape(x) for x in xs))

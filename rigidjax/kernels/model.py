@@ -250,4 +250,3 @@ def field_components(hoisted: Hoisted, n: int, p: int, dtype) -> Callable:
         )
 
     return fn
-

@@ -5,13 +5,12 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Unpack, cast
+from typing import TYPE_CHECKING, Unpack
 
 import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import jax.tree_util as jtu
 from jaxtyping import Array, Float
 
 from .._checks import (
@@ -23,24 +22,19 @@ from .._checks import (
     vector,
 )
 from .._custom_types import Frame, RealLike
-from .._integrate import (
-    SolveKwargs,
-    SolveOptions,
-    fixed_step_count,
-    raise_failure,
-    raise_forward_mode,
-    solve_saved,
-)
+from .._integrate import SolveKwargs, SolveOptions, fixed_step_count, solve_saved
 from .._trajectory import AbstractTrajectory
 from ..kernels import free_body as kernel
 from ..kernels import free_body_pallas as pallas_kernel
 from ..kinematics.formulations import AbstractKinematics, Quaternion, lookup
+from ..models import Model
+from ..models.solve import BatchMaxRMS, kernel_options, kernel_solve, method_of, solve_model
 from ..rotations import quat
 from ..solvers.exact_free_body import ExactFreeBody, RigidBodyField, flow_from_start
 from ..solvers.explicit_rk import ExplicitRK
 from ..solvers.rkmk import LieTerm
 from ..solvers.splitting import LiePoissonSplitting
-from ._free_field import free_field
+from ._rigid_model import moments_params, rigid_body_model
 from .body import RigidBody, euler_rhs
 
 if TYPE_CHECKING:
@@ -60,21 +54,6 @@ class Trajectory(AbstractTrajectory):
     @property
     def matrix(self) -> Float[Array, "*batch T 3 3"]:
         return quat.to_matrix(self.quat)
-
-
-class _BatchMaxRMS(eqx.Module):
-    """Error norm of a batch integrated as one state: the largest per-member RMS, so every
-    member meets the tolerance (the default RMS over the whole batch would average it away).
-    Squares are summed leaf by leaf: concatenating the leaves of the component state made
-    adaptive solves collapse (Dopri8 on 600 bodies did not finish in 100 s; 8 ms now)."""
-
-    axis: int = eqx.field(static=True)
-
-    def __call__(self, y) -> Array:
-        leaves = [jnp.moveaxis(jnp.atleast_1d(x), self.axis, 0) for x in jtu.tree_leaves(y)]
-        squares = sum(jnp.sum((x * x).reshape(x.shape[0], -1), axis=1) for x in leaves)
-        count = sum(math.prod(x.shape[1:]) for x in leaves)
-        return jnp.sqrt(jnp.max(squares) / count)
 
 
 class _Dynamics(eqx.Module):
@@ -131,56 +110,6 @@ class _BatchStepEnd(eqx.Module):
         return (att, y[1]), jnp.any(jumped)
 
 
-class _QuaternionComponents(eqx.Module):
-    """Fast path for the common case (quaternion kinematics, principal moments): the batch state
-    is seven separate `(B,)` component arrays `((Ω1, Ω2, Ω3), (q0, q1, q2, q3))` and the
-    equations are written out component by component (no per-body vmap, no stacking), so XLA
-    fuses each step into a few vectorised loops (benchmarks/bench_dynamics.py): Euler's equations
-    in principal axes `Ω̇1 = (I2 − I3)/I1 Ω2 Ω3 + K1/I1` (cyclic; Zegrya–Parshin 004) and
-    `q̇ = ½ q ∘ (0, Ω)` (Borisov–Mamaev 001; exercises 002 #101), the torque-free part in
-    `free_field` (which the GPU kernel evaluates too). These are the same equations
-    as `euler_rhs` + `Quaternion.vector_field`, which the general path uses.
-
-    `args = (c, J)`: `c_i = (I_j − I_k)/I_i` (cyclic) and `J_i = 1/I_i`, each a scalar (one
-    body for the whole batch) or `(B,)`."""
-
-    torque: Torque | None
-    torque_frame: str = eqx.field(static=True)
-
-    def __call__(self, t, y, args):
-        (w_c, q_c), (c, J) = y, args
-        dw, dq = free_field(c, w_c, q_c)
-        if self.torque is not None:
-            w, q = jnp.stack(w_c), jnp.stack(q_c)  # (3, B), (4, B)
-            torque = self.torque  # one body (scalar components): called as it is
-            if w.ndim == 2:
-                torque = jax.vmap(torque, in_axes=(None, -1, -1), out_axes=-1)
-            K = torque(t, w, q)
-            if self.torque_frame == "space":
-                K = quat.rotate(quat.conj(q.T), K.T).T
-            K = K.astype(w.dtype)
-            dw = tuple(d + Ji * Ki for d, Ji, Ki in zip(dw, J, K, strict=True))
-        return dw, dq
-
-
-def _normalize_components(y):
-    w, q = y
-    r = jax.lax.rsqrt(sum(a * a for a in q))
-    return (w, tuple(a * r for a in q)), jnp.array(False)
-
-
-def _stack_components(ys) -> tuple[Array, Array]:
-    """`(Ω (T, B, 3), q (T, B, 4))` from the saved component state (`(T,)` components of
-    one body: B = 1)."""
-    w, q = jnp.stack(ys[0], axis=-1), jnp.stack(ys[1], axis=-1)
-    return (w, q) if w.ndim == 3 else (w[:, None], q[:, None])
-
-
-def _time_first(ys) -> tuple[Array, Array]:
-    """`(Ω (T, B, 3), q (T, B, 4))` from the kernel's `(B, T, ·)` outputs."""
-    return jnp.moveaxis(ys[0], 1, 0), jnp.moveaxis(ys[1], 1, 0)
-
-
 def _from_lie(ys) -> tuple[Array, Array]:
     """`(Ω, q)` from the saved RKMK state `(R, Ω)`."""
     return ys[1], quat.from_matrix(ys[0], assume_valid=True)
@@ -209,12 +138,6 @@ def _check_torque(torque: Torque, ts: Array, omega0: Array, q0: Array) -> None:
             f"torque(t, omega, q) must return the torque of one body, shape (3,), got {got}: it "
             "is called per body with omega (3,) and q (4,) (the batch is mapped over it)"
         )
-
-
-def _component_args(I: Array) -> tuple:
-    """`(c, J)` of `_QuaternionComponents` from principal moments `I (..., 3)`."""
-    I1, I2, I3 = (I[..., i] for i in range(3))
-    return ((I2 - I3) / I1, (I3 - I1) / I2, (I1 - I2) / I3), (1 / I1, 1 / I2, 1 / I3)
 
 
 def _structured(
@@ -253,142 +176,41 @@ def _structured(
     return term, options, args[0]
 
 
-def _kernel_for(options: SolveOptions, torque: Torque | None, dtype) -> str | None:
-    """Which kernel integrates this component-path solve, if any: `"cpu"` (the C++ kernel,
-    `rigidjax.kernels.free_body`) or `"gpu"` (the Pallas kernel,
-    `rigidjax.kernels.free_body_pallas`). Both need no torque, an explicit Runge–Kutta method
-    with a kernel (`RK4()`, `diffrax.Dopri8()`, the default Tsit5, ...: `free_body.METHODS`)
-    at fixed steps `dt0`, reverse-mode (default) adjoint, no Diffrax progress meter, float32 or
-    float64, and the kernel working on this backend (built, or checked once)."""
-    if not (
-        torque is None
-        and isinstance(options.stepsize_controller, diffrax.ConstantStepSize)
-        and options.dt0 is not None
-        and isinstance(options.adjoint, None | diffrax.RecursiveCheckpointAdjoint)
-        and isinstance(options.progress_meter, None | diffrax.NoProgressMeter)
-    ):
-        return None
-    method = _method(options)
-    if kernel.serves(method, dtype):
-        return "cpu"
-    if pallas_kernel.serves(method, dtype):
-        return "gpu"
-    return None
+def _gpu_serves(options: SolveOptions, torque: Torque | None, dtype) -> bool:
+    """Whether the Pallas kernel (`rigidjax.kernels.free_body_pallas`) integrates this
+    component-path solve: a torque-free body at fixed steps of a method with a kernel, where
+    no CPU kernel serves and the Pallas kernel passed its one-time check on this GPU."""
+    if torque is not None or not kernel_options(options):
+        return False
+    method = method_of(options)
+    return not kernel.serves(method, dtype) and pallas_kernel.serves(method, dtype)
 
 
-def _method(options: SolveOptions) -> diffrax.AbstractSolver:
-    """The solver of `options`; without one, the method `solve_saved` runs by default
-    (`ExplicitRK`'s)."""
-    return ExplicitRK().method if options.solver is None else options.solver
+def _gpu_kernel(model: Model, options: SolveOptions, y0: Array, p: Array, ts: Array):
+    """`(states (T, B, 7), stats, result)` from the Pallas kernel (in Pallas' interpreter where
+    the backend is not a GPU: the tests). The kernel has no adjoint of its own: reverse mode
+    runs the same steps through Diffrax (`models.solve` with `ExplicitRK(method)`), whose
+    reverse mode differentiates them."""
+    method = method_of(options)
+    through = dataclasses.replace(options, solver=ExplicitRK(method), throw=False)
 
-
-def _coefficients(c) -> Array:
-    """The kernels' `coef`: `(3, B)`, or `(3, 1)` for one body shared by the batch."""
-    return jnp.stack([jnp.reshape(ci, (-1,)) for ci in c])
-
-
-def _cpu_kernel(
-    method: diffrax.AbstractSolver, omega0: Array, q0: Array, c, h: Array, taken: Array
-) -> tuple[Array, Array]:
-    """`(Ω (B, T, 3), q (B, T, 4))` from the C++ kernel, reverse mode by its discrete adjoint
-    of the same steps (`kernel.free_body_back`). Every array is an argument (none closed
-    over: under an outer `jax.jit` it is a tracer); the output times are differentiated
-    through the step sizes h."""
-
-    def forward(omega0, q0, c, h, taken):
-        return kernel.free_body(method, omega0, q0, _coefficients(c), taken, h)
-
-    def run_fwd(omega0, q0, c, h, taken):
-        out = forward(omega0, q0, c, h, taken)
-        return out, (out, c, h, taken)
-
-    def run_bwd(residuals, g):
-        (w, q), c, h, taken = residuals
-        w0b, q0b, cb, hb = kernel.free_body_back(method, w, q, _coefficients(c), taken, h, *g)
-        cb = tuple(jnp.sum(cb[i]) if jnp.ndim(ci) == 0 else cb[i] for i, ci in enumerate(c))
-        return w0b, q0b, cb, jnp.sum(hb, axis=-1), None
-
-    run = jax.custom_vjp(forward)
-    run.defvjp(run_fwd, run_bwd)
-    return run(omega0, q0, c, h, taken)
-
-
-def _gpu_kernel(
-    method: diffrax.AbstractSolver, options: SolveOptions, omega0: Array, q0: Array, args, ts
-) -> tuple[Array, Array]:
-    """`(Ω (B, T, 3), q (B, T, 4))` from the Pallas kernel (in Pallas' interpreter where the
-    backend is not a GPU: the tests). The kernel has no adjoint of its own: reverse mode runs
-    the same steps through Diffrax (`solve_saved`, the component path), whose reverse mode
-    differentiates them."""
-    term = diffrax.ODETerm(_QuaternionComponents(None, "body"))
-    quiet = dataclasses.replace(options, throw=False)  # the caller reports failures
-
-    def forward(omega0, q0, args, ts):
+    def forward(y0, p, ts):
         width = ts[1:] - ts[:-1]
         n = fixed_step_count(width, jnp.asarray(options.dt0, ts.dtype))
         taken = jnp.minimum(n, options.max_steps).astype(jnp.int32)
         interpret = jax.default_backend() != "gpu"
-        c = _coefficients(args[0])
-        return pallas_kernel.free_body_pallas(
-            type(method), omega0, q0, c, taken, width / n, interpret=interpret
+        w, q = pallas_kernel.free_body_pallas(
+            type(method), y0[:, :3], y0[:, 3:], p[:, :3].T, taken, width / n, interpret=interpret
         )
+        return jnp.concatenate([w, q], axis=-1)
 
-    def through_diffrax(omega0, q0, args, ts):
-        y0 = (tuple(omega0.T), tuple(q0.T))
-        ys, _, _ = solve_saved(term, ts, y0, quiet, args=args, step_end=_normalize_components)
-        w, q = _stack_components(ys)
-        return jnp.moveaxis(w, 0, 1), jnp.moveaxis(q, 0, 1)
+    def through_diffrax(y0, p, ts):
+        return jnp.moveaxis(solve_model(model, ts, y0, p, through)[0], 0, 1)
 
     run = jax.custom_vjp(forward)
     run.defvjp(lambda *a: jax.vjp(through_diffrax, *a), lambda pullback, g: pullback(g))
-    return run(omega0, q0, args, ts)
-
-
-def _kernel_solve(
-    ts: Array, omega0: Array, q0: Array, options: SolveOptions, args, device: str
-) -> tuple[tuple[Array, Array], dict[str, Array], diffrax.RESULTS]:
-    """The component path's solve through the kernel for `device` (`_kernel_for`), from
-    `omega0 (B, 3)`, `q0 (B, 4)` and the component args `(c, J)`: the same steps (`n` equal
-    steps per output interval) and arithmetic as `solve_saved`; returns
-    `((Ω (B, T, 3), q (B, T, 4)), stats, result)`. Reverse mode (`jax.custom_vjp`); forward
-    mode is a clear error that names `adjoint=diffrax.ForwardMode()` (which takes the Diffrax
-    path)."""
-    width = ts[1:] - ts[:-1]
-    n = fixed_step_count(width, jnp.asarray(options.dt0, ts.dtype))
-    h = width / n
-    taken = jnp.minimum(n, options.max_steps).astype(jnp.int32)  # where Diffrax stops
-    method = _method(options)
-    try:
-        if device == "cpu":
-            w, q = _cpu_kernel(method, omega0, q0, args[0], h, taken)  # (B, T, 3), (B, T, 4)
-        else:
-            w, q = _gpu_kernel(method, options, omega0, q0, args, ts)
-    except TypeError as e:
-        raise_forward_mode(e)
-    # the first failing interval: more steps than max_steps, or a non-finite state at its end
-    finite = jnp.all(jnp.isfinite(w), axis=(0, 2)) & jnp.all(jnp.isfinite(q), axis=(0, 2))
-    fails = (n > options.max_steps) | ~finite[1:]
-    first = jnp.argmax(fails)
-    result = diffrax.RESULTS.where(
-        jnp.any(fails),
-        diffrax.RESULTS.where(
-            n[first] > options.max_steps,
-            cast(diffrax.RESULTS, diffrax.RESULTS.max_steps_reached),
-            cast(diffrax.RESULTS, diffrax.RESULTS.nonfinite),
-        ),
-        diffrax.RESULTS.successful,
-    )
-    num_steps = jnp.sum(taken)
-    stats = dict(
-        num_steps=num_steps,
-        num_accepted_steps=num_steps,
-        num_rejected_steps=0 * num_steps,
-        num_valid=1 + jnp.where(jnp.any(fails), first, n.shape[0]),
-    )
-    ys = (w, q)
-    if options.throw:
-        ys = raise_failure(result, stats["num_valid"], ts, ys, options.max_steps)
-    return ys, stats, result
+    ys, stats, result = kernel_solve(lambda n, taken, h, t0: run(y0, p, ts), ts, options)
+    return jnp.moveaxis(ys, 1, 0), stats, result
 
 
 def fixed_steps(options: SolveOptions) -> SolveOptions:
@@ -497,7 +319,6 @@ def simulate(
     )
     structured = isinstance(options.solver, ExactFreeBody | LiePoissonSplitting)
     components = body.diagonal and quaternion and not structured
-    device = None  # the kernel's, where one serves (set on the component path)
     direct = (
         isinstance(options.solver, ExactFreeBody)
         and options.dt0 is None
@@ -510,20 +331,19 @@ def simulate(
         step_end = None
         y0 = (omega0, q0)
         finish = tuple
-    elif components:
-        axis = -1
-        term = diffrax.ODETerm(_QuaternionComponents(torque, torque_frame))
-        solver = None
-        step_end = _normalize_components
-        # seven (B,) arrays, Ω first; one body: seven scalars (under `jax.vmap`, e.g. in a
-        # sweep, they become (N,) arrays, not (N, 1), which XLA vectorises poorly)
-        y0 = (tuple(omega0.T), tuple(q0.T)) if batch else (tuple(omega0[0]), tuple(q0[0]))
-        # one body for the whole batch: scalar coefficients that broadcast, instead of
-        # streaming (B,) copies through every stage
+    elif components:  # principal axes, quaternion: the model, on the CPU kernel or Diffrax
+        model = rigid_body_model(torque, torque_frame)
+        # one body for the whole batch: its parameters shared, not streamed (B,) copies
         I = body.operator()[0].astype(dtype)
-        args = _component_args(I if body.batch_shape == () else args[0])
-        finish = _stack_components
-        device = _kernel_for(options, torque, dtype)
+        p = moments_params(I)[None] if body.batch_shape == () else moments_params(args[0])
+        y0 = jnp.concatenate([omega0, q0], axis=-1)
+        if _gpu_serves(options, torque, dtype):
+            ys, stats, result = _gpu_kernel(model, options, y0, p, ts)
+        else:
+            # one body: scalar components (under `jax.vmap`, e.g. in a sweep, they become (N,)
+            # arrays, not (N, 1), which XLA vectorises poorly)
+            ys, stats, result = solve_model(model, ts, y0, p, options, single=not batch)
+        return _trajectory(ts, batch, ys[..., :3], ys[..., 3:], stats, result)
 
     elif kinematics == "geometric":
         solver = options.rkmk("body")
@@ -548,9 +368,6 @@ def simulate(
         n = jnp.asarray(ts.shape[0] - 1)
         stats = dict(num_steps=n, num_accepted_steps=n, num_rejected_steps=0 * n, num_valid=n + 1)
         result = diffrax.RESULTS.successful
-    elif device is not None:
-        ys, stats, result = _kernel_solve(ts, omega0, q0, options, args, device)
-        finish = _time_first  # (B, T, ·): moved back below, which XLA cancels
     else:
         ys, stats, result = solve_saved(
             term,
@@ -560,12 +377,17 @@ def simulate(
             solver=solver,
             args=args,
             step_end=step_end,
-            norm=_BatchMaxRMS(axis),
+            norm=BatchMaxRMS(axis),
         )
     omega, q = finish(ys)
-    if not (components or structured):  # other states give q up to sign: continue the integrated q0
+    if not structured:  # other states give q up to sign: continue the integrated q0
         q = quat.continuous(jnp.moveaxis(q, 0, 1))  # (B, T, 4)
         q = jnp.moveaxis(q * jnp.sign(jnp.sum(q[:, :1] * q0[:, None], -1, keepdims=True)), 1, 0)
+    return _trajectory(ts, batch, omega, q, stats, result)
+
+
+def _trajectory(ts, batch, omega, q, stats, result) -> Trajectory:
+    """The trajectory of `batch` from `Ω (T, B, 3)` and `q (T, B, 4)`."""
     T = ts.shape[0]
     return Trajectory(
         ts=ts,

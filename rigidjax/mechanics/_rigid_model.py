@@ -1,0 +1,41 @@
+"""The rigid body in principal axes with its body-frame attitude quaternion and a torque, as a
+`Model`: the state `y = (Ω1, Ω2, Ω3, q0, q1, q2, q3)`, the parameters
+`p = (c1, c2, c3, J1, J2, J3)`, `c1 = (I2 − I3)/I1` (cyclic), `J_i = 1/I_i`."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import jax.numpy as jnp
+from jaxtyping import Array
+
+from ..models import Model
+from ..rotations import quat
+from ._free_field import free_field
+
+Torque = Callable[[Array, Array, Array], Array]
+
+
+def moments_params(I: Array) -> Array:
+    """`p (..., 6)` of the model from principal moments `I (..., 3)`."""
+    I1, I2, I3 = (I[..., i] for i in range(3))
+    return jnp.stack([(I2 - I3) / I1, (I3 - I1) / I2, (I1 - I2) / I3, 1 / I1, 1 / I2, 1 / I3], -1)
+
+
+def rigid_body_model(torque: Torque | None, frame: str = "body") -> Model:
+    """Euler's equations in principal axes `Ω̇1 = c1 Ω2 Ω3 + J1 K1` (cyclic; Zegrya–Parshin
+    004) with `q̇ = ½ q ∘ (0, Ω)` (Borisov–Mamaev 001), `K = torque(t, Ω, q)` in the body frame
+    (or in space, `frame="space"`, turned into the body frame by `q`)."""
+
+    def field(t, y, p):
+        w, q = y[:3], y[3:]
+        dw, dq = free_field(tuple(p[:3]), tuple(w), tuple(q))
+        if torque is not None:
+            K = torque(t, w, q)
+            if frame == "space":
+                K = quat.rotate(quat.conj(q), K)
+            K = jnp.asarray(K).astype(y.dtype)
+            dw = tuple(d + p[3 + i] * K[i] for i, d in enumerate(dw))
+        return jnp.stack([*dw, *dq])
+
+    return Model(field, 7, 6, ((3, 4),), "torque" if torque is not None else "free body")
