@@ -30,7 +30,7 @@ from jaxtyping import Array, Float, Int
 
 from ..mechanics._free_field import free_field
 from ..solvers import _stages
-from .free_body import DTYPES, METHODS
+from .tableau import DTYPES, METHODS
 
 BLOCK = 128
 """Bodies per program: one per thread of a 4-warp GPU program."""

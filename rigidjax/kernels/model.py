@@ -13,6 +13,7 @@ is the Diffrax path's field (`field_components`), so the two cannot drift apart.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
@@ -23,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from . import free_body
+from . import tableau
 from ._build import load
 from ._emit import CEmitter
 from ._scalar import Components, Unsupported, _const_array, _is_const, scalars, unroll
@@ -33,18 +34,90 @@ Field = Callable[[Array, Array, Array], Array]
 _NAME = "model"
 
 
-class Hoisted(NamedTuple):
-    """A field with its float constants lifted out: `fn(t, y, p, c)` and the constants'
-    values `c (Pc,)` (traced or not)."""
+class Hoisted:
+    """A field of N states and P parameters with its float constants lifted out:
+    `fn(t, y, p, c)`, the constants' values `c (Pc,)` (traced or not), and the jaxprs of `fn`
+    and of its cotangent map (`programs`), traced once."""
 
-    fn: Field
-    c: Array
+    def __init__(self, fn: Callable, c: Array, n: int, p: int, dtype):
+        self.fn, self.c, self.n, self.p, self.dtype = fn, c, n, p, jnp.dtype(dtype)
+        self._sources: dict[tuple, str] = {}
+
+    @functools.cached_property
+    def programs(self):
+        """The jaxprs of the field `fn(t, y, p, c)` and of its cotangent map
+        `(t, y, p, c, v) -> (t̄, ȳ, p̄, c̄)`."""
+        t = jax.ShapeDtypeStruct((), self.dtype)
+        y = jax.ShapeDtypeStruct((self.n,), self.dtype)
+        pp = jax.ShapeDtypeStruct((self.p,), self.dtype)
+        c = jax.ShapeDtypeStruct(self.c.shape, self.dtype)
+
+        def cotangents(t, y, p, c, v):
+            return jax.vjp(self.fn, t, y, p, c)[1](v)
+
+        return jax.make_jaxpr(self.fn)(t, y, pp, c), jax.make_jaxpr(cotangents)(t, y, pp, c, y)
+
+    @functools.cached_property
+    def components(self) -> Callable:
+        """The field as the Diffrax path evaluates it: `(t, y, p, c) -> ẏ` on tuples of
+        component arrays (`y`: N arrays, e.g. `(B,)` each; `p`: P arrays, scalars or `(B,)`;
+        `c (Pc,)`), the same scalar operations as the kernel's `F`."""
+        forward, n, p = self.programs[0], self.n, self.p
+
+        def fn(t, y, pp, c):
+            ins = [
+                scalars([t], ()),
+                scalars(list(y), (n,)),
+                scalars(list(pp), (p,)),
+                scalars([c[i] for i in range(c.shape[0])], c.shape),
+            ]
+            (k,) = unroll(forward, Components(), _consts(forward), ins)
+            like = y[0]
+            return tuple(
+                jnp.broadcast_to(jnp.asarray(x, like.dtype), jnp.shape(like))
+                if _is_const(x)
+                else jnp.broadcast_to(x, jnp.broadcast_shapes(jnp.shape(x), jnp.shape(like)))
+                for x in k.reshape(-1)
+            )
+
+        return fn
+
+    def source(self, unit: tuple[tuple[int, int], ...]) -> str:
+        """`struct Model` of `model.cc` (`model_source`), written once per unit groups."""
+        if unit not in self._sources:
+            self._sources[unit] = model_source(self, unit)
+        return self._sources[unit]
+
+
+class _Traced(Exception):
+    """The field closes over traced constants: its hoisting belongs to one trace only."""
 
 
 def hoist(field: Field, n: int, p: int, dtype) -> Hoisted:
-    """`field` traced once on `t ()`, `y (n,)`, `p (p,)` of `dtype`, its float constants
-    lifted into `c`. A traced integer constant (an index computed at run time) raises
-    `Unsupported`."""
+    """`field` traced on `t ()`, `y (n,)`, `p (p,)` of `dtype`, its float constants lifted
+    into `c`; kept (not traced again) for a hashable field whose constants are concrete, as
+    `jax.jit` keeps a function's compilation. A traced integer constant (an index computed at
+    run time) raises `Unsupported`."""
+    name = jnp.dtype(dtype).name
+    try:
+        hash(field)
+    except TypeError:
+        return _hoist(field, n, p, name)
+    try:
+        return _hoist_concrete(field, n, p, name)
+    except _Traced:
+        return _hoist(field, n, p, name)
+
+
+@functools.lru_cache(maxsize=64)
+def _hoist_concrete(field: Field, n: int, p: int, dtype: str) -> Hoisted:
+    hoisted = _hoist(field, n, p, dtype)
+    if isinstance(hoisted.c, jax.core.Tracer):
+        raise _Traced
+    return hoisted
+
+
+def _hoist(field: Field, n: int, p: int, dtype: str) -> Hoisted:
     args = (
         jax.ShapeDtypeStruct((), dtype),
         jax.ShapeDtypeStruct((n,), dtype),
@@ -68,23 +141,7 @@ def hoist(field: Field, n: int, p: int, dtype) -> Hoisted:
             offset += v.size
         return jax.core.eval_jaxpr(closed.jaxpr, full, t, y, p)[0]
 
-    return Hoisted(fn, c)
-
-
-def _programs(hoisted: Hoisted, n: int, p: int, dtype):
-    """The jaxprs of the field `fn(t, y, p, c)` and of its cotangent map
-    `(t, y, p, c, v) -> (t̄, ȳ, p̄, c̄)`."""
-    t = jax.ShapeDtypeStruct((), dtype)
-    y = jax.ShapeDtypeStruct((n,), dtype)
-    pp = jax.ShapeDtypeStruct((p,), dtype)
-    c = jax.ShapeDtypeStruct(hoisted.c.shape, dtype)
-    forward = jax.make_jaxpr(hoisted.fn)(t, y, pp, c)
-
-    def cotangents(t, y, p, c, v):
-        return jax.vjp(hoisted.fn, t, y, p, c)[1](v)
-
-    backward = jax.make_jaxpr(cotangents)(t, y, pp, c, y)
-    return forward, backward
+    return Hoisted(fn, c, n, p, dtype)
 
 
 def _inputs(n: int, p: int, pc: int, *extra: str) -> list[np.ndarray]:
@@ -101,10 +158,10 @@ def _consts(closed) -> list[np.ndarray]:
     return [np.asarray(_const_array(x), dtype=object) for x in closed.consts]
 
 
-def model_source(hoisted: Hoisted, n: int, p: int, dtype, unit: Sequence[tuple[int, int]]) -> str:
+def model_source(hoisted: Hoisted, unit: Sequence[tuple[int, int]]) -> str:
     """`struct Model` of `model.cc`: sizes, unit groups, `F` and `FT` as C++."""
-    forward, backward = _programs(hoisted, n, p, dtype)
-    pc = hoisted.c.shape[0]
+    forward, backward = hoisted.programs
+    n, p, pc = hoisted.n, hoisted.p, hoisted.c.shape[0]
     em = CEmitter("f")
     (k,) = unroll(forward, em, _consts(forward), _inputs(n, p, pc))
     body_f = em.lines + [f"k[{i}] = {em.operand(x)};" for i, x in enumerate(k)]
@@ -134,9 +191,9 @@ def model_source(hoisted: Hoisted, n: int, p: int, dtype, unit: Sequence[tuple[i
 
 def _header(method: type[diffrax.AbstractERK], dtype, model: str) -> tuple[str, tuple[str, str]]:
     """`model.h` and its two handler names (unique to the model, method and element type)."""
-    a, ct = free_body.coefficients(method), free_body.stage_times(method)
+    a, ct = tableau.coefficients(method), tableau.stage_times(method)
     rows = ",\n    ".join("{" + ", ".join(float(x).hex() for x in row) + "}" for row in a)
-    dt = free_body.DTYPES[jnp.dtype(dtype).name]
+    dt = tableau.DTYPES[jnp.dtype(dtype).name]
     digest = hashlib.sha256(f"{method.__name__}{dt}{model}".encode()).hexdigest()[:16]
     names = (f"RigidjaxModel{digest}", f"RigidjaxModelBack{digest}")
     text = (
@@ -161,26 +218,22 @@ class Kernel(NamedTuple):
 
 
 def build(
-    hoisted: Hoisted,
-    n: int,
-    p: int,
-    unit: Sequence[tuple[int, int]],
-    solver: diffrax.AbstractSolver,
-    dtype,
+    hoisted: Hoisted, unit: tuple[tuple[int, int], ...], solver: diffrax.AbstractSolver
 ) -> Kernel | None:
-    """The kernel of `hoisted` for `solver` (one of `free_body.METHODS`) in `dtype`, built and
+    """The kernel of `hoisted` for `solver` (one of `tableau.METHODS`) in its dtype, built and
     registered on first use; None where kernels cannot run here (not the CPU, no compiler).
     `Unsupported` if the field has no scalar form."""
+    dtype = hoisted.dtype
     if not (
-        type(solver) in free_body.METHODS
+        type(solver) in tableau.METHODS
         and jax.default_backend() == "cpu"
-        and jnp.dtype(dtype).name in free_body.DTYPES
+        and dtype.name in tableau.DTYPES
     ):
         return None
-    text, names = _header(type(solver), dtype, model_source(hoisted, n, p, dtype, unit))
+    text, names = _header(type(solver), dtype, hoisted.source(unit))
     if load(_NAME, names, (("model.h", text),)) is None:
         return None
-    return Kernel(*names, n, p + hoisted.c.shape[0])
+    return Kernel(*names, hoisted.n, hoisted.p + hoisted.c.shape[0])
 
 
 def _call(target: str, dtype, shapes: list[tuple[int, ...]], *args: Array) -> list:
@@ -224,29 +277,3 @@ def run(
     solve = jax.custom_vjp(forward)
     solve.defvjp(run_fwd, run_bwd)
     return solve(y0, p, n, h, t0)
-
-
-def field_components(hoisted: Hoisted, n: int, p: int, dtype) -> Callable:
-    """The field as the Diffrax path evaluates it: `(t, y, p, c) -> ẏ` on tuples of component
-    arrays (`y`: N arrays, e.g. `(B,)` each; `p`: P arrays, scalars or `(B,)`; `c (Pc,)`), the
-    same scalar operations as the kernel's `F`."""
-
-    forward, _ = _programs(hoisted, n, p, dtype)
-
-    def fn(t, y, pp, c):
-        ins = [
-            scalars([t], ()),
-            scalars(list(y), (n,)),
-            scalars(list(pp), (p,)),
-            scalars([c[i] for i in range(c.shape[0])], c.shape),
-        ]
-        (k,) = unroll(forward, Components(), _consts(forward), ins)
-        like = y[0]
-        return tuple(
-            jnp.broadcast_to(jnp.asarray(x, like.dtype), jnp.shape(like))
-            if _is_const(x)
-            else jnp.broadcast_to(x, jnp.broadcast_shapes(jnp.shape(x), jnp.shape(like)))
-            for x in k.reshape(-1)
-        )
-
-    return fn

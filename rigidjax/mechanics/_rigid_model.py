@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 
 import jax.numpy as jnp
@@ -22,7 +23,7 @@ def moments_params(I: Array) -> Array:
     return jnp.stack([(I2 - I3) / I1, (I3 - I1) / I2, (I1 - I2) / I3, 1 / I1, 1 / I2, 1 / I3], -1)
 
 
-def rigid_body_model(torque: Torque | None, frame: str = "body") -> Model:
+def _rigid_body_model(torque: Torque | None, frame: str) -> Model:
     """Euler's equations in principal axes `Ω̇1 = c1 Ω2 Ω3 + J1 K1` (cyclic; Zegrya–Parshin
     004) with `q̇ = ½ q ∘ (0, Ω)` (Borisov–Mamaev 001), `K = torque(t, Ω, q)` in the body frame
     (or in space, `frame="space"`, turned into the body frame by `q`)."""
@@ -39,3 +40,15 @@ def rigid_body_model(torque: Torque | None, frame: str = "body") -> Model:
         return jnp.stack([*dw, *dq])
 
     return Model(field, 7, 6, ((3, 4),), "torque" if torque is not None else "free body")
+
+
+def rigid_body_model(torque: Torque | None, frame: str = "body") -> Model:
+    """The model of `_rigid_body_model`, one per hashable torque and frame (so that the field
+    is traced once per torque, as `jax.jit` traces a function once: `kernels.model.hoist`)."""
+    try:
+        return _cached_model(torque, frame)
+    except TypeError:  # an unhashable torque
+        return _rigid_body_model(torque, frame)
+
+
+_cached_model = functools.lru_cache(maxsize=64)(_rigid_body_model)

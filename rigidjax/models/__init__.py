@@ -1,5 +1,5 @@
-"""Models and backends: a `Model` is one body's ODE written once in JAX; `solve_model` runs it on the
-CPU kernel written from it, or through Diffrax, with the same steps and numbers."""
+"""Models and backends: a `Model` is one body's ODE written once in JAX; `solve_model` runs it
+on the CPU kernel written from it, or through Diffrax, with the same steps and numbers."""
 
 from .model import Field, Model
 from .solve import solve_model

@@ -168,9 +168,7 @@ def solve_model(
     hoisted, missing = _compile(model, dtype)
     if hoisted is not None and kernel_options(options):
         try:
-            kernel = model_kernel.build(
-                hoisted, model.size, model.params, model.unit, method_of(options), dtype
-            )
+            kernel = model_kernel.build(hoisted, model.unit, method_of(options))
         except Unsupported as e:
             kernel, missing = None, e.primitive
         if kernel is not None:
@@ -193,7 +191,7 @@ def solve_model(
             stacklevel=3,
         )
     if hoisted is not None:
-        field = model_kernel.field_components(hoisted, model.size, model.params, dtype)
+        field = hoisted.components
         c = hoisted.c.astype(dtype)
     else:
         field, c = model.field, jnp.zeros((0,), dtype)

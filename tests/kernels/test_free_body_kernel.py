@@ -235,7 +235,7 @@ def test_failures_as_the_diffrax_path(case):
 def test_no_compiler_is_a_clear_failure(monkeypatch, tmp_path):
     monkeypatch.setenv("CXX", str(tmp_path / "no-such-compiler"))
     with pytest.raises(_build.KernelUnavailable, match="no C\\+\\+ compiler"):
-        _build.build("free_body")
+        _build.build("model")
 
 
 @pytest.mark.parametrize(
@@ -250,7 +250,7 @@ def test_adjoint_matches_central_differences(case):
     I = jnp.asarray(rng.uniform(1.5, 2.5, size=(B, 3)))
     # off the dt0 grid, so that the differences never change a step count
     ts = jnp.array([0.0, 0.313, 0.671, 1.029])
-    # checkpointed: more than 2048 steps an interval (kStoreAll in free_body.cc): segments
+    # checkpointed: more than 2048 steps an interval (kStoreAll in model.cc): segments
     dt0 = 1.4e-4 if case == "checkpointed" else 0.02
     if case == "checkpointed":
         assert np.min(np.diff(np.asarray(ts))) / dt0 > 2048
