@@ -84,7 +84,6 @@ _BINARY = {
     "pow": "std::pow({0}, {1})",
     "atan2": "std::atan2({0}, {1})",
     "rem": "std::fmod({0}, {1})",
-    "copysign": "std::copysign({0}, {1})",
     "nextafter": "std::nextafter({0}, {1})",
     "lt": "{0} < {1}",
     "le": "{0} <= {1}",

@@ -110,7 +110,6 @@ ELEMENTWISE = frozenset(
         "logistic",
         "rem",
         "nextafter",
-        "copysign",
     }
 )
 _IDENTITY = frozenset({"copy", "copy_p", "stop_gradient", "optimization_barrier", "pvary"})
@@ -488,7 +487,21 @@ class Components:
         xs = [a if not _is_const(a) else jnp.asarray(a, _const_dtype(a, real)) for a in args]
         shape = jnp.broadcast_shapes(*(jnp.shape(x) for x in xs))
         xs = [jnp.broadcast_to(x, shape) for x in xs]
-        return _PRIMITIVES[name].bind(*xs, **params)
+        if name == "integer_pow":
+            return jax.lax.integer_pow(xs[0], params["y"])
+        if name == "convert_element_type":
+            return jax.lax.convert_element_type(xs[0], params["new_dtype"])
+        if name == "round":
+            return jax.lax.round(xs[0], params.get("rounding_method", 0))
+        return _LAX.get(name, getattr(jax.lax, name, None))(*xs)
+
+
+_LAX: dict[str, Callable] = {
+    "add_any": jax.lax.add,
+    "not": jax.lax.bitwise_not,
+    "and": jax.lax.bitwise_and,
+    "or": jax.lax.bitwise_or,
+}
 
 
 def _const_dtype(a: Scalar, real):
@@ -498,21 +511,3 @@ def _const_dtype(a: Scalar, real):
     if isinstance(a, int | np.integer):
         return jnp.int32
     return real
-
-
-def _primitive_table() -> dict[str, Any]:
-    from jax import lax
-    from jax._src.lax import special
-
-    table = {}
-    for name in ELEMENTWISE:
-        prim = getattr(lax, f"{name}_p", None) or getattr(special, f"{name}_p", None)
-        if prim is not None:
-            table[name] = prim
-    from jax._src.ad_util import add_jaxvals_p
-
-    table["add_any"] = add_jaxvals_p
-    return table
-
-
-_PRIMITIVES = _primitive_table()

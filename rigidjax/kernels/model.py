@@ -37,32 +37,42 @@ _NAME = "model"
 class Hoisted:
     """A field of N states and P parameters with its float constants lifted out:
     `fn(t, y, p, c)`, the constants' values `c (Pc,)` (traced or not), and the jaxprs of `fn`
-    and of its cotangent map (`programs`), traced once."""
+    and of its cotangent map, traced once."""
 
     def __init__(self, fn: Callable, c: Array, n: int, p: int, dtype):
         self.fn, self.c, self.n, self.p, self.dtype = fn, c, n, p, jnp.dtype(dtype)
         self._sources: dict[tuple, str] = {}
 
+    def _avals(self):
+        dt = self.dtype
+        return (
+            jax.ShapeDtypeStruct((), dt),
+            jax.ShapeDtypeStruct((self.n,), dt),
+            jax.ShapeDtypeStruct((self.p,), dt),
+            jax.ShapeDtypeStruct(self.c.shape, dt),
+        )
+
     @functools.cached_property
-    def programs(self):
-        """The jaxprs of the field `fn(t, y, p, c)` and of its cotangent map
-        `(t, y, p, c, v) -> (t̄, ȳ, p̄, c̄)`."""
-        t = jax.ShapeDtypeStruct((), self.dtype)
-        y = jax.ShapeDtypeStruct((self.n,), self.dtype)
-        pp = jax.ShapeDtypeStruct((self.p,), self.dtype)
-        c = jax.ShapeDtypeStruct(self.c.shape, self.dtype)
+    def forward(self):
+        """The jaxpr of the field `fn(t, y, p, c)`."""
+        return jax.make_jaxpr(self.fn)(*self._avals())
+
+    @functools.cached_property
+    def backward(self):
+        """The jaxpr of its cotangent map `(t, y, p, c, v) -> (t̄, ȳ, p̄, c̄)`."""
 
         def cotangents(t, y, p, c, v):
             return jax.vjp(self.fn, t, y, p, c)[1](v)
 
-        return jax.make_jaxpr(self.fn)(t, y, pp, c), jax.make_jaxpr(cotangents)(t, y, pp, c, y)
+        avals = self._avals()
+        return jax.make_jaxpr(cotangents)(*avals, avals[1])
 
     @functools.cached_property
     def components(self) -> Callable:
         """The field as the Diffrax path evaluates it: `(t, y, p, c) -> ẏ` on tuples of
         component arrays (`y`: N arrays, e.g. `(B,)` each; `p`: P arrays, scalars or `(B,)`;
         `c (Pc,)`), the same scalar operations as the kernel's `F`."""
-        forward, n, p = self.programs[0], self.n, self.p
+        forward, n, p = self.forward, self.n, self.p
 
         def fn(t, y, pp, c):
             ins = [
@@ -160,10 +170,10 @@ def _consts(closed) -> list[np.ndarray]:
 
 def model_source(hoisted: Hoisted, unit: Sequence[tuple[int, int]]) -> str:
     """`struct Model` of `model.cc`: sizes, unit groups, `F` and `FT` as C++."""
-    forward, backward = hoisted.programs
-    n, p, pc = hoisted.n, hoisted.p, hoisted.c.shape[0]
+    forward, n, p, pc = hoisted.forward, hoisted.n, hoisted.p, hoisted.c.shape[0]
     em = CEmitter("f")
     (k,) = unroll(forward, em, _consts(forward), _inputs(n, p, pc))
+    backward = hoisted.backward
     body_f = em.lines + [f"k[{i}] = {em.operand(x)};" for i, x in enumerate(k)]
     eb = CEmitter("b")
     tb, yb, pb, cb = unroll(backward, eb, _consts(backward), _inputs(n, p, pc, "v"))

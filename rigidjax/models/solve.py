@@ -170,7 +170,7 @@ def solve_model(
         try:
             kernel = model_kernel.build(hoisted, model.unit, method_of(options))
         except Unsupported as e:
-            kernel, missing = None, e.primitive
+            kernel, hoisted, missing = None, None, e.primitive
         if kernel is not None:
             pk = jnp.concatenate(
                 [p, jnp.broadcast_to(hoisted.c.astype(dtype), (p.shape[0], hoisted.c.shape[0]))],
