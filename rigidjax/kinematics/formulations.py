@@ -83,7 +83,7 @@ class RotationVector(AbstractKinematics):
         return so3.log(P)
 
     def to_matrix(self, y: Vec3) -> Mat33:
-        return so3._exp(y)
+        return so3.exp(y)
 
     def to_quat(self, y: Vec3) -> Quat:
         return quat._from_rotvec(y)  # a state, not user input: no argument checks

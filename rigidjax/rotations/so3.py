@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import DTypeLike, PRNGKeyArray
 
-from .._checks import matrix, validate, vector
+from .._checks import is_concrete, matrix, validate, vector
 from .._custom_types import Frame, Mat33, Mat33Like, Scalar, Vec3, Vec3Like
 from . import _series, _validation, quat
 
@@ -52,12 +52,11 @@ def _hat_sq(theta: Vec3, x2: Scalar) -> Mat33:
 
 def exp(theta: Vec3Like) -> Mat33:
     """`P(θ) = exp(θ × E) = E + (sin θ/θ) R + ((1 − cos θ)/θ²) R²`, `R = θ × E` (Zhilin; Euler's
-    theorem). Finite values and gradients at θ = 0. `theta` must be finite."""
-    return _exp(_validation.check_finite(vector(theta, 3, "theta"), "theta", 1))
-
-
-def _exp(theta: Vec3) -> Mat33:
-    """`exp` without the check of `theta` (inside integrators, whose states are checked)."""
+    theorem). Finite values and gradients at θ = 0. A non-finite concrete `theta` is an error
+    naming it; traced, no check (the integrators' hot path): NaN in, NaN out."""
+    theta = vector(theta, 3, "theta")
+    if is_concrete(theta):
+        theta = _validation.check_finite(theta, "theta", 1)
     x2 = _sq(theta)
     R = hat(theta)
     a = _series.sin_over(x2)[..., None, None]

@@ -35,7 +35,7 @@ from . import _stages
 
 
 def _move(R0: Mat33, theta: Vec3, frame: Frame) -> Mat33:
-    E = so3._exp(theta)
+    E = so3.exp(theta)
     return E @ R0 if frame == "space" else R0 @ E
 
 
