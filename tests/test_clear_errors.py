@@ -29,10 +29,6 @@ NAN = np.nan
             r"inertia must be positive, got inertia = \[ 1\. , -2\. , 2\.5\]; give three",
         ),
         ([0.0, 2.0, 2.0], r"inertia must be positive"),
-        (
-            [1.0, 2.0, 5.0],
-            r"inertia violates the triangle inequality.*got inertia = \[1\., 2\., 5\.\]",
-        ),
     ],
 )
 def test_closed_forms_check_the_moments(inertia, message):
@@ -50,8 +46,8 @@ def test_closed_forms_check_the_moments(inertia, message):
 
 def test_closed_forms_check_the_moments_under_jit():
     f = jax.jit(analytic.free_rigid_body)
-    with raises_in_jit("inertia violates the triangle inequality"):
-        jax.block_until_ready(f(jnp.array([1.0, 2.0, 5.0]), W0, TS))
+    with raises_in_jit("inertia must be positive"):
+        jax.block_until_ready(f(jnp.array([1.0, -2.0, 3.0]), W0, TS))
     np.testing.assert_allclose(f(jnp.array([1.0, 2.0, 3.0]), W0, TS)[0], W0, atol=1e-14)
 
 
@@ -70,8 +66,8 @@ def test_closed_forms_check_omega0_and_times():
 def test_symmetric_top_checks():
     with pytest.raises(ValueError, match=r"\(I1, I1, I3\) must be positive"):
         analytic.symmetric_top_precession(-1.0, 1.5, W0)
-    with pytest.raises(ValueError, match=r"\(I1, I1, I3\) violates the triangle inequality"):
-        analytic.symmetric_top(1.0, 2.5, W0, TS)  # I3 > 2 I1
+    with pytest.raises(ValueError, match=r"\(I1, I1, I3\) must be positive"):
+        analytic.symmetric_top(1.0, 0.0, W0, TS)
     with pytest.raises(ValueError, match=r"\(I1, I1, I3\) must be finite"):
         analytic.symmetric_top_attitude(NAN, 1.5, W0, None, TS)
     with pytest.raises(ValueError, match=r"omega0 must be finite"):

@@ -47,7 +47,7 @@ def _top_inputs(
     I1: ScalarLike, I3: ScalarLike, omega0: Vec3Like, *more: RealLike
 ) -> list[Float[Array, "..."]]:
     """The arguments as floats of one dtype, checked: the moments `(I1, I1, I3)` by
-    `check_moments` (finite, positive, `I3 ≤ 2 I1`), `omega0` and `ts` finite."""
+    `check_moments` (finite, positive), `omega0` and `ts` finite."""
     names = ("I1", "I3", "omega0", "ts")[: 3 + len(more)]
     out = floats(*zip((I1, I3, omega0, *more), names, strict=True))
     vector(out[2], 3, "omega0")
@@ -63,8 +63,8 @@ def symmetric_top_precession(
     """Regular precession of the free symmetric top `I1 = I2 ≠ I3` (symmetry axis = body z):
     precession rate `|M|/I1`, spin `Ω3 = (|M|/I3) cos θ`, body rate `ω = Ω3 (I3 − I1)/I1` and the
     nutation angle θ between the symmetry axis and M, `tan θ = I1 |Ω⊥| / (I3 Ω3)` (Zegrya–Parshin
-    004 (12.34)–(12.39)). Batch dims of the arguments broadcast; bad moments (NaN, ≤ 0,
-    `I3 > 2 I1`) or a non-finite `omega0` are an error naming the argument."""
+    004 (12.34)–(12.39)). Batch dims of the arguments broadcast; bad moments (NaN, ≤ 0) or a
+    non-finite `omega0` are an error naming the argument."""
     return _precession(*_top_inputs(I1, I3, omega0))
 
 
