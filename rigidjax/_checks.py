@@ -18,6 +18,8 @@ from ._custom_types import Mat33, RealLike
 
 def as_float(x: RealLike, name: str = "x") -> Float[Array, "..."]:
     """`x` as a floating JAX array (integers are promoted to the default float dtype)."""
+    if x is None:
+        raise TypeError(f"{name} must be an array (or a number), got None")
     try:
         x = jnp.asarray(x)
     except TypeError as e:  # pragma: no cover - message clarity only
@@ -218,3 +220,16 @@ def check_times(ts: Array, name: str = "ts") -> Float[Array, " T"]:
         f"{name} must be strictly increasing and finite",
         detail,
     )
+
+
+def broadcast_batch(**shapes: tuple[int, ...]) -> tuple[int, ...]:
+    """The common batch shape of the arguments' batch shapes `name=shape` (NumPy broadcasting);
+    a ValueError naming the arguments and their batch shapes if they do not broadcast."""
+    try:
+        return tuple(np.broadcast_shapes(*shapes.values()))
+    except ValueError:
+        given = ", ".join(f"{name} {s}" for name, s in shapes.items())
+        raise ValueError(
+            f"the batch shapes (leading dimensions) do not broadcast: {given}; give them equal "
+            "leading dimensions, or 1 (or none) where one value serves the whole batch"
+        ) from None

@@ -59,18 +59,59 @@ def _cause(result: diffrax.RESULTS, max_steps: int) -> str:
     return diffrax.RESULTS[result]
 
 
+def _has_torque(obj: Any) -> bool:
+    """Whether the vector field `obj` (a tree of dataclasses) carries a `torque`."""
+    if getattr(obj, "torque", None) is not None:
+        return True
+    fields = dataclasses.fields(obj) if dataclasses.is_dataclass(obj) else ()
+    return any(_has_torque(getattr(obj, f.name)) for f in fields)
+
+
+def _nonfinite_field(term: Any, args: PyTree, ts: Array, ys: PyTree, k: int) -> str | None:
+    """The cause of a failure in `[ts[k-1], ts[k]]` when it is the vector field's, not the
+    step's: the first of 33 equally spaced times of the interval at which the field, at the last
+    saved (finite) state, is non-finite; None if it is finite at all of them."""
+    y = jax.tree.map(lambda a: a[k - 1], ys)
+    grid = jnp.linspace(ts[k - 1], ts[k], 33)
+    ok = jax.vmap(lambda t: _all_finite(term.vf(t, y, args)))(grid)
+    if not _all_finite(y) or bool(jnp.all(ok)):
+        return None
+    t = float(grid[int(jnp.argmin(ok))])
+    if _has_torque(term):
+        return (
+            f"the torque returned a non-finite value (NaN or inf) at t = {t:.6g} for the finite "
+            f"state reached at ts[{k - 1}]: make torque(t, omega, q) finite over the whole span"
+        )
+    return (
+        f"the vector field returned a non-finite value (NaN or inf) at t = {t:.6g} for the "
+        f"finite state reached at ts[{k - 1}]: a function of time or state that you passed "
+        "(e.g. omega(t), a potential) is not finite there"
+    )
+
+
+def _all_finite(y: PyTree) -> Array:
+    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(a)) for a in jax.tree.leaves(y)]))
+
+
 def raise_failure(
-    result: diffrax.RESULTS, num_valid: Array, ts: Array, ys: PyTree, max_steps: int
+    result: diffrax.RESULTS,
+    num_valid: Array,
+    ts: Array,
+    ys: PyTree,
+    max_steps: int,
+    probe: Callable[[int], str | None] | None = None,
 ) -> PyTree:
     """Raise `IntegrationError` for a failed solve, naming the output interval (concrete
-    results), or attach the same check with `equinox.error_if` (traced results); returns `ys`."""
+    results), or attach the same check with `equinox.error_if` (traced results); returns `ys`.
+    `probe(k)` may name a cause found in the failed interval `k` (`_nonfinite_field`)."""
     if is_concrete(num_valid):
         if result == diffrax.RESULTS.successful:
             return ys
         k = int(num_valid)
+        cause = (probe(k) if probe else None) or _cause(result, max_steps)
         raise IntegrationError(
             f"integration failed between t = {float(ts[k - 1]):.6g} and t = {float(ts[k]):.6g}"
-            f" (output times {k - 1} and {k}): {_cause(result, max_steps)}. With throw=False the"
+            f" (output times {k - 1} and {k}): {cause}. With throw=False the"
             f" trajectory comes back with its result; its states are valid up to ts[{k - 1}]."
         )
     causes = [r for r, _ in _CAUSES]
@@ -243,7 +284,8 @@ def solve_saved(
     except TypeError as e:
         raise_forward_mode(e)
     if options.throw:
-        ys = raise_failure(result, stats["num_valid"], ts, ys, options.max_steps)
+        probe = lambda k: _nonfinite_field(term, args, ts, ys, k)  # noqa: E731
+        ys = raise_failure(result, stats["num_valid"], ts, ys, options.max_steps, probe)
     return ys, stats, result
 
 

@@ -20,9 +20,10 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float, Int
 
-from .._checks import as_float, floats, vector
+from .._checks import Check, as_float, at, check_finite, first, floats, fmt, validate_all, vector
 from .._custom_types import RealScalarLike, Scalar, TimesLike, Vec3, Vec3Like
 from .._numerics import safe_sqrt
 from .elliptic import _ellipf, _ellipj, _ellipk, _sech
@@ -234,15 +235,46 @@ def _omega(p: _Plan, t: Array, per: Array | None = None) -> Array:
     return jnp.where(p.trivial, jnp.broadcast_to(p.w_orig, out.shape), out)
 
 
+def check_moments(I: Array, name: str = "inertia") -> Array:
+    """Principal moments `I (..., 3)` of a body, checked: finite and positive. One error naming
+    `name`, the offending moments and the fix (see `rigidjax._checks.validate_all`). The triangle
+    inequality is not required: Euler's equations and their closed form hold for any positive
+    moments (the reference case I = (3, 5, 9) of Principia's tests violates it)."""
+
+    def bad_finite(xp, v):
+        return ~xp.all(xp.isfinite(v), axis=-1)
+
+    def bad_positive(xp, v):
+        return ~xp.all(v > 0, axis=-1)
+
+    def detail(bad):
+        def show(v):
+            k = first(bad(np, v))
+            return f", got {at(name, k)} = {fmt(v[k])}"
+
+        return show
+
+    fix = "; give three principal moments > 0 (of a tensor I: RigidBody(I).principal_moments)"
+    return validate_all(
+        I,
+        [
+            Check(bad_finite, f"{name} must be finite", detail(bad_finite), fix),
+            Check(bad_positive, f"{name} must be positive", detail(bad_positive), fix),
+        ],
+    )
+
+
 def _body_inputs(
     inertia: Vec3Like, omega0: Vec3Like, ts: TimesLike | None = None
 ) -> list[Float[Array, "..."]]:
+    """The arguments of the closed forms as floats of one dtype, checked: `inertia` by
+    `check_moments`, `omega0` and `ts` finite."""
     names = ("inertia", "omega0") + (() if ts is None else ("ts",))
     args = (inertia, omega0) + (() if ts is None else (ts,))
     out = floats(*zip(args, names, strict=True))
-    vector(out[0], 3, "inertia")
+    out[0] = check_moments(vector(out[0], 3, "inertia"))
     vector(out[1], 3, "omega0")
-    return out
+    return [out[0]] + [check_finite(x, n) for x, n in zip(out[1:], names[1:], strict=True)]
 
 
 def free_rigid_body(
@@ -251,8 +283,10 @@ def free_rigid_body(
     """Closed-form body angular velocity of the torque-free rigid body (Euler–Poinsot).
 
     `inertia`: principal moments `(..., 3)` in any order (positive; equal moments allowed);
-    `omega0`: body angular velocity `(..., 3)` at time `t0`; `ts`: times `(T,)` (any real values,
-    before or after `t0`). Returns `Ω(ts)` with shape `(..., T, 3)`, `Ω(t0) = omega0` to rounding.
+    `omega0`: body angular velocity `(..., 3)` at time `t0`; `ts`: times `(T,)` (any finite
+    values, before or after `t0`). Returns `Ω(ts)` with shape `(..., T, 3)`, `Ω(t0) = omega0` to
+    rounding. Bad moments (NaN, ≤ 0) or a non-finite `omega0`,
+    `ts` or `t0` are an error naming the argument.
 
     With `2E = Σ I_i Ω_i²`, `M² = Σ I_i² Ω_i²` and axes relabelled so that I2 is the middle moment
     (Landau–Lifshitz §37): for `M² > 2E I2` (motion around the largest axis, labelled 3)
@@ -271,7 +305,7 @@ def free_rigid_body(
     constant. Derivation notes are in the module source.
     """
     inertia, omega0, ts = _body_inputs(inertia, omega0, ts)
-    t0 = as_float(t0, "t0").astype(ts.dtype)
+    t0 = check_finite(as_float(t0, "t0").astype(ts.dtype), "t0")
     scalar = ts.ndim == 0
     ts1 = jnp.atleast_1d(ts)
 

@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._checks import as_float, vector
+from .._checks import as_float, check_finite, vector
 from .._custom_types import Quat, QuatLike, RealScalarLike, TimesLike, Vec3Like
 from ..rotations import quat
 from .elliptic import _ellipf, _ellipj, _ellippi_diff
@@ -162,7 +162,7 @@ def free_rigid_body_attitude(
     dtype = ts.dtype
     q0 = quat.identity(dtype=dtype) if q0 is None else vector(q0, 4, "q0").astype(dtype)
     q0 = quat.normalize(q0)
-    t0 = as_float(t0, "t0").astype(dtype)
+    t0 = check_finite(as_float(t0, "t0").astype(dtype), "t0")
     scalar = ts.ndim == 0
     ts1 = jnp.atleast_1d(ts)
 

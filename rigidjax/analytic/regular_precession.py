@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._checks import as_float, floats, vector
+from .._checks import as_float, check_finite, floats, vector
 from .._custom_types import (
     Quat,
     QuatLike,
@@ -27,6 +27,7 @@ from .._custom_types import (
 )
 from .._numerics import safe_sqrt
 from ..rotations import quat
+from .euler_poinsot import check_moments
 
 # ----------------------------------------------------------------------------------------------
 # Free symmetric top (Zegrya–Parshin 004 (12.7)–(12.8), (12.34)–(12.39); THEORY §6)
@@ -45,21 +46,30 @@ class SymmetricTopPrecession(NamedTuple):
 def _top_inputs(
     I1: ScalarLike, I3: ScalarLike, omega0: Vec3Like, *more: RealLike
 ) -> list[Float[Array, "..."]]:
-    names = ("I1", "I3", "omega0", "ts", "q0")[: 3 + len(more)]
+    """The arguments as floats of one dtype, checked: the moments `(I1, I1, I3)` by
+    `check_moments` (finite, positive), `omega0` and `ts` finite."""
+    names = ("I1", "I3", "omega0", "ts")[: 3 + len(more)]
     out = floats(*zip((I1, I3, omega0, *more), names, strict=True))
     vector(out[2], 3, "omega0")
-    return out
+    I1, I3 = jnp.broadcast_arrays(out[0], out[1])
+    moments = check_moments(jnp.stack([I1, I1, I3], axis=-1), "(I1, I1, I3)")
+    out[0], out[1] = moments[..., 0], moments[..., 2]
+    return out[:2] + [check_finite(x, n) for x, n in zip(out[2:], names[2:], strict=True)]
 
 
-@jax.jit
 def symmetric_top_precession(
     I1: ScalarLike, I3: ScalarLike, omega0: Vec3Like
 ) -> SymmetricTopPrecession:
     """Regular precession of the free symmetric top `I1 = I2 ≠ I3` (symmetry axis = body z):
     precession rate `|M|/I1`, spin `Ω3 = (|M|/I3) cos θ`, body rate `ω = Ω3 (I3 − I1)/I1` and the
     nutation angle θ between the symmetry axis and M, `tan θ = I1 |Ω⊥| / (I3 Ω3)` (Zegrya–Parshin
-    004 (12.34)–(12.39)). Batch dims of the arguments broadcast."""
-    I1, I3, omega0 = _top_inputs(I1, I3, omega0)
+    004 (12.34)–(12.39)). Batch dims of the arguments broadcast; bad moments (NaN, ≤ 0) or a
+    non-finite `omega0` are an error naming the argument."""
+    return _precession(*_top_inputs(I1, I3, omega0))
+
+
+@jax.jit
+def _precession(I1: Array, I3: Array, omega0: Array) -> SymmetricTopPrecession:
     perp = safe_sqrt(omega0[..., 0] ** 2 + omega0[..., 1] ** 2)
     w3 = omega0[..., 2]
     M = safe_sqrt(I1**2 * (omega0[..., 0] ** 2 + omega0[..., 1] ** 2) + I3**2 * w3**2)
@@ -71,16 +81,20 @@ def symmetric_top_precession(
     )
 
 
-@jax.jit
 def symmetric_top(
     I1: ScalarLike, I3: ScalarLike, omega0: Vec3Like, ts: TimesLike, t0: RealScalarLike = 0.0
 ) -> Float[Array, "*#batch T 3"] | Vec3:
     """Body angular velocity `(..., T, 3)` of the free symmetric top `I1 = I2`, `I3` (symmetry
     axis = body z): `Ω3 = const`, `Ω1 + iΩ2 = (Ω1(t0) + iΩ2(t0)) e^{iω(t − t0)}`,
     `ω = Ω3 (I3 − I1)/I1` (from `I1 Ω̇1 = (I1 − I3) Ω2 Ω3`, `I1 Ω̇2 = (I3 − I1) Ω3 Ω1`; the sign
-    agrees with `simulate`). `ts` (T,)."""
+    agrees with `simulate`). `ts` (T,). Checked as `symmetric_top_precession`; `ts`, `t0` finite."""
     I1, I3, omega0, ts = _top_inputs(I1, I3, omega0, ts)
-    t = jnp.atleast_1d(ts) - as_float(t0, "t0").astype(ts.dtype)
+    return _top(I1, I3, omega0, ts, check_finite(as_float(t0, "t0").astype(ts.dtype), "t0"))
+
+
+@jax.jit
+def _top(I1: Array, I3: Array, omega0: Array, ts: Array, t0: Array) -> Array:
+    t = jnp.atleast_1d(ts) - t0
     om = (omega0[..., 2] * (I3 - I1) / I1)[..., None] * t  # (..., T)
     c, s = jnp.cos(om), jnp.sin(om)
     w1, w2, w3 = (omega0[..., i : i + 1] for i in range(3))
@@ -88,7 +102,6 @@ def symmetric_top(
     return out[..., 0, :] if ts.ndim == 0 else out
 
 
-@jax.jit
 def symmetric_top_attitude(
     I1: ScalarLike,
     I3: ScalarLike,
@@ -102,12 +115,19 @@ def symmetric_top_attitude(
         `P(t) = R(M̂, (|M|/I1)(t − t0)) P0 R(e_z, −ω(t − t0))`,
     i.e. `q(t) = q(M_space (t − t0)/I1) ∘ q0 ∘ q(−ω (t − t0) e_z)` with `M_space = P0 I Ω0`.
     Check: the body angular velocity of this P is `(|M|/I1) n(t) − ω e_z` with `n = IΩ/|M|`
-    rotating about e_z at the rate ω, which equals Ω(t) (`symmetric_top`). λ0 ≥ 0."""
+    rotating about e_z at the rate ω, which equals Ω(t) (`symmetric_top`). λ0 ≥ 0. Checked as
+    `symmetric_top`; `q0` finite and non-zero."""
     I1, I3, omega0, ts = _top_inputs(I1, I3, omega0, ts)
     dtype = ts.dtype
     q0 = quat.identity(dtype=dtype) if q0 is None else vector(q0, 4, "q0").astype(dtype)
-    q0 = quat.normalize(q0)
-    t = (jnp.atleast_1d(ts) - as_float(t0, "t0").astype(dtype))[:, None]
+    t0 = check_finite(as_float(t0, "t0").astype(dtype), "t0")
+    return _top_attitude(I1, I3, omega0, quat.normalize(q0), ts, t0)
+
+
+@jax.jit
+def _top_attitude(I1: Array, I3: Array, omega0: Array, q0: Array, ts: Array, t0: Array) -> Array:
+    dtype = ts.dtype
+    t = (jnp.atleast_1d(ts) - t0)[:, None]
     Ivec = jnp.stack(jnp.broadcast_arrays(I1, I1, I3), axis=-1)
     Ms = quat.rotate(q0, Ivec * omega0)
     om = omega0[..., 2] * (I3 - I1) / I1

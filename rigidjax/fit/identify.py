@@ -19,7 +19,7 @@ from jaxtyping import Array, Bool, Float, Int
 from .._checks import validate
 from .._compile import quick_compile_jit
 from .._custom_types import Frame, RealLike
-from ..mechanics.inertia import as_tensor, principal_axes
+from ..mechanics.inertia import as_tensor, check_inertia, principal_axes
 from ..rotations import quat
 from .covariance import METHODS, covariance
 from .experiments import Experiments, angular_rate, experiments, guess, initial_states
@@ -113,7 +113,8 @@ def identify_inertia(
     sigmas with a robust loss). Unknowns: the six inertia parameters, Ω(0) and (with attitude
     data) q(0) of each experiment, the gyro bias b with `gyro_bias=True`, the per-axis gyro
     scale-factor error s with `gyro_scale=True` (with both data kinds, the gyro residuals are
-    fitted first, then everything). Start: `inertia_guess`, else the linear least-squares
+    fitted first, then everything). Start: `inertia_guess` (moments or a tensor, checked as
+    `RigidBody`'s: finite, positive definite, triangle inequality), else the linear least-squares
     estimate from Euler's equations (`rigidjax.fit.initial`).
 
     Covariance (`rigidjax.fit.covariance`): `"gauss_newton"` (`s²(JᵀJ)⁻¹`, residual-variance
@@ -167,7 +168,11 @@ def identify_inertia(
             raise ValueError(f"{name} must be a positive number, got {x!r}")
     step_angle = min(min(tol) ** 0.2, 0.1) if tol else 0.02
 
-    I_guess = None if inertia_guess is None else as_tensor(inertia_guess).astype(dtype)
+    I_guess = (
+        None
+        if inertia_guess is None
+        else check_inertia(as_tensor(inertia_guess).astype(dtype), "inertia_guess")
+    )
     model = _Model(
         torque,
         torque_frame,

@@ -15,6 +15,7 @@ from jaxtyping import Array, Float
 
 from .._checks import (
     as_float,
+    broadcast_batch,
     check_finite,
     check_times,
     check_times_shape,
@@ -296,7 +297,7 @@ def simulate(
         ts = check_times(ts)
         omega0 = check_finite(omega0, "omega0")
         q0 = check_unit_norm(q0, "q0")
-    batch = jnp.broadcast_shapes(body.batch_shape, omega0.shape[:-1], q0.shape[:-1])
+    batch = broadcast_batch(body=body.batch_shape, omega0=omega0.shape[:-1], q0=q0.shape[:-1])
     B = math.prod(batch)
     if B == 0:
         raise ValueError(

@@ -13,6 +13,11 @@ from .body import RigidBody
 
 def _batched_inertia(body: RigidBody, omega: Array) -> Mat33:
     # inertia (..., 3, 3) broadcast against omega (..., [T,] 3): insert the time axis if needed
+    if not isinstance(body, RigidBody):
+        raise TypeError(
+            f"body must be a rigidjax.RigidBody, got {type(body).__name__}: wrap the inertia, "
+            "e.g. energy(RigidBody(inertia), omega)"
+        )
     I = body.inertia
     extra = omega.ndim - 1 - (I.ndim - 2)
     return I.reshape(I.shape[:-2] + (1,) * max(extra, 0) + (3, 3))

@@ -348,6 +348,13 @@ def simulate_central(
     ts = check_times(as_float(ts, "ts"))
     dtype = ts.dtype
     r0, v0 = initial_vector(r0, 3, "r0", dtype), initial_vector(v0, 3, "v0", dtype)
+    r0 = validate(
+        r0,
+        lambda xp, r: ~(xp.sum(r * r) > 0),
+        "r0 must be non-zero",
+        lambda r: f", got {r}",
+        hint=": the central force is singular at the centre r = 0; start the point away from it",
+    )
     m = check_positive(as_float(mass, "mass").astype(dtype), "mass")
     if m.shape != ():
         raise ValueError(f"mass must be a scalar (vmap for batches), got shape {m.shape}")

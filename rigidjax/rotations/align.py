@@ -22,6 +22,12 @@ An infinite weight makes its pair primary (SciPy's "align-constrain", Magner 201
 rotation `q_pri` taking `b̂_p` to `â_p` (`∝ (1 + â·b̂, b̂ × â)`, beyond 90° through a half-turn
 that takes b̂_p to −b̂_p), then the turn `φ = atan2(Σ w (c × a)·â_p, Σ w (c·a − (c·â_p)(a·â_p)))`
 about `â_p` that best aligns the others, `c = P(q_pri) b`. One vector pair takes this path too.
+
+Disparate finite weights (one pair's `w |a| |b|` above 1e6 times the others' sum): B rounds the
+light pairs away at `eps w_max` (2.7e-6 rad at weights (1e10, 1); SciPy's SVD of the same B
+loses as much, up to 4e-6 measured). There the constrained solution is refined by two Newton
+steps on the full objective (`_refined`): within 4e-16 rad of a 50-digit (mpmath) solution in
+30 random cases measured at weights (1e10, 1).
 """
 
 from __future__ import annotations
@@ -145,6 +151,50 @@ def _constrained(a: Array, b: Array, w: Array, primary: Array) -> Quat:
     none = (sin_t == 0) & (cos_t == 0)  # no secondary information: no turn (finite gradient)
     phi = jnp.arctan2(sin_t, jnp.where(none, jnp.ones_like(cos_t), cos_t))
     return mul(_from_rotvec(jnp.where(none, 0.0, phi) * a_p), q_pri)
+
+
+# above this ratio the q-method's loss, eps · ratio, exceeds 1e-10 rad
+DOMINANCE = 1e6
+
+
+def _dominant(a: Array, b: Array, w: Array) -> tuple[Array, Array]:
+    """`(p, dominant)`: the pair `p` of the largest `w_i |a_i| |b_i|`, and whether it outweighs
+    the others `DOMINANCE` times (then `_refined` solves the problem, not the q-method)."""
+    s = w * jnp.sqrt(jnp.sum(a * a, -1) * jnp.sum(b * b, -1))
+    p = jnp.argmax(s)
+    return p, (s[p] > DOMINANCE * (jnp.sum(s) - s[p])) & (s.shape[0] > 1)
+
+
+def _refined(a: Array, b: Array, w: Array, p: Array, active: Array | bool = True) -> Quat:
+    """The optimum when pair `p` dominates (`_dominant`). Forming B (or K) rounds the other
+    pairs' terms at `eps w_p`, a loss of about `eps w_p / Σ_others w` in the rotation about
+    `a_p` (2e-6 at weights (1e10, 1)). Instead: start from the constrained solution with pair p
+    primary (within about `Σ_others w / w_p` of the optimum) and take two Newton steps on
+    `L(δ) = −Σ w_i a_i · exp(δ × E) c_i`, `c_i = P(q) b_i`, `q ← exp(δ) q`:
+    `δ = H⁻¹ g`, `g = Σ w_i c_i × a_i`, `H = Σ w_i ((a_i·c_i) E − (a_i c_iᵀ + c_i a_iᵀ)/2)` (the
+    second-order expansion of L at δ = 0). The primary term `w_p c_p × a_p` is ⟂ `a_p`, but its
+    rounding (`eps w_p`) is not: it is projected on the plane ⟂ `a_p`, so that the rotation
+    about `a_p` is fixed by the other pairs alone, to rounding (measured: from 1e-10 to 2e-16 in
+    the first step). The second step makes the derivative the implicit one at the optimum. Where
+    not `active` (traced weights, no dominant pair) H is replaced by E (finite values and
+    gradients in the branch not taken)."""
+    q = _constrained(a, b, w, p)
+    n = _unit3(a[p])
+    eye = jnp.eye(3, dtype=a.dtype)
+    for _ in range(2):
+        c = rotate(q, b)
+        G = w[:, None] * jnp.cross(c, a)
+        G = G.at[p].add(-n * (n @ G[p]))
+        ac = jnp.sum(a * c, -1)
+        H = jnp.einsum(
+            "n,nij->ij",
+            w,
+            ac[:, None, None] * eye
+            - 0.5 * (a[:, :, None] * c[:, None, :] + c[:, :, None] * a[:, None, :]),
+        )
+        H = jnp.where(active, H, eye)
+        q = mul(_from_rotvec(jnp.linalg.solve(H, jnp.sum(G, 0))), q)
+    return q
 
 
 # --------------------------------------------------------------------------- checks
@@ -303,6 +353,11 @@ def align_vectors(
         sens = None
     else:
         q, B, lam = _kabsch(a, b, w_fin)
+        p, dominant = _dominant(a, b, w_fin)
+        if not is_concrete(dominant):
+            q = jnp.where(dominant, _refined(a, b, w_fin, p, dominant), q)
+        elif bool(dominant):
+            q = _refined(a, b, w_fin, p)
         sens = _sensitivity(B, lam, w) if return_sensitivity else None
         if has_inf is None:  # traced weights: both paths, the one that applies selected
             any_inf = jnp.any(is_inf)

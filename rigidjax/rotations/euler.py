@@ -27,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, DTypeLike, Float
 
-from .._checks import as_float, matrix, validate, vector
+from .._checks import as_float, is_concrete, matrix, validate, vector
 from .._custom_types import (
     EulerSeq,
     Frame,
@@ -381,7 +381,9 @@ def omega_to_rates(
 
     Singular at gimbal lock, `det J = ±sin β` (proper Euler) or `±cos β` (Tait–Bryan), where the
     rates blow up as 1/det. With `check=True` that is an error naming `angles` (a ValueError on
-    concrete angles, else a run-time `equinox.error_if`) where `|det J| < tol`. For aircraft
+    concrete angles, else a run-time `equinox.error_if`) where `|det J| < tol`; concrete angles
+    exactly at the lock (`det J = 0`, e.g. the default ZXZ at β = 0) are that error whatever
+    `check` (traced ones give inf/NaN there). For aircraft
     angles (THEORY §4; 002 #148) use `seq="ZYX"` with angles (yaw, pitch, roll) and body ω: it
     returns (yaw rate, pitch rate, roll rate). `angles`, `omega` must be finite.
     """
@@ -391,10 +393,10 @@ def omega_to_rates(
     c1, c2, c3 = J[..., 0], J[..., 1], J[..., 2]
     adj = jnp.stack([jnp.cross(c2, c3), jnp.cross(c3, c1), jnp.cross(c1, c2)], axis=-2)
     det = jnp.sum(c1 * adj[..., 0, :], -1)
-    if check:
+    if check or is_concrete(det):
 
         def locked(xp: Any, d: Any) -> Any:
-            return ~(xp.abs(d) >= tol)
+            return ~(xp.abs(d) >= tol) if check else ~(xp.abs(d) > 0)
 
         def detail(d: np.ndarray) -> str:
             k = _validation.first(locked(np, d))
@@ -406,12 +408,13 @@ def omega_to_rates(
         det = validate(
             det,
             locked,
-            f"angles are at gimbal lock: the middle angle of seq={seq!r} is within |det J| = "
-            f"|sin| or |cos| < {tol} of its singular value (0/π for proper Euler, ±π/2 for "
-            "Tait–Bryan)",
+            f"angles are at gimbal lock: the middle angle of seq={seq!r} is "
+            + (f"within |det J| = |sin| or |cos| < {tol} of" if check else "at")
+            + " its singular value (0/π for proper Euler, ±π/2 for Tait–Bryan)",
             detail,
             hint="; Euler-angle rates are singular there: use quaternion or rotation-vector "
-            "kinematics",
+            "kinematics, or the two-chart atlas of rigidjax.kinematics.euler_atlas "
+            "(darboux(..., method='euler') switches to the partner sequence before a lock)",
         )
     return jnp.einsum("...ij,...j->...i", adj, omega) / det[..., None]
 

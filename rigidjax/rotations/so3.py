@@ -6,11 +6,13 @@ left (space) angular velocity `Ṗ = ω × P`, right (body) `Ṗ = P (Ω × E)`,
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import DTypeLike, PRNGKeyArray
 
-from .._checks import matrix, validate, vector
+from .._checks import is_concrete, matrix, validate, vector
 from .._custom_types import Frame, Mat33, Mat33Like, Scalar, Vec3, Vec3Like
 from . import _series, _validation, quat
 
@@ -50,8 +52,11 @@ def _hat_sq(theta: Vec3, x2: Scalar) -> Mat33:
 
 def exp(theta: Vec3Like) -> Mat33:
     """`P(θ) = exp(θ × E) = E + (sin θ/θ) R + ((1 − cos θ)/θ²) R²`, `R = θ × E` (Zhilin; Euler's
-    theorem). Finite values and gradients at θ = 0."""
+    theorem). Finite values and gradients at θ = 0. A non-finite concrete `theta` is an error
+    naming it; traced, no check (the integrators' hot path): NaN in, NaN out."""
     theta = vector(theta, 3, "theta")
+    if is_concrete(theta):
+        theta = _validation.check_finite(theta, "theta", 1)
     x2 = _sq(theta)
     R = hat(theta)
     a = _series.sin_over(x2)[..., None, None]
@@ -147,9 +152,27 @@ def angular_velocity(P: Mat33Like, P_dot: Mat33Like, frame: Frame = "space") -> 
 
 def project(A: Mat33Like) -> Mat33:
     """Nearest rotation to a (nearly orthogonal) matrix in the Frobenius norm: `U diag(1,1,det) Vᵀ`
-    from the SVD `A = U S Vᵀ` (orthogonal Procrustes). `A` must be finite."""
+    from the SVD `A = U S Vᵀ`, singular values `σ1 ≥ σ2 ≥ σ3` (orthogonal Procrustes). `A` must
+    be finite, of rank ≥ 2 (`σ2 > 64 eps σ1`): otherwise (the zero matrix, one column or row
+    direction only) many rotations are equally near, and that is an error naming `A`."""
     A = _validation.check_finite(matrix(A, "A"), "A", 2)
-    U, _, Vt = jnp.linalg.svd(A)
+    U, S, Vt = jnp.linalg.svd(A)
+
+    def degenerate(xp: Any, s: Any) -> Any:
+        return ~(s[..., 1] > 64 * xp.finfo(s.dtype).eps * s[..., 0])
+
+    def detail(s: np.ndarray) -> str:
+        k = _validation.first(degenerate(np, s))
+        return f": singular values of {_validation.at('A', k)} = {_validation.fmt(s[k])}"
+
+    U = validate(
+        S,
+        degenerate,
+        "A has rank < 2: many rotations are equally near to it, so there is no nearest one",
+        detail,
+        hint="; give a matrix with at least two independent columns (e.g. a noisy rotation)",
+        on=U,
+    )
     d = jnp.linalg.det(U @ Vt)
     U = U.at[..., :, 2].multiply(d[..., None])
     return U @ Vt

@@ -1,5 +1,7 @@
 """The `rigidjax` command end to end in a temporary folder."""
 
+import re
+
 import numpy as np
 
 from rigidjax.cli import main
@@ -32,3 +34,23 @@ def test_cli_bad_inertia_writes_nothing(tmp_path, capsys):
     assert rc == 2  # a user error: status 2, like argparse's (was 1 before the CLI checks)
     assert "triangle" in capsys.readouterr().err
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_progress_bar_rounds_simulated_time(tmp_path, capsys):
+    """60 s in 50 segments of 1.2 s: the bar's count is a float sum (tqdm showed e.g.
+    40.800000000000004/60.0); it shows the rounded times, and 60/60 at the end."""
+    rc = main(["--t-end", "60", "--num", "51", "--out", str(tmp_path / "run")])
+    assert rc == 0
+    err = capsys.readouterr().err
+    assert "60/60 s" in err, err
+    assert not re.search(r"\d\.\d{7}", err), err
+
+
+def test_progress_bar_format():
+    from tqdm import tqdm
+
+    from rigidjax.cli.simulate import BAR_FORMAT
+
+    line = tqdm.format_meter(40.800000000000004, 60.0, 2.0, unit="s", bar_format=BAR_FORMAT)
+    assert "| 40.8/60 s [" in line, line
+    assert "40.800000000000004" in tqdm.format_meter(40.800000000000004, 60.0, 2.0, unit="s")
