@@ -67,17 +67,20 @@ def _has_torque(obj: Any) -> bool:
     return any(_has_torque(getattr(obj, f.name)) for f in fields)
 
 
-def _nonfinite_field(term: Any, args: PyTree, ts: Array, ys: PyTree, k: int) -> str | None:
-    """The cause of a failure in `[ts[k-1], ts[k]]` when it is the vector field's, not the
-    step's: the first of 33 equally spaced times of the interval at which the field, at the last
-    saved (finite) state, is non-finite; None if it is finite at all of them."""
+def nonfinite_field(
+    vf: Callable[[Array, PyTree], PyTree], ts: Array, ys: PyTree, k: int, torque: bool
+) -> str | None:
+    """The cause of a failure in `[ts[k-1], ts[k]]` when it is the vector field's `vf(t, y)`
+    (the torque's, with `torque`), not the step's: the first of 33 equally spaced times of the
+    interval at which the field, at the last saved (finite) state, is non-finite; None if it is
+    finite at all of them."""
     y = jax.tree.map(lambda a: a[k - 1], ys)
     grid = jnp.linspace(ts[k - 1], ts[k], 33)
-    ok = jax.vmap(lambda t: _all_finite(term.vf(t, y, args)))(grid)
+    ok = jax.vmap(lambda t: _all_finite(vf(t, y)))(grid)
     if not _all_finite(y) or bool(jnp.all(ok)):
         return None
     t = float(grid[int(jnp.argmin(ok))])
-    if _has_torque(term):
+    if torque:
         return (
             f"the torque returned a non-finite value (NaN or inf) at t = {t:.6g} for the finite "
             f"state reached at ts[{k - 1}]: make torque(t, omega, q) finite over the whole span"
@@ -103,7 +106,7 @@ def raise_failure(
 ) -> PyTree:
     """Raise `IntegrationError` for a failed solve, naming the output interval (concrete
     results), or attach the same check with `equinox.error_if` (traced results); returns `ys`.
-    `probe(k)` may name a cause found in the failed interval `k` (`_nonfinite_field`)."""
+    `probe(k)` may name a cause found in the failed interval `k` (`nonfinite_field`)."""
     if is_concrete(num_valid):
         if result == diffrax.RESULTS.successful:
             return ys
@@ -284,7 +287,10 @@ def solve_saved(
     except TypeError as e:
         raise_forward_mode(e)
     if options.throw:
-        probe = lambda k: _nonfinite_field(term, args, ts, ys, k)  # noqa: E731
+
+        def probe(k: int) -> str | None:
+            return nonfinite_field(lambda t, y: term.vf(t, y, args), ts, ys, k, _has_torque(term))
+
         ys = raise_failure(result, stats["num_valid"], ts, ys, options.max_steps, probe)
     return ys, stats, result
 

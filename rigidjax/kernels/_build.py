@@ -107,7 +107,7 @@ def load(name: str, targets: tuple[str, ...], headers: Headers = ()) -> str | No
     except (KernelUnavailable, OSError, AttributeError) as e:
         warnings.warn(
             f"rigidjax could not build its CPU kernel {name} ({e}); the same integration runs "
-            "through Diffrax and XLA instead, about 3.4x slower (measured on a 2-core CPU). "
+            "through Diffrax and XLA instead, 3-10x slower (measured on a 2-core CPU). "
             "Install a C++ compiler with OpenMP (g++, or clang++ with libomp; $CXX chooses it) "
             "to get it.",
             RuntimeWarning,

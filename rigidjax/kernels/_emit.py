@@ -37,7 +37,12 @@ def literal(x: Scalar) -> str:
         return "true" if x else "false"
     if isinstance(x, int | np.integer):
         return f"int64_t({int(x)})"
-    return f"T({float(x).hex()})"
+    x = float(x)
+    if np.isnan(x):
+        return "std::numeric_limits<T>::quiet_NaN()"
+    if np.isinf(x):
+        return f"{'-' if x < 0 else ''}std::numeric_limits<T>::infinity()"
+    return f"T({x.hex()})"
 
 
 _UNARY = {

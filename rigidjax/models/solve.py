@@ -4,6 +4,7 @@ otherwise, with the same steps and the same scalar operations."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 from collections.abc import Callable
@@ -19,6 +20,7 @@ from jaxtyping import Array, Float
 from .._integrate import (
     SolveOptions,
     fixed_step_count,
+    nonfinite_field,
     raise_failure,
     raise_forward_mode,
     solve_saved,
@@ -71,7 +73,8 @@ def kernel_solve(
 ) -> tuple[Array, dict[str, Array], diffrax.RESULTS]:
     """A kernel's solve with the steps of `solve_saved` (`n` equal steps of at most `dt0` per
     output interval) and its failures: more steps than `max_steps` (where Diffrax stops), or a
-    non-finite state; returns `(states (B, T, N), stats, result)`. Forward mode is a clear
+    non-finite state; returns `(states (B, T, N), stats, result)` (the caller raises a
+    failure: `raise_failure`). Forward mode is a clear
     error that names `adjoint=diffrax.ForwardMode()` (which takes the Diffrax path)."""
     width = ts[1:] - ts[:-1]
     n = fixed_step_count(width, jnp.asarray(options.dt0, ts.dtype))
@@ -99,8 +102,6 @@ def kernel_solve(
         num_rejected_steps=0 * num_steps,
         num_valid=1 + jnp.where(jnp.any(fails), first, n.shape[0]),
     )
-    if options.throw:
-        ys = raise_failure(result, stats["num_valid"], ts, (ys,), options.max_steps)[0]
     return ys, stats, result
 
 
@@ -164,6 +165,25 @@ def solve_model(
     state components as separate `(B,)` arrays (`single`: one body, as scalars, which
     `jax.vmap` turns into `(N,)` batches that XLA vectorises), evaluating the same scalar
     program as the kernel."""
+    ys, stats, result = _solve(model, ts, y0, p, dataclasses.replace(options, throw=False), single)
+    if options.throw:
+
+        def probe(k: int) -> str | None:
+            def vf(t, y):
+                return jax.vmap(model.field, in_axes=(None, 0, 0))(
+                    t, y, jnp.broadcast_to(p, (y.shape[0], p.shape[1]))
+                )
+
+            return nonfinite_field(vf, ts, ys, k, model.name == "torque")
+
+        ys = raise_failure(result, stats["num_valid"], ts, ys, options.max_steps, probe)
+    return ys, stats, result
+
+
+def _solve(
+    model: Model, ts: Array, y0: Array, p: Array, options: SolveOptions, single: bool
+) -> tuple[Array, dict[str, Array], diffrax.RESULTS]:
+    """`solve_model` without raising failures."""
     dtype = ts.dtype
     hoisted, missing = _compile(model, dtype)
     if hoisted is not None and kernel_options(options):
@@ -188,7 +208,7 @@ def solve_model(
             "from the field) cannot take: it runs on the Diffrax path instead, with the same "
             "steps (slower)",
             RuntimeWarning,
-            stacklevel=3,
+            stacklevel=4,
         )
     if hoisted is not None:
         field = hoisted.components
