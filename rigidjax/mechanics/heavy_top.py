@@ -42,7 +42,6 @@ from __future__ import annotations
 
 from typing import Unpack
 
-import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -59,9 +58,10 @@ from .._checks import (
     vector,
 )
 from .._custom_types import RealLike, Scalar, Vec3
-from .._integrate import SolveKwargs, SolveOptions, solve_saved
+from .._integrate import SolveKwargs, SolveOptions
 from .._trajectory import AbstractTrajectory
 from ..kinematics.formulations import Quaternion
+from ..models.solve import solve_tree
 from ..rotations import quat
 from ..solvers.exact_free_body import ExactFreeBody
 from ..solvers.splitting import LiePoissonSplitting
@@ -307,20 +307,16 @@ _QUATERNION = Quaternion(frame="body")  # q̇ = ½ q ∘ (0, Ω) and its step-en
 
 
 class _Field(eqx.Module):
-    """`(t, y, top) -> ẏ`, `y = (Ω, γ)` or `(Ω, γ, q)`."""
+    """`(t, y, (I, I⁻¹, m g r_c)) -> ẏ`, `y = (Ω, γ)` or `(Ω, γ, q)`: the Euler–Poisson
+    equations (`euler_poisson_rhs`) with the top's operators computed once, not per step."""
 
-    def __call__(self, t, y, top):
-        domega, dgamma = euler_poisson_rhs(top, y[0], y[1])
+    def __call__(self, t, y, args):
+        I, I_inv, mu = args
+        domega = euler_rhs(I, I_inv, y[0], jnp.cross(y[1], mu))
+        dgamma = jnp.cross(y[1], y[0])
         if len(y) == 2:
             return domega, dgamma
         return domega, dgamma, _QUATERNION.vector_field(y[2], y[0])
-
-
-def _normalize_quat(y):
-    """Step-end map: renormalise the quaternion (Ω, γ untouched: |γ| = 1 stays a check)."""
-    om, ga, q = y
-    q, jumped = _QUATERNION.step_end(q)
-    return (om, ga, q), jumped
 
 
 def _unit(x: Array, name: str, hint: str = "") -> Array:
@@ -448,13 +444,14 @@ def simulate_heavy_top(
 
     if isinstance(options.solver, ExactFreeBody | LiePoissonSplitting):
         return _simulate_split(top, omega0, gamma0, q0, ts, options)
-    ys, stats, result = solve_saved(
-        diffrax.ODETerm(_Field()),
+    ys, stats, result = solve_tree(
+        _Field(),
         ts,
         (omega0, gamma0) if q0 is None else (omega0, gamma0, q0),
+        (*top.operator(), top.gravity_moment),
         options,
-        args=top,
-        step_end=None if q0 is None else _normalize_quat,
+        unit=() if q0 is None else (2,),
+        name="heavy top",
     )
     q = None if q0 is None else ys[2]  # step-end states: unit, with a continuous sign
     return HeavyTopTrajectory(ts=ts, omega=ys[0], gamma=ys[1], quat=q, stats=stats, result=result)

@@ -26,16 +26,16 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Unpack
 
-import diffrax
 import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
 from .._checks import as_float, check_times, check_unit_norm, initial_vector, vector
 from .._custom_types import Frame, RealLike, Vec3
-from .._integrate import SolveKwargs, SolveOptions, solve_saved
+from .._integrate import SolveKwargs, SolveOptions
 from .._trajectory import AbstractTrajectory
 from ..kinematics.formulations import Quaternion
+from ..models.solve import solve_tree
 from ..rotations import quat
 from .body import RigidBody, euler_rhs
 
@@ -193,11 +193,6 @@ class _SixDofField(eqx.Module):
         )
 
 
-def _renormalise(y: RigidState):
-    q, jumped = _QUATERNION.step_end(y.q)
-    return RigidState(y.R, y.V, q, y.omega), jumped
-
-
 class SixDofTrajectory(AbstractTrajectory):
     """Solution of `simulate_6dof`: times `ts (T,)`, centre-of-mass position `R (T, 3)` and
     velocity `V (T, 3)` (space axes), attitude `quat (T, 4)` (unit, as integrated: its sign is
@@ -261,13 +256,14 @@ def simulate_6dof(
     q0 = quat.identity(dtype=dtype) if q0 is None else initial_vector(q0, 4, "q0", dtype)
     q0 = check_unit_norm(q0, "q0")
     I, I_inv = (a.astype(dtype) for a in body.operator())
-    ys, stats, result = solve_saved(
-        diffrax.ODETerm(_SixDofField(wrench)),
+    ys, stats, result = solve_tree(
+        _SixDofField(wrench),
         ts,
         RigidState(R0, V0, q0, omega0),
+        (I, I_inv, body.mass.astype(dtype)),
         options,
-        args=(I, I_inv, body.mass.astype(dtype)),
-        step_end=_renormalise,
+        unit=(2,),
+        name="6-DOF body",
     )
     # step-end states: normalised, with the sign of the integrated solution (continuous)
     return SixDofTrajectory(

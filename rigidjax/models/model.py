@@ -3,9 +3,15 @@ every backend (`rigidjax.models.solve`)."""
 
 from __future__ import annotations
 
+import functools
+import math
 from collections.abc import Callable
+from typing import Any
 
 import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array
 
 Field = Callable[[Array, Array, Array], Array]
@@ -17,8 +23,83 @@ class Model(eqx.Module):
     `name` for messages. The parameters `p` are per body (moments, masses); constants the field
     closes over (torque gains) are the field's own and reach `jax.grad` as well."""
 
-    field: Field = eqx.field(static=True)
+    field: Field  # a PyTree where it holds arrays (a bound method of a module)
     size: int = eqx.field(static=True)
     params: int = eqx.field(static=True)
     unit: tuple[tuple[int, int], ...] = eqx.field(static=True, default=())
     name: str = eqx.field(static=True, default="model")
+
+
+class TreeModel(eqx.Module):
+    """A model whose state and parameters are PyTrees (`(Ω, γ, q)`, a `RigidState`, ...) for one
+    body, flattened for the backends: `vf(t, y, args)` on the trees, `unit` the indices of the
+    state's leaves that are unit quaternions."""
+
+    vf: Callable  # a PyTree (its arrays, if any, are leaves)
+    y_def: jax.tree_util.PyTreeDef = eqx.field(static=True)
+    y_shapes: tuple[tuple[int, ...], ...] = eqx.field(static=True)
+    p_def: jax.tree_util.PyTreeDef = eqx.field(static=True)
+    p_shapes: tuple[tuple[int, ...], ...] = eqx.field(static=True)
+    unit: tuple[int, ...] = eqx.field(static=True)
+    name: str = eqx.field(static=True)
+
+    def model(self) -> Model:
+        """The flat `Model` (one per tree model: see `tree_model`)."""
+        sizes = [math.prod(s) for s in self.y_shapes]
+        starts = np.cumsum([0, *sizes])
+        unit = tuple((int(starts[i]), sizes[i]) for i in self.unit)
+        return Model(
+            self.field, int(starts[-1]), sum(math.prod(s) for s in self.p_shapes), unit, self.name
+        )
+
+    def unravel(self, flat: Array, which: str) -> Any:
+        """The tree of a flat state (`which="y"`, last axis) or parameters (`"p"`)."""
+        tree_def, shapes = (
+            (self.y_def, self.y_shapes) if which == "y" else (self.p_def, self.p_shapes)
+        )
+        lead, out, start = flat.shape[:-1], [], 0
+        for s in shapes:
+            n = math.prod(s)
+            out.append(flat[..., start : start + n].reshape(*lead, *s))
+            start += n
+        return jax.tree_util.tree_unflatten(tree_def, out)
+
+    def field(self, t, y, p):
+        dy = self.vf(t, self.unravel(y, "y"), self.unravel(p, "p"))
+        return jnp.concatenate(
+            [jnp.ravel(a).astype(y.dtype) for a in jax.tree_util.tree_leaves(dy)]
+        )
+
+
+def ravel(tree: Any, dtype) -> Array:
+    """The leaves of one body's `tree`, flattened and joined: `(N,)`."""
+    leaves = [jnp.ravel(jnp.asarray(a)).astype(dtype) for a in jax.tree_util.tree_leaves(tree)]
+    return jnp.concatenate([*leaves, jnp.zeros((0,), dtype)])
+
+
+def tree_model(
+    vf: Callable, y0: Any, args: Any, unit: tuple[int, ...] = (), name: str = "model"
+) -> tuple[TreeModel, Model]:
+    """The tree model of `vf(t, y, args)` for the trees `y0` (one body's state) and `args` (its
+    parameters), with its flat `Model`, kept per field and tree structure (so that the field is
+    traced once, as `jax.jit` traces a function once)."""
+    y_leaves, y_def = jax.tree_util.tree_flatten(y0)
+    p_leaves, p_def = jax.tree_util.tree_flatten(args)
+    tm = TreeModel(
+        vf,
+        y_def,
+        tuple(tuple(jnp.shape(a)) for a in y_leaves),
+        p_def,
+        tuple(tuple(jnp.shape(a)) for a in p_leaves),
+        unit,
+        name,
+    )
+    try:
+        return tm, _flat(tm)
+    except TypeError:  # an unhashable field
+        return tm, tm.model()
+
+
+@functools.lru_cache(maxsize=64)
+def _flat(tm: TreeModel) -> Model:
+    return tm.model()

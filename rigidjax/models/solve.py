@@ -8,7 +8,7 @@ import dataclasses
 import math
 import warnings
 from collections.abc import Callable
-from typing import cast
+from typing import Any, cast
 
 import diffrax
 import equinox as eqx
@@ -28,7 +28,7 @@ from .._integrate import (
 from ..kernels import model as model_kernel
 from ..kernels._scalar import Unsupported
 from ..solvers.explicit_rk import ExplicitRK
-from .model import Model
+from .model import Model, ravel, tree_model
 
 
 class BatchMaxRMS(eqx.Module):
@@ -111,7 +111,7 @@ class _Components(eqx.Module):
     (`kernels.model.field_components`) or, for a field without one, the model's own field
     mapped over the bodies."""
 
-    field: Callable = eqx.field(static=True)
+    field: Callable
     scalar: bool = eqx.field(static=True)
 
     def __call__(self, t, y, args):
@@ -229,3 +229,24 @@ def _solve(
     )
     ys = jnp.stack(ys, axis=-1)  # (T, B, N) or (T, N)
     return (ys[:, None] if single else ys), stats, result
+
+
+def solve_tree(
+    vf: Callable,
+    ts: Float[Array, " T"],
+    y0: Any,
+    args: Any,
+    options: SolveOptions,
+    *,
+    unit: tuple[int, ...] = (),
+    name: str = "model",
+) -> tuple[Any, dict[str, Array], diffrax.RESULTS]:
+    """`solve_model` for one body whose state `y0` and parameters `args` are PyTrees and whose
+    field is `vf(t, y, args)` (`unit`: the indices of the state's leaves that are unit
+    quaternions); returns `(ys, stats, result)`, `ys` the state's tree with a leading time axis.
+    Under `jax.vmap` the mapped bodies join one kernel call."""
+    dtype = ts.dtype
+    tm, model = tree_model(vf, y0, args, unit, name)
+    p = ravel(args, dtype)[None]
+    ys, stats, result = solve_model(model, ts, ravel(y0, dtype)[None], p, options, single=True)
+    return tm.unravel(ys[:, 0], "y"), stats, result
