@@ -36,6 +36,23 @@ def peak_fp64_flops() -> dict:
     return dict(flops=value, cores=cores, mhz=mhz, flops_per_cycle_per_core=16)
 
 
+def build_library(source: Path) -> tuple[ctypes.CDLL, str, str] | str:
+    """`source` compiled with the system's C compiler ($CC) and loaded: the library, the
+    compiler's vectorisation report and the command; or a note saying why not."""
+    cc = shlex.split(os.environ.get("CC", "cc"))
+    folder = Path(tempfile.mkdtemp(prefix="rigidjax-cref-"))
+    out = folder / f"{source.stem}.so"
+    cmd = [*cc, *FLAGS, "-fopt-info-vec-optimized", str(source), "-o", str(out)]
+    try:
+        done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    except (OSError, subprocess.SubprocessError) as e:
+        return f"no C compiler ({e}): the C reference rows are skipped"
+    if done.returncode != 0:
+        return f"building the C reference failed: {done.stderr[-1000:]}"
+    report = "\n".join(line for line in done.stderr.splitlines() if "loop vectorized" in line)
+    return ctypes.CDLL(str(out)), report, shlex.join(cmd)
+
+
 class CReference:
     """`CReference.build()` compiles the kernel (None, with `.note`, when there is no compiler);
     `run(w0 (B, 3), q0 (B, 4), N, dt, moments)` returns `(w, q)` after N RK4 steps."""
@@ -57,20 +74,11 @@ class CReference:
 
     @classmethod
     def build(cls) -> CReference | None:
-        cc = shlex.split(os.environ.get("CC", "cc"))
-        folder = Path(tempfile.mkdtemp(prefix="rigidjax-cref-"))
-        out = folder / "free_body.so"
-        cmd = [*cc, *FLAGS, "-fopt-info-vec-optimized", str(SOURCE), "-o", str(out)]
-        try:
-            done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
-        except (OSError, subprocess.SubprocessError) as e:
-            cls.note = f"no C compiler ({e}): the C reference row is skipped"
+        built = build_library(SOURCE)
+        if isinstance(built, str):
+            cls.note = built
             return None
-        if done.returncode != 0:
-            cls.note = f"building the C reference failed: {done.stderr[-1000:]}"
-            return None
-        report = "\n".join(line for line in done.stderr.splitlines() if "loop vectorized" in line)
-        return cls(ctypes.CDLL(str(out)), report, shlex.join(cmd))
+        return cls(*built)
 
     @staticmethod
     def pack(w0: np.ndarray, q0: np.ndarray, moments) -> tuple[np.ndarray, np.ndarray]:

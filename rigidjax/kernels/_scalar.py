@@ -176,7 +176,19 @@ class _Unroller:
                 return _cast(np.float64(xs[0]) ** params["y"], dtype)
         if name == "select_n" and _is_const(xs[0]):
             return xs[1 + int(xs[0])]
+        if name == "pow" and _is_const(xs[1]) and float(2 * xs[1]).is_integer():
+            return self.half_power(xs[0], float(xs[1]), dtype)
         return self.backend.apply(name, params, xs, dtype)
+
+    def half_power(self, x: Scalar, e: float, dtype) -> Scalar:
+        """`x ** e` for a constant `e` of whole or half units as `x ** n * sqrt(x)`: `r2 ** 1.5`
+        of a gravity field without `pow`, which does not vectorise (to an ulp of `pow`)."""
+        n = math.floor(e)
+        out = self.scalar("integer_pow", {"y": n}, [x], dtype) if n else None
+        if e != n:
+            root = self.backend.apply("sqrt", {}, [x], dtype)
+            out = root if out is None else self.mul(out, root, dtype)
+        return 1.0 if out is None else out
 
     def add(self, a, b, dtype):
         return self.scalar("add", {}, [a, b], dtype)

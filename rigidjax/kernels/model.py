@@ -2,12 +2,14 @@
 kernel written from the JAX field itself (`model.cc`): the fast path of every model with a
 torque, the heavy top, the satellite and the 6-DOF body.
 
-The field of one body, `f(t, y (N,), p (P,)) -> (N,)`, is traced once; the float constants it
-closes over (torque gains, a target attitude: tracers under `jax.jit`, `jax.vmap` or `jax.grad`)
-are lifted into a runtime parameter vector `c`, so that the C++ depends on the field's structure
-only and is built once per structure (cached on disk, `_build`). `model.h` holds the field as
-C++ statements (`_scalar.unroll` + `_emit.CEmitter`), its transposed Jacobian-vector product
-written the same way from the jaxpr of `jax.vjp`, and the tableau from Diffrax's coefficients.
+The field of one body, `f(t, y (N,), p (P,)) -> (N,)`, is traced once. As under `jax.jit`,
+the concrete constants it closes over are compile-time constants (folded: `e_Z` selects a row of
+a matrix instead of multiplying by 0 and 1), and the traced ones (torque gains swept under
+`jax.vmap`, differentiated by `jax.grad`) are lifted into a runtime parameter vector `c`, so that
+the C++ depends on them through their shapes only (built once, cached on disk, `_build`).
+`model.h` holds the field as C++ statements (`_scalar.unroll` + `_emit.CEmitter`), its
+transposed Jacobian-vector product written the same way from the jaxpr of `jax.vjp`, and the
+tableau from Diffrax's coefficients.
 The same scalar program, evaluated with JAX on one array per component (`_scalar.Components`),
 is the Diffrax path's field (`field_components`), so the two cannot drift apart."""
 
@@ -35,7 +37,7 @@ _NAME = "model"
 
 
 class Hoisted:
-    """A field of N states and P parameters with its float constants lifted out:
+    """A field of N states and P parameters with its traced float constants lifted out:
     `fn(t, y, p, c)`, the constants' values `c (Pc,)` (traced or not), and the jaxprs of `fn`
     and of its cotangent map, traced once."""
 
@@ -104,7 +106,7 @@ class _Traced(Exception):
 
 
 def hoist(field: Field, n: int, p: int, dtype) -> Hoisted:
-    """`field` traced on `t ()`, `y (n,)`, `p (p,)` of `dtype`, its float constants lifted
+    """`field` traced on `t ()`, `y (n,)`, `p (p,)` of `dtype`, its traced float constants lifted
     into `c`; kept (not traced again) for a hashable field whose constants are concrete, as
     `jax.jit` keeps a function's compilation. A traced integer constant (an index computed at
     run time) raises `Unsupported`."""
@@ -137,10 +139,10 @@ def _hoist(field: Field, n: int, p: int, dtype: str) -> Hoisted:
     if len(closed.out_avals) != 1 or closed.out_avals[0].shape != (n,):  # pyright: ignore
         raise ValueError(f"the model's field must return one array of shape ({n},)")
     consts = list(closed.consts)
-    floats = [i for i, x in enumerate(consts) if jnp.issubdtype(jnp.result_type(x), jnp.floating)]
-    for i, x in enumerate(consts):
-        if i not in floats and isinstance(x, jax.core.Tracer):
-            raise Unsupported("an integer or boolean computed at run time, closed over")
+    traced = [i for i, x in enumerate(consts) if isinstance(x, jax.core.Tracer)]
+    floats = [i for i in traced if jnp.issubdtype(jnp.result_type(consts[i]), jnp.floating)]
+    if len(floats) < len(traced):
+        raise Unsupported("an integer or boolean computed at run time, closed over")
     values = [jnp.asarray(consts[i]) for i in floats]
     c = jnp.concatenate([jnp.ravel(v).astype(dtype) for v in values] + [jnp.zeros((0,), dtype)])
 
