@@ -36,7 +36,7 @@ class RigidBody(eqx.Module):
         I = as_tensor(inertia)
         m = as_float(mass, "mass").astype(I.dtype)
         if check:
-            I = check_inertia(I, "inertia")
+            I = check_inertia(I, "inertia", diagonal=self.diagonal)
             m = check_positive(m, "mass")
         self.inertia = I
         self.mass = m

@@ -284,13 +284,18 @@ def _default_rtol(dtype: DTypeLike) -> float:
     return max(1e-9, 1e3 * float(jnp.finfo(dtype).eps))
 
 
-def _violations(I: Any, rtol: float, xp: Any) -> tuple[Any, ...]:
-    """Per-matrix diagnostics with the array module `xp` (numpy on concrete input, else jnp)."""
+def _violations(I: Any, rtol: float, xp: Any, diagonal: bool = False) -> tuple[Any, ...]:
+    """Per-matrix diagnostics with the array module `xp` (numpy on concrete input, else jnp);
+    a `diagonal` tensor's principal moments are its sorted diagonal (no eigensolver: one per
+    body of a traced batch cost as much as integrating it)."""
     asym = xp.max(xp.abs(I - xp.swapaxes(I, -1, -2)), axis=(-2, -1))
     size = xp.max(xp.abs(I), axis=(-2, -1))
     finite = xp.all(xp.isfinite(I), axis=(-2, -1))
-    # eigenvalues of the symmetric part (numpy's eigvalsh would read one triangle only)
-    w = xp.linalg.eigvalsh(xp.where(finite[..., None, None], 0.5 * (I + xp.swapaxes(I, -1, -2)), 0))
+    if diagonal:
+        w = xp.sort(xp.where(finite[..., None], xp.diagonal(I, axis1=-2, axis2=-1), 0), axis=-1)
+    else:  # eigenvalues of the symmetric part (numpy's eigvalsh would read one triangle only)
+        sym = 0.5 * (I + xp.swapaxes(I, -1, -2))
+        w = xp.linalg.eigvalsh(xp.where(finite[..., None, None], sym, 0))
     scale = xp.max(xp.abs(w), axis=-1)
     bad_sym = ~(asym <= rtol * size) | ~finite
     bad_pd = ~(w[..., 0] > rtol * scale)
@@ -299,7 +304,9 @@ def _violations(I: Any, rtol: float, xp: Any) -> tuple[Any, ...]:
     return finite, asym, size, w, excess, bad_sym, bad_pd, bad_tri
 
 
-def check_inertia(I: Mat33Like, name: str = "inertia", rtol: float | None = None) -> Mat33:
+def check_inertia(
+    I: Mat33Like, name: str = "inertia", rtol: float | None = None, *, diagonal: bool = False
+) -> Mat33:
     """Return `I` (..., 3, 3) unchanged after checking it is a valid inertia tensor for dynamics:
 
     1. finite and symmetric: `max|I − Iᵀ| ≤ rtol · max|I|`;
@@ -310,12 +317,12 @@ def check_inertia(I: Mat33Like, name: str = "inertia", rtol: float | None = None
 
     `rtol` defaults to `max(1e-9, 1000 eps)` of the dtype. On concrete input a ValueError with
     the numbers is raised; under jit/vmap (traced input) `equinox.error_if` raises at run time
-    with a static message.
+    with a static message. `diagonal`: `I` is diagonal by construction (principal moments).
     """
     I = matrix(I, name)
     tol = _default_rtol(I.dtype) if rtol is None else float(rtol)
     if not is_concrete(I):
-        _, _, _, _, _, bad_sym, bad_pd, bad_tri = _violations(I, tol, jnp)
+        _, _, _, _, _, bad_sym, bad_pd, bad_tri = _violations(I, tol, jnp, diagonal)
         I = eqx.error_if(
             I,
             bad_sym,
