@@ -78,17 +78,22 @@ RJ_INLINE void Stages(const T* y, const T* p, T t, T h, T (*k)[N], T (*z)[N], T*
   for (int j = 0; j < N; ++j) u[j] = y[j] + h * Row<Tab::S, 0, true>(k, j, T(0));
 }
 
+// 1 / |u| of unit group g.
+template <typename T>
+RJ_INLINE T InverseNorm(const T* u, int g) {
+  T s = T(0);
+  RJ_UNROLL
+  for (int j = Model::unit[g][0]; j < Model::unit[g][0] + Model::unit[g][1]; ++j) s += u[j] * u[j];
+  return T(1) / std::sqrt(s);
+}
+
 template <typename T>
 RJ_INLINE void Normalize(T* u) {
   RJ_UNROLL
   for (int g = 0; g < Model::NU; ++g) {
-    const int a = Model::unit[g][0], m = Model::unit[g][1];
-    T s = T(0);
+    const T r = InverseNorm(u, g);
     RJ_UNROLL
-    for (int j = a; j < a + m; ++j) s += u[j] * u[j];
-    const T r = T(1) / std::sqrt(s);
-    RJ_UNROLL
-    for (int j = a; j < a + m; ++j) u[j] *= r;
+    for (int j = Model::unit[g][0]; j < Model::unit[g][0] + Model::unit[g][1]; ++j) u[j] *= r;
   }
 }
 
@@ -221,10 +226,7 @@ void StepBack(int64_t m, const T (*__restrict x)[kBlock], const T (*__restrict C
     RJ_UNROLL
     for (int g = 0; g < Model::NU; ++g) {
       const int a = Model::unit[g][0], len = Model::unit[g][1];
-      T ss = T(0);
-      RJ_UNROLL
-      for (int j = a; j < a + len; ++j) ss += u[j] * u[j];
-      const T r = T(1) / std::sqrt(ss);
+      const T r = InverseNorm(u, g);
       T dot = T(0);
       RJ_UNROLL
       for (int j = a; j < a + len; ++j) dot += u[j] * r * lam[j][i];
@@ -355,6 +357,18 @@ bool Shared(const int32_t* n, const T* h, const T* t0, int64_t L, int64_t K) {
   return true;
 }
 
+// run(s, first, count) for each group of bodies that share their steps: all L·B bodies when
+// the rows share them (a vmapped single body still fills the vector lanes), else row by row;
+// s is the offset of the group's steps in n, h and t0.
+template <typename T, class Run>
+void ForEachGroup(const int32_t* n, const T* h, const T* t0, int64_t L, const Layout& at,
+                  Run run) {
+  const bool shared = Shared<T>(n, h, t0, L, at.K);
+  for (int64_t l = 0; l < (shared ? 1 : L); ++l) {
+    run(l * at.K, shared ? 0 : l, shared ? L * at.B : at.B);
+  }
+}
+
 ffi::Error Shapes(size_t y0, const ffi::Span<const int64_t>& pdims, size_t n, size_t h,
                   size_t t0, Layout* at, int64_t* L) {
   if (pdims.size() < 2 || pdims[pdims.size() - 2] != Model::P) {
@@ -389,11 +403,10 @@ ffi::Error ModelSteps(ffi::Buffer<DT> y0, ffi::Buffer<DT> p, ffi::Buffer<ffi::S3
   }
   const int32_t* nn = n.typed_data();
   const T *hh = h.typed_data(), *tt = t0.typed_data();
-  const bool shared = Shared<T>(nn, hh, tt, L, at.K);
-  for (int64_t l = 0; l < (shared ? 1 : L); ++l) {
-    Group<T>(y0.typed_data(), p.typed_data(), nn + l * at.K, hh + l * at.K, tt + l * at.K,
-             y->typed_data(), shared ? 0 : l, shared ? L * at.B : at.B, at);
-  }
+  ForEachGroup(nn, hh, tt, L, at, [&](int64_t s, int64_t first, int64_t count) {
+    Group<T>(y0.typed_data(), p.typed_data(), nn + s, hh + s, tt + s, y->typed_data(), first,
+             count, at);
+  });
   return ffi::Error::Success();
 }
 
@@ -417,12 +430,11 @@ ffi::Error ModelStepsBack(ffi::Buffer<DT> y, ffi::Buffer<DT> p, ffi::Buffer<ffi:
   }
   const int32_t* nn = n.typed_data();
   const T *hh = h.typed_data(), *tt = t0.typed_data();
-  const bool shared = Shared<T>(nn, hh, tt, L, at.K);
-  for (int64_t l = 0; l < (shared ? 1 : L); ++l) {
-    GroupBack<T>(y.typed_data(), p.typed_data(), nn + l * at.K, hh + l * at.K, tt + l * at.K,
-                 gy.typed_data(), y0b->typed_data(), pb->typed_data(), hb->typed_data(),
-                 tb->typed_data(), shared ? 0 : l, shared ? L * at.B : at.B, at);
-  }
+  ForEachGroup(nn, hh, tt, L, at, [&](int64_t s, int64_t first, int64_t count) {
+    GroupBack<T>(y.typed_data(), p.typed_data(), nn + s, hh + s, tt + s, gy.typed_data(),
+                 y0b->typed_data(), pb->typed_data(), hb->typed_data(), tb->typed_data(), first,
+                 count, at);
+  });
   return ffi::Error::Success();
 }
 

@@ -51,8 +51,6 @@ from .._checks import (
     as_float,
     check_positive,
     check_times,
-    check_unit_norm,
-    initial_vector,
     is_concrete,
     validate,
     vector,
@@ -64,7 +62,7 @@ from ..solvers.exact_free_body import ExactFreeBody, RigidBodyField
 from ..solvers.splitting import LiePoissonSplitting
 from .body import RigidBody
 from .dynamics import fixed_steps
-from .sixdof import SixDofTrajectory, Wrench, simulate_6dof
+from .sixdof import SixDofTrajectory, Wrench, initial_state, simulate_6dof
 
 
 def mean_motion(mu: RealLike, a: RealLike) -> Array:
@@ -258,19 +256,14 @@ def _simulate_split(body, R0, V0, q0, omega0, ts, mu, gravity_gradient, options)
             "moments (3,)) and q0, omega0 for those axes"
         )
     ts = check_times(ts)
-    dtype = ts.dtype
-    R0 = initial_vector(R0, 3, "R0", dtype)
-    V0 = initial_vector(V0, 3, "V0", dtype)
-    omega0 = initial_vector(omega0, 3, "omega0", dtype)
-    q0 = quat.identity(dtype=dtype) if q0 is None else initial_vector(q0, 4, "q0", dtype)
-    q0 = check_unit_norm(q0, "q0")
+    s = initial_state(R0, V0, q0, omega0, ts.dtype)
     field = _SplitSatellite(mu=mu, gravity_gradient=gravity_gradient)
     ys, stats, result = solve_saved(
         diffrax.ODETerm(field),
         ts,
-        (omega0, q0, (R0, V0)),
+        (s.omega, s.q, (s.R, s.V)),
         fixed_steps(options),
-        args=body.operator()[0].astype(dtype),
+        args=body.operator()[0].astype(ts.dtype),
     )
     omega, q, (R, V) = ys
     return SixDofTrajectory(ts=ts, R=R, V=V, quat=q, omega=omega, stats=stats, result=result)

@@ -193,6 +193,15 @@ class _SixDofField(eqx.Module):
         )
 
 
+def initial_state(R0: RealLike, V0: RealLike, q0: RealLike | None, omega0: RealLike, dtype):
+    """The checked initial `RigidState` (one body; `q0=None`: the identity)."""
+    R0 = initial_vector(R0, 3, "R0", dtype)
+    V0 = initial_vector(V0, 3, "V0", dtype)
+    omega0 = initial_vector(omega0, 3, "omega0", dtype)
+    q0 = quat.identity(dtype=dtype) if q0 is None else initial_vector(q0, 4, "q0", dtype)
+    return RigidState(R0, V0, check_unit_norm(q0, "q0"), omega0)
+
+
 class SixDofTrajectory(AbstractTrajectory):
     """Solution of `simulate_6dof`: times `ts (T,)`, centre-of-mass position `R (T, 3)` and
     velocity `V (T, 3)` (space axes), attitude `quat (T, 4)` (unit, as integrated: its sign is
@@ -250,16 +259,11 @@ def simulate_6dof(
         raise TypeError(f"wrench must be a callable (t, state) -> Wrench, got {wrench!r}")
     ts = check_times(as_float(ts, "ts"))
     dtype = ts.dtype
-    R0 = initial_vector(R0, 3, "R0", dtype)
-    V0 = initial_vector(V0, 3, "V0", dtype)
-    omega0 = initial_vector(omega0, 3, "omega0", dtype)
-    q0 = quat.identity(dtype=dtype) if q0 is None else initial_vector(q0, 4, "q0", dtype)
-    q0 = check_unit_norm(q0, "q0")
     I, I_inv = (a.astype(dtype) for a in body.operator())
     ys, stats, result = solve_tree(
         _SixDofField(wrench),
         ts,
-        RigidState(R0, V0, q0, omega0),
+        initial_state(R0, V0, q0, omega0, dtype),
         (I, I_inv, body.mass.astype(dtype)),
         options,
         unit=(2,),

@@ -138,7 +138,25 @@ def flow_from_start(inertia: Array, omega0: Array, q0: Array, ts: Array) -> tupl
     return omega, q / jnp.linalg.norm(q, axis=-1, keepdims=True)
 
 
-class ExactFreeBody(diffrax.AbstractSolver[None]):
+class AbstractFlowSolver(diffrax.AbstractSolver[None]):
+    """A fixed-step solver made of exact flows (`ExactFreeBody`, `LiePoissonSplitting`): no
+    error estimate, no solver state, linear interpolation between step ends."""
+
+    term_structure: ClassVar = diffrax.ODETerm
+    interpolation_cls: ClassVar[Callable[..., diffrax.LocalLinearInterpolation]] = (
+        diffrax.LocalLinearInterpolation
+    )
+
+    def error_order(self, terms: PyTree[diffrax.AbstractTerm]) -> RealScalarLike | None:
+        return None
+
+    def init(
+        self, terms: diffrax.AbstractTerm, t0: RealScalarLike, t1: RealScalarLike, y0: Y, args: Args
+    ) -> None:
+        return None
+
+
+class ExactFreeBody(AbstractFlowSolver):
     """The exact flow of the torque-free rigid body as a Diffrax solver: each step maps the
     state `(Ω, q)` at its start to the Euler–Poinsot solution at its end
     (`rigidjax.analytic.free_body_flow`: Jacobi elliptic functions for Ω, Carlson's integral of
@@ -153,20 +171,7 @@ class ExactFreeBody(diffrax.AbstractSolver[None]):
     the term must be `diffrax.ODETerm(RigidBodyField())`, `y = (Ω, q)` and `args` the principal
     moments. No error estimate: fixed steps only."""
 
-    term_structure: ClassVar = diffrax.ODETerm
-    interpolation_cls: ClassVar[Callable[..., diffrax.LocalLinearInterpolation]] = (
-        diffrax.LocalLinearInterpolation
-    )
-
     def order(self, terms: PyTree[diffrax.AbstractTerm]) -> int | None:
-        return None
-
-    def error_order(self, terms: PyTree[diffrax.AbstractTerm]) -> RealScalarLike | None:
-        return None
-
-    def init(
-        self, terms: diffrax.AbstractTerm, t0: RealScalarLike, t1: RealScalarLike, y0: Y, args: Args
-    ) -> None:
         return None
 
     def step(

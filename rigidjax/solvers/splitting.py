@@ -14,16 +14,13 @@ Touma & Wisdom 1994; Dullweber, Leimkuhler & McLachlan 1997). Order 4: Yoshida's
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import ClassVar
-
 import diffrax
 import equinox as eqx
 import jax.tree_util as jtu
 from jaxtyping import PyTree
 
 from .._custom_types import Args, BoolScalarLike, DenseInfo, RealScalarLike, Y
-from .exact_free_body import RigidBodyField, field_of, free_flow
+from .exact_free_body import AbstractFlowSolver, RigidBodyField, field_of, free_flow
 
 _CBRT2 = 2.0 ** (1.0 / 3.0)
 # Yoshida (1990) triple jump: S(w1 h) S(w0 h) S(w1 h) is of order 4 for a symmetric S of order 2.
@@ -59,7 +56,7 @@ def strang_step(field: RigidBodyField, t0: RealScalarLike, h: RealScalarLike, y:
     return _kick(field, t0 + h, y, args, 0.5 * h)
 
 
-class LiePoissonSplitting(diffrax.AbstractSolver[None]):
+class LiePoissonSplitting(AbstractFlowSolver):
     """Symmetric splitting of the exact free rigid-body flow (`ExactFreeBody`) and the torque
     kick, for torques that depend on the attitude (and time) only: the heavy top, the gravity
     gradient, any potential V(q). `order=2`: Strang (kick h/2, exact free flow h, kick h/2; one
@@ -74,11 +71,6 @@ class LiePoissonSplitting(diffrax.AbstractSolver[None]):
 
     splitting_order: int = eqx.field(static=True, default=2)
 
-    term_structure: ClassVar = diffrax.ODETerm
-    interpolation_cls: ClassVar[Callable[..., diffrax.LocalLinearInterpolation]] = (
-        diffrax.LocalLinearInterpolation
-    )
-
     def __init__(self, order: int = 2):
         if order not in (2, 4):
             raise ValueError(f"order must be 2 (Strang) or 4 (Yoshida triple jump), got {order!r}")
@@ -86,14 +78,6 @@ class LiePoissonSplitting(diffrax.AbstractSolver[None]):
 
     def order(self, terms: PyTree[diffrax.AbstractTerm]) -> int | None:
         return self.splitting_order
-
-    def error_order(self, terms: PyTree[diffrax.AbstractTerm]) -> RealScalarLike | None:
-        return None
-
-    def init(
-        self, terms: diffrax.AbstractTerm, t0: RealScalarLike, t1: RealScalarLike, y0: Y, args: Args
-    ) -> None:
-        return None
 
     def step(
         self,
