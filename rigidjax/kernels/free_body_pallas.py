@@ -1,6 +1,6 @@
 """The free rigid body with its attitude quaternion at fixed steps of an explicit Runge–Kutta
 method, as one Pallas kernel that fuses the whole time loop: the GPU counterpart of the CPU
-kernel `free_body.cc`, in the style of DiffEqGPU's kernel ensembles. Each program takes a
+model kernel (`model.cc`), in the style of DiffEqGPU's kernel ensembles. Each program takes a
 block of `BLOCK` bodies (one per GPU thread) and keeps their seven state components in
 registers over all steps; only the states at the output times go to memory. XLA's own loop
 (the component path) instead reads and writes the whole batch state several times a step.
@@ -92,8 +92,8 @@ def free_body_pallas(
 ) -> tuple[Float[Array, "B T 3"], Float[Array, "B T 4"]]:
     """Body angular velocities and quaternions `(B, K + 1, ·)` of B bodies at the start and
     after each of K intervals of `n[k]` steps of `method` (a type in `free_body.METHODS`) of
-    size `h[k]`: the arguments and results of `free_body.free_body`. `interpret=True` runs the
-    kernel in Pallas' interpreter (any backend: the CPU tests). The batch is padded to whole
+    size `h[k]`, coefficients `c (3, B or 1)` (`c1 = (I2 − I3)/I1`, cyclic). `interpret=True`
+    runs the kernel in Pallas' interpreter (any backend: the CPU tests). The batch is padded to whole
     blocks with resting bodies."""
     B, K, dtype = w0.shape[0], h.shape[0], w0.dtype
     Bp = -(-B // BLOCK) * BLOCK

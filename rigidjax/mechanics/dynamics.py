@@ -264,13 +264,15 @@ def simulate(
     fields as keywords; defaults: Tsit5 with unrolled stages (`ExplicitRK`; RKMK-Dopri5 for
     `"geometric"`), PID at `rtol = atol = 1e-10` in float64 (1e-6 in float32).
     Steps end at every output time and the values at `ts` are step-end states (unit
-    quaternions, no interpolation; `max_steps` bounds each output interval). Torque-free bodies
-    in principal axes with an explicit Runge–Kutta method (`RK4()`, the default Tsit5,
-    `diffrax.Dopri8()`, ...: `rigidjax.kernels.free_body.METHODS`), `diffrax.ConstantStepSize()`
-    and `dt0` (reverse-mode or no derivatives) run on the CPU in hand-written kernels,
-    `rigidjax.kernels.free_body`, built on first use: the same steps and numbers, with their own
-    adjoint for `jax.grad`; RK4 measured at 0.81–0.95× a hand-written C kernel and 3.3× the
-    XLA-compiled path (benchmarks/results/kernel.json, dynamics.json); on a GPU, in a Pallas
+    quaternions, no interpolation; `max_steps` bounds each output interval). Bodies in
+    principal axes with quaternion kinematics, with or without a torque, at fixed steps
+    (`diffrax.ConstantStepSize()` and `dt0`) of an explicit Runge–Kutta method (`RK4()`, the
+    default Tsit5, `diffrax.Dopri8()`, ...: `rigidjax.kernels.tableau.METHODS`; reverse-mode or
+    no derivatives) run on the CPU in a kernel written from the JAX field and the torque
+    (`rigidjax.models`, `rigidjax.kernels.model`), built on first use: the same steps and
+    numbers as the Diffrax path, with its own adjoint for `jax.grad`; 0.8–0.9× a hand-written C
+    kernel of the same model (benchmarks/results/models.json); a torque the kernel cannot take
+    runs through Diffrax with one warning. On a GPU the torque-free body runs in a Pallas
     kernel that fuses the time loop (`rigidjax.kernels.free_body_pallas`; gradients through
     Diffrax; not yet measured on a GPU);
     `ExplicitRK(method)` runs the same scheme through Diffrax.
