@@ -93,8 +93,8 @@ def free_body_pallas(
     """Body angular velocities and quaternions `(B, K + 1, ·)` of B bodies at the start and
     after each of K intervals of `n[k]` steps of `method` (a type in `free_body.METHODS`) of
     size `h[k]`, coefficients `c (3, B or 1)` (`c1 = (I2 − I3)/I1`, cyclic). `interpret=True`
-    runs the kernel in Pallas' interpreter (any backend: the CPU tests). The batch is padded to whole
-    blocks with resting bodies."""
+    runs the kernel in Pallas' interpreter (any backend: the CPU tests). The batch is padded to
+    whole blocks with resting bodies."""
     B, K, dtype = w0.shape[0], h.shape[0], w0.dtype
     Bp = -(-B // BLOCK) * BLOCK
     rest = jnp.zeros((Bp - B, 7), dtype).at[:, 3].set(1)
