@@ -493,6 +493,58 @@ def _sweep(d: dict) -> str:
     )
 
 
+def _models(d: dict) -> str:
+    sp, prob = _obj(d.get("speed")), _obj(d.get("problem"))
+    speed = [
+        [
+            name.replace("_", " "),
+            _g(r.get("rigidjax_body_steps_per_s")),
+            _g(r.get("c_body_steps_per_s")),
+            _ratio(r.get("ratio_rigidjax_over_c")),
+            _g(r.get("max_abs_difference")),
+        ]
+        for name, r in _dicts(sp.get("models")).items()
+    ]
+    slow = [
+        [name.replace("_", " "), _g(r.get("body_steps_per_s")), _ratio(r.get("vs_fast_path"))]
+        for name, r in _dicts(sp.get("diffrax_path")).items()
+    ]
+    grads = [
+        [name.replace("_", " "), str(r.get("wrt", "–")), _ratio(r.get("ratio"))]
+        for name, r in _dicts(d.get("gradient")).items()
+    ]
+    first = [
+        [
+            label.replace("_", " "),
+            name.replace("_", " "),
+            _g(r.get("forward_s")),
+            _g(r.get("gradient_s")),
+        ]
+        for label, runs in _dicts(d.get("first_calls")).items()
+        for name, r in _dicts(runs).items()
+    ]
+    return "\n\n".join(
+        [
+            f"Each model at {_g(prob.get('bodies'))} bodies × {_g(prob.get('steps'))} RK4 steps "
+            "(float64) on rigidjax's fast path (the CPU kernel written from the JAX field) and "
+            "as a hand-written C kernel of the same model (`benchmarks/reference/models.c`), "
+            "timed in interleaved rounds; the last column is the largest difference of their "
+            "final states.",
+            _table(
+                ["model", "rigidjax body-steps/s", "C body-steps/s", "rigidjax ÷ C", "max |Δ|"],
+                speed,
+            ),
+            "**The Diffrax path** on the same steps (`ExplicitRK(RK4())`: what adaptive and "
+            "implicit solvers use):\n\n" + _table(["model", "body-steps/s", "÷ fast path"], slow),
+            "**Gradients** (`jax.value_and_grad` of a loss of the final states, over the forward "
+            "run):\n\n" + _table(["model", "with respect to", "÷ forward"], grads),
+            "**First calls** in a fresh process (trace, kernel build, compile, run; 1000 bodies), "
+            "with empty caches and again with the caches of the first process:\n\n"
+            + _table(["caches", "model", "forward s", "gradient s"], first),
+        ]
+    )
+
+
 def _generic(d: dict) -> str:
     s = d.get("summary")
     items = s.items() if isinstance(s, dict) else ()
@@ -508,6 +560,7 @@ SECTIONS: dict[str, tuple[str, Callable[[dict], str]]] = {
     "checks.json": ("What the input checks cost", _checks),
     "sweep.json": ("Sweeps: throughput, devices, memory", _sweep),
     "kernel.json": ("The CPU kernels against hand-written C, 1e3 to 1e7 bodies", _generic),
+    "models.json": ("Every model at kernel speed: torques, tops, 6-DOF bodies against C", _models),
 }
 
 
