@@ -89,7 +89,7 @@ def gravity_gradient_torque(mu: RealLike, R: RealLike, q: RealLike, inertia: Rea
     if I.shape[-1:] == (3,) and I.shape[-2:] != (3, 3):
         I = I[..., :, None] * jnp.eye(3, dtype=I.dtype)
     r2 = jnp.sum(R * R, axis=-1, keepdims=True)
-    n = quat.rotate(quat.conj(vector(q, 4, "q")), R) / jnp.sqrt(r2)
+    n = quat.rotate(quat.conj(vector(q, 4, "q")), R) * (1 / jnp.sqrt(r2))  # one division
     In = jnp.einsum("...ij,...j->...i", I, n)
     return 3 * as_float(mu, "mu")[..., None] / r2**1.5 * jnp.cross(n, In)
 
@@ -208,7 +208,7 @@ class _SatelliteLoads(eqx.Module):
     def __call__(self, t, state) -> Wrench:
         R = state.R
         r2 = jnp.sum(R * R)
-        F = -self.mu * self.mass * R / r2**1.5
+        F = -(self.mu * self.mass / r2**1.5) * R  # one division, not one per component
         if self.gravity_gradient:
             K = gravity_gradient_torque(self.mu, R, state.q, self.inertia)
         else:

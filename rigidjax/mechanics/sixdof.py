@@ -178,7 +178,7 @@ class _SixDofField(eqx.Module):
     wrench: WrenchFn | None
 
     def __call__(self, t, y: RigidState, args):
-        I, I_inv, m = args
+        I, I_inv, inv_m = args  # 1/m: no division per stage
         q, _ = _QUATERNION.step_end(y.q)  # the load sees a unit quaternion
         if self.wrench is None:
             F = K = jnp.zeros_like(y.V)
@@ -187,7 +187,7 @@ class _SixDofField(eqx.Module):
             F, K = w.force, w.torque
         return RigidState(
             R=y.V,
-            V=F / m,
+            V=F * inv_m,
             q=_QUATERNION.vector_field(y.q, y.omega),
             omega=euler_rhs(I, I_inv, y.omega, K),
         )
@@ -264,7 +264,7 @@ def simulate_6dof(
         _SixDofField(wrench),
         ts,
         initial_state(R0, V0, q0, omega0, dtype),
-        (I, I_inv, body.mass.astype(dtype)),
+        (I, I_inv, 1 / body.mass.astype(dtype)),
         options,
         unit=(2,),
         name="6-DOF body",
