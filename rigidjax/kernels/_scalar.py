@@ -8,8 +8,8 @@ matrix products, reductions) cost nothing and only the scalar arithmetic remains
 carries that arithmetic out:
 
 - `CEmitter` writes it as C++ statements (`rigidjax.kernels.model`: the CPU kernel);
-- `Components` evaluates it with JAX on one array per scalar, e.g. a `(B,)` array per state
-  component of a batch (the Diffrax path: XLA fuses the stages into one loop over bodies with no
+- `_components.Components` evaluates it with JAX on one array per scalar, e.g. a `(B,)` array
+  per state component of a batch (the Diffrax path: XLA fuses the stages into one loop over bodies with no
   gathers or stacks; the GPU kernel: one `(128,)` register vector per component).
 
 Runtime checks inside the field (`equinox.error_if`, e.g. of `quat.to_matrix`) are dropped:
@@ -24,10 +24,10 @@ import math
 from collections.abc import Callable, Sequence
 from typing import Any, Protocol, runtime_checkable
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 from jax.extend import core as jex_core
+
+from .._checks import is_concrete
 
 Scalar = Any
 """A backend's scalar: a C++ expression (`CEmitter`) or an array (`Components`), or a Python
@@ -288,7 +288,7 @@ def read_literal(v) -> np.ndarray:
 
 def _const_array(c) -> np.ndarray:
     """A constant of an inner jaxpr as NumPy numbers (a tracer cannot be: Unsupported)."""
-    if isinstance(c, jax.core.Tracer):
+    if not is_concrete(c):
         raise Unsupported("a traced constant inside a nested call")
     a = np.asarray(c)
     return np.vectorize(lambda x: _cast(x, a.dtype), otypes=[object])(a) if a.size else a
@@ -484,42 +484,3 @@ def scalars(names: Sequence[Scalar], shape: tuple[int, ...]) -> np.ndarray:
     for i, x in enumerate(names):
         out[i] = x
     return out.reshape(shape)
-
-
-class Components:
-    """The backend that evaluates each scalar operation with `jax.lax` on arrays (one array per
-    scalar: a `(B,)` batch of a state component, or a scalar); constants stay Python numbers
-    and broadcast."""
-
-    def apply(self, name: str, params: dict, args: Sequence[Scalar], dtype) -> Scalar:
-        floats = [
-            a.dtype for a in args if not _is_const(a) and jnp.issubdtype(a.dtype, jnp.floating)
-        ]
-        real = floats[0] if floats else dtype
-        xs = [a if not _is_const(a) else jnp.asarray(a, _const_dtype(a, real)) for a in args]
-        shape = jnp.broadcast_shapes(*(jnp.shape(x) for x in xs))
-        xs = [jnp.broadcast_to(x, shape) for x in xs]
-        if name == "integer_pow":
-            return jax.lax.integer_pow(xs[0], params["y"])
-        if name == "convert_element_type":
-            return jax.lax.convert_element_type(xs[0], params["new_dtype"])
-        if name == "round":
-            return jax.lax.round(xs[0], params.get("rounding_method", 0))
-        return _LAX.get(name, getattr(jax.lax, name, None))(*xs)
-
-
-_LAX: dict[str, Callable] = {
-    "add_any": jax.lax.add,
-    "not": jax.lax.bitwise_not,
-    "and": jax.lax.bitwise_and,
-    "or": jax.lax.bitwise_or,
-}
-
-
-def _const_dtype(a: Scalar, real):
-    """A constant's element type beside arrays whose floats are `real`."""
-    if isinstance(a, bool | np.bool_):
-        return jnp.bool_
-    if isinstance(a, int | np.integer):
-        return jnp.int32
-    return real

@@ -10,7 +10,7 @@ the C++ depends on them through their shapes only (built once, cached on disk, `
 `model.h` holds the field as C++ statements (`_scalar.unroll` + `_emit.CEmitter`), its
 transposed Jacobian-vector product written the same way from the jaxpr of `jax.vjp`, and the
 tableau from Diffrax's coefficients.
-The same scalar program, evaluated with JAX on one array per component (`_scalar.Components`),
+The same scalar program, evaluated with JAX on one array per component (`_components.Components`),
 is the Diffrax path's field (`field_components`), so the two cannot drift apart."""
 
 from __future__ import annotations
@@ -18,18 +18,21 @@ from __future__ import annotations
 import functools
 import hashlib
 from collections.abc import Callable, Sequence
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import diffrax
 import jax
+import jax.core
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from .._checks import is_concrete
 from . import tableau
 from ._build import load
+from ._components import Components
 from ._emit import CEmitter
-from ._scalar import Components, Unsupported, _const_array, _is_const, scalars, unroll
+from ._scalar import Unsupported, _const_array, _is_const, scalars, unroll
 
 Field = Callable[[Array, Array, Array], Array]
 """`f(t, y (N,), p (P,)) -> ẏ (N,)` of one body."""
@@ -124,7 +127,7 @@ def hoist(field: Field, n: int, p: int, dtype) -> Hoisted:
 @functools.lru_cache(maxsize=64)
 def _hoist_concrete(field: Field, n: int, p: int, dtype: str) -> Hoisted:
     hoisted = _hoist(field, n, p, dtype)
-    if isinstance(hoisted.c, jax.core.Tracer):
+    if not is_concrete(hoisted.c):
         raise _Traced
     return hoisted
 
@@ -139,7 +142,7 @@ def _hoist(field: Field, n: int, p: int, dtype: str) -> Hoisted:
     if len(closed.out_avals) != 1 or closed.out_avals[0].shape != (n,):  # pyright: ignore
         raise ValueError(f"the model's field must return one array of shape ({n},)")
     consts = list(closed.consts)
-    traced = [i for i, x in enumerate(consts) if isinstance(x, jax.core.Tracer)]
+    traced = [i for i, x in enumerate(consts) if not is_concrete(x)]
     floats = [i for i in traced if jnp.issubdtype(jnp.result_type(consts[i]), jnp.floating)]
     if len(floats) < len(traced):
         raise Unsupported("an integer or boolean computed at run time, closed over")
@@ -242,7 +245,9 @@ def build(
         and dtype.name in tableau.DTYPES
     ):
         return None
-    text, names = _header(type(solver), dtype, hoisted.source(unit))
+    text, names = _header(
+        cast(type[diffrax.AbstractERK], type(solver)), dtype, hoisted.source(unit)
+    )
     if load(_NAME, names, (("model.h", text),)) is None:
         return None
     return Kernel(*names, hoisted.n, hoisted.p + hoisted.c.shape[0])

@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Unpack
+from typing import TYPE_CHECKING, Unpack, cast
 
 import diffrax
 import equinox as eqx
@@ -190,10 +190,11 @@ def _gpu_serves(options: SolveOptions, torque: Torque | None, dtype) -> bool:
 def _gpu_kernel(model: Model, options: SolveOptions, y0: Array, p: Array, ts: Array):
     """`(states (T, B, 7), stats, result)` from the Pallas kernel (in Pallas' interpreter where
     the backend is not a GPU: the tests). The kernel has no adjoint of its own: reverse mode
-    runs the same steps through Diffrax (`models.solve` with `ExplicitRK(method)`), whose
+    runs the same steps through Diffrax (`solve_model` with `ExplicitRK(method)`), whose
     reverse mode differentiates them."""
     method = method_of(options)
-    through = dataclasses.replace(options, solver=ExplicitRK(method), throw=False)
+    rk = cast(diffrax.AbstractRungeKutta, method)  # an explicit RK: `_gpu_serves` checked
+    through = dataclasses.replace(options, solver=ExplicitRK(rk), throw=False)
 
     def forward(y0, p, ts):
         width = ts[1:] - ts[:-1]

@@ -36,9 +36,9 @@ class TreeModel(eqx.Module):
     state's leaves that are unit quaternions."""
 
     vf: Callable  # a PyTree (its arrays, if any, are leaves)
-    y_def: jax.tree_util.PyTreeDef = eqx.field(static=True)
+    y_def: Any = eqx.field(static=True)  # a PyTreeDef
     y_shapes: tuple[tuple[int, ...], ...] = eqx.field(static=True)
-    p_def: jax.tree_util.PyTreeDef = eqx.field(static=True)
+    p_def: Any = eqx.field(static=True)
     p_shapes: tuple[tuple[int, ...], ...] = eqx.field(static=True)
     unit: tuple[int, ...] = eqx.field(static=True)
     name: str = eqx.field(static=True)

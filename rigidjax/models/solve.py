@@ -187,15 +187,13 @@ def _solve(
     dtype = ts.dtype
     hoisted, missing = _compile(model, dtype)
     if hoisted is not None and kernel_options(options):
+        c = hoisted.c.astype(dtype)
         try:
             kernel = model_kernel.build(hoisted, model.unit, method_of(options))
         except Unsupported as e:
             kernel, hoisted, missing = None, None, e.primitive
         if kernel is not None:
-            pk = jnp.concatenate(
-                [p, jnp.broadcast_to(hoisted.c.astype(dtype), (p.shape[0], hoisted.c.shape[0]))],
-                axis=1,
-            ).T
+            pk = jnp.concatenate([p, jnp.broadcast_to(c, (p.shape[0], c.shape[0]))], axis=1).T
 
             def run(n, taken, h, t0):
                 return model_kernel.run(kernel, y0, pk, taken, h, t0)

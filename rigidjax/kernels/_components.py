@@ -1,0 +1,53 @@
+"""The backend of `_scalar.unroll` that evaluates a field's scalar operations with JAX on one
+array per scalar: a `(B,)` batch of a state component on the Diffrax path (XLA fuses the stages
+into one loop over the bodies, with no gathers or stacks), or a `(128,)` register vector in a
+GPU kernel."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._scalar import Scalar, _is_const
+
+
+class Components:
+    """The backend that evaluates each scalar operation with `jax.lax` on arrays (one array per
+    scalar: a `(B,)` batch of a state component, or a scalar); constants stay Python numbers
+    and broadcast."""
+
+    def apply(self, name: str, params: dict, args: Sequence[Scalar], dtype) -> Scalar:
+        floats = [
+            a.dtype for a in args if not _is_const(a) and jnp.issubdtype(a.dtype, jnp.floating)
+        ]
+        real = floats[0] if floats else dtype
+        xs = [a if not _is_const(a) else jnp.asarray(a, _const_dtype(a, real)) for a in args]
+        shape = jnp.broadcast_shapes(*(jnp.shape(x) for x in xs))
+        xs = [jnp.broadcast_to(x, shape) for x in xs]
+        if name == "integer_pow":
+            return jax.lax.integer_pow(xs[0], params["y"])
+        if name == "convert_element_type":
+            return jax.lax.convert_element_type(xs[0], params["new_dtype"])
+        if name == "round":
+            return jax.lax.round(xs[0], params.get("rounding_method", 0))
+        return _LAX[name](*xs) if name in _LAX else getattr(jax.lax, name)(*xs)
+
+
+_LAX: dict[str, Callable] = {
+    "add_any": jax.lax.add,
+    "not": jax.lax.bitwise_not,
+    "and": jax.lax.bitwise_and,
+    "or": jax.lax.bitwise_or,
+}
+
+
+def _const_dtype(a: Scalar, real):
+    """A constant's element type beside arrays whose floats are `real`."""
+    if isinstance(a, bool | np.bool_):
+        return jnp.bool_
+    if isinstance(a, int | np.integer):
+        return jnp.int32
+    return real
