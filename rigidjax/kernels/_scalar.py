@@ -9,8 +9,9 @@ carries that arithmetic out:
 
 - `CEmitter` writes it as C++ statements (`rigidjax.kernels.model`: the CPU kernel);
 - `_components.Components` evaluates it with JAX on one array per scalar, e.g. a `(B,)` array
-  per state component of a batch (the Diffrax path: XLA fuses the stages into one loop over bodies with no
-  gathers or stacks; the GPU kernel: one `(128,)` register vector per component).
+  per state component of a batch (the Diffrax path: XLA fuses the stages into one loop over
+  bodies with no gathers or stacks; the GPU kernel: one `(128,)` register vector per
+  component).
 
 Runtime checks inside the field (`equinox.error_if`, e.g. of `quat.to_matrix`) are dropped:
 their host callbacks cost ~10× the arithmetic of an attitude torque, and the state they check

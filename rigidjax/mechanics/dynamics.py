@@ -23,7 +23,7 @@ from .._checks import (
     vector,
 )
 from .._custom_types import Frame, RealLike
-from .._integrate import SolveKwargs, SolveOptions, fixed_step_count, solve_saved
+from .._integrate import SolveKwargs, SolveOptions, fixed_step_count, raise_failure, solve_saved
 from .._trajectory import AbstractTrajectory
 from ..kernels import free_body as kernel
 from ..kernels import free_body_pallas as pallas_kernel
@@ -212,7 +212,10 @@ def _gpu_kernel(model: Model, options: SolveOptions, y0: Array, p: Array, ts: Ar
     run = jax.custom_vjp(forward)
     run.defvjp(lambda *a: jax.vjp(through_diffrax, *a), lambda pullback, g: pullback(g))
     ys, stats, result = kernel_solve(lambda n, taken, h, t0: run(y0, p, ts), ts, options)
-    return jnp.moveaxis(ys, 1, 0), stats, result
+    ys = jnp.moveaxis(ys, 1, 0)
+    if options.throw:
+        ys = raise_failure(result, stats["num_valid"], ts, ys, options.max_steps)
+    return ys, stats, result
 
 
 def fixed_steps(options: SolveOptions) -> SolveOptions:
