@@ -37,11 +37,9 @@ from .._checks import (
     as_float,
     broadcast_batch,
     check_finite,
-    check_positive,
     check_times,
     check_times_shape,
     check_unit_norm,
-    validate,
     vector,
 )
 from .._custom_types import Frame, RealLike
@@ -49,108 +47,15 @@ from .._integrate import SolveKwargs, SolveOptions
 from ..kinematics.formulations import Quaternion
 from ..models.solve import solve_tree
 from ..rotations import quat
+from ._gyrostat_body import Gyrostat
 from ._zoh import Controller, held_solve
-from .body import RigidBody, _apply
+from .body import _apply
 from .dynamics import Trajectory
 
 __all__ = ["Gyrostat", "GyrostatTrajectory", "angular_momentum", "energy", "simulate_gyrostat"]
 
 Torque = Callable[[Array, Array, Array], Array]
 _QUATERNION = Quaternion(frame="body")
-
-
-class Gyrostat(eqx.Module):
-    """A rigid body with rotors: `inertia` of the whole system (principal moments `(3,)` or a
-    tensor `(3, 3)`, as `RigidBody`), a constant internal momentum `h (3,)` (body axes; zero by
-    default), and optionally reaction wheels: spin axes `wheel_axes (3, n)` (columns, normalised
-    here), axial inertias `wheel_inertia (n,)` and a motor-torque bound `wheel_torque_max`
-    (scalar or `(n,)`; unbounded by default). One gyrostat (no batch dimensions): `simulate`
-    broadcasts the initial states, `jax.vmap` maps over gyrostats."""
-
-    body: RigidBody
-    h: Float[Array, "3"]
-    wheel_axes: Float[Array, "3 n"] | None
-    wheel_inertia: Float[Array, " n"] | None
-    wheel_torque_max: Float[Array, " n"] | None
-
-    def __init__(
-        self,
-        inertia: RealLike,
-        h: RealLike | None = None,
-        wheel_axes: RealLike | None = None,
-        wheel_inertia: RealLike | None = None,
-        wheel_torque_max: RealLike | None = None,
-    ):
-        self.body = RigidBody(inertia)
-        if self.body.batch_shape:
-            raise ValueError(
-                f"Gyrostat takes one body, got inertia of batch shape {self.body.batch_shape}: "
-                "use jax.vmap over the gyrostat for batches"
-            )
-        dtype = self.body.inertia.dtype
-        self.h = (
-            jnp.zeros(3, dtype) if h is None else check_finite(_exact(h, (3,), "h", dtype), "h")
-        )
-        if (wheel_axes is None) != (wheel_inertia is None):
-            raise ValueError(
-                "give both wheel_axes (3, n) and wheel_inertia (n,) for a gyrostat with wheels "
-                "(or neither)"
-            )
-        if wheel_axes is None or wheel_inertia is None:
-            if wheel_torque_max is not None:
-                raise ValueError("wheel_torque_max bounds the wheels' torques: give wheel_axes")
-            self.wheel_axes = self.wheel_inertia = self.wheel_torque_max = None
-            return
-        A = as_float(wheel_axes, "wheel_axes").astype(dtype)
-        if A.ndim != 2 or A.shape[0] != 3 or A.shape[1] == 0:
-            raise ValueError(
-                f"wheel_axes must have shape (3, n): the spin axes as columns, got {A.shape}"
-            )
-        n = A.shape[1]
-        A = check_unit_norm(A.T, "wheel_axes (columns)", "; give unit spin axes").T
-        self.wheel_axes = A / jnp.linalg.norm(A, axis=0)
-        J = check_positive(_exact(wheel_inertia, (n,), "wheel_inertia", dtype), "wheel_inertia")
-        self.wheel_inertia = validate(
-            self.body.inertia - (self.wheel_axes * J) @ self.wheel_axes.T,
-            lambda xp, M: xp.linalg.eigvalsh(M)[..., :1] <= 0,
-            "wheel_inertia too large: I − A diag(J) Aᵀ (the inertia with the wheels free) must "
-            "be positive definite; give the inertia of the whole system, wheels included",
-            on=J,
-        )
-        self.wheel_torque_max = (
-            None
-            if wheel_torque_max is None
-            else check_positive(
-                jnp.broadcast_to(as_float(wheel_torque_max, "wheel_torque_max"), (n,)).astype(
-                    dtype
-                ),
-                "wheel_torque_max",
-            )
-        )
-
-    @property
-    def wheels(self) -> int:
-        """The number of wheels (0 without)."""
-        return 0 if self.wheel_axes is None else self.wheel_axes.shape[1]
-
-    def momentum(self, wheel_speed: Array | None) -> Array:
-        """`h = h_const + A J ω_w` (`(..., 3)`) for wheel speeds `(..., n)` (or the constant h)."""
-        if self.wheel_axes is None or self.wheel_inertia is None or wheel_speed is None:
-            return self.h
-        return self.h + (wheel_speed * self.wheel_inertia) @ self.wheel_axes.T
-
-    def clip(self, u: Array) -> Array:
-        """Motor torques `u (n,)` clipped to `±wheel_torque_max`."""
-        if self.wheel_torque_max is None:
-            return u
-        return jnp.minimum(jnp.maximum(u, -self.wheel_torque_max), self.wheel_torque_max)
-
-
-def _exact(x: RealLike, shape: tuple[int, ...], name: str, dtype) -> Array:
-    x = as_float(x, name).astype(dtype)
-    if x.shape != shape:
-        raise ValueError(f"{name} must have shape {shape}, got {x.shape}")
-    return x
 
 
 class GyrostatTrajectory(Trajectory):
@@ -270,9 +175,7 @@ def simulate_gyrostat(
         q0 = check_unit_norm(q0, "q0")
     ws0 = jnp.zeros(n, dtype) if wheel_speed0 is None else vector(wheel_speed0, n, "wheel_speed0")
     ws0 = check_finite(ws0.astype(dtype), "wheel_speed0")
-    batch = broadcast_batch(
-        omega0=omega0.shape[:-1], q0=q0.shape[:-1], wheel_speed0=ws0.shape[:-1]
-    )
+    batch = broadcast_batch(omega0=omega0.shape[:-1], q0=q0.shape[:-1], wheel_speed0=ws0.shape[:-1])
     one = (ts[0], omega0.reshape(-1, 3)[0], q0.reshape(-1, 4)[0])
     if torque is not None:
         _check_callable(torque, "torque", "torque(t, omega, q)", one, (3,))
@@ -302,9 +205,10 @@ def simulate_gyrostat(
         if controller is None:
             ys, stats, result = step(ts, y0, jnp.zeros(m, dtype), options)
             return ys, stats, result, None, None
+        law = controller
 
         def command(t, y):
-            u = controller(t, y[0], y[1], controller_params)
+            u = law(t, y[0], y[1], controller_params)
             return g.clip(jnp.asarray(u).astype(dtype)) if n else jnp.asarray(u).astype(dtype)
 
         assert control_period is not None
@@ -390,7 +294,7 @@ def energy(gyrostat: Gyrostat, traj: GyrostatTrajectory) -> Float[Array, "*batch
     """Kinetic energy: `½ Ω·IΩ` for constant h (the Zhukovsky–Volterra integral); with wheels
     `½ Ω·(I − A J Aᵀ)Ω + ½ Σ J_i (a_i·Ω + ω_w,i)²` (rotor energy included)."""
     I, w = gyrostat.body.inertia, traj.omega
-    if gyrostat.wheel_axes is None or gyrostat.wheel_inertia is None:
+    if gyrostat.wheel_axes is None or gyrostat.wheel_inertia is None or traj.wheel_speed is None:
         return 0.5 * jnp.einsum("...i,ij,...j->...", w, I, w)
     A, J = gyrostat.wheel_axes, gyrostat.wheel_inertia
     M = I - (A * J) @ A.T
