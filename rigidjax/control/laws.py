@@ -41,7 +41,8 @@ class QuaternionPD(eqx.Module):
     q_target: Float[Array, "4"]
     allocation: Float[Array, "n 3"] | None
 
-    def __call__(self, t: Array, omega: Array, q: Array, params: Any = None) -> Array:
+    def __call__(self, t: RealLike, omega: RealLike, q: RealLike, params: Any = None) -> Array:
+        omega, q = jnp.asarray(omega), jnp.asarray(q)
         kp, kd = _gain(params, "kp", self.kp), _gain(params, "kd", self.kd)
         qe = quat.mul(quat.conj(self.q_target), q)
         sign = jnp.where(qe[0] < 0, -1.0, 1.0)
@@ -82,7 +83,8 @@ class BDot(eqx.Module):
     gain: Float[Array, ""]
     b_field: Callable[[Array], Array] | None
 
-    def __call__(self, t: Array, omega: Array, q: Array, params: Any = None) -> Array:
+    def __call__(self, t: RealLike, omega: RealLike, q: RealLike, params: Any = None) -> Array:
+        t, omega, q = jnp.asarray(t), jnp.asarray(omega), jnp.asarray(q)
         k = _gain(params, "gain", self.gain)
         b = jnp.array([0.0, 0.0, 1.0], omega.dtype) if self.b_field is None else self.b_field(t)
         B = quat.rotate(quat.conj(q), jnp.asarray(b, omega.dtype))
