@@ -7,7 +7,9 @@ The package is layered; each layer uses only the ones above it:
   `LiePoissonSplitting`);
 - `_integrate`: the one driver from `SolveOptions` to `diffrax.diffeqsolve` to a trajectory;
 - `kinematics`: the Darboux problem (`darboux`, the kinematics formulations);
-- `mechanics`: bodies, inertia, Euler's equations (`simulate`), heavy top, 6-DOF, Kepler, ...;
+- `mechanics`: bodies, inertia, Euler's equations (`simulate`), gyrostat, heavy top, 6-DOF,
+  Kepler, ...;
+- `control`: sampled-data control laws (`quaternion_pd`, `bdot`);
 - `analytic`: closed forms (Jacobi elliptic functions, Euler–Poinsot, the symmetric top);
 - `fit`: identification (`identify_inertia`) and experiment design (`design_excitation`);
 - `cli`: the `rigidjax` command.
@@ -16,7 +18,7 @@ The package is layered; each layer uses only the ones above it:
 import sys as _sys
 from typing import TYPE_CHECKING
 
-from . import analytic, fit, kinematics, mechanics, observables, rotations, solvers
+from . import analytic, control, fit, kinematics, mechanics, observables, rotations, solvers
 
 if TYPE_CHECKING:  # imported on first use: see __getattr__
     from . import sweep
@@ -33,11 +35,14 @@ from .kinematics import (
     omega_path,
 )
 from .mechanics import (
+    Gyrostat,
+    GyrostatTrajectory,
     HeavyTop,
     RigidBody,
     Trajectory,
     angular_momentum,
     energy,
+    gyrostat,
     heavy_top,
     inertia,
     invariants,
@@ -60,6 +65,7 @@ _sys.modules.update(
             andoyer,
             euler,
             gibbs,
+            gyrostat,
             heavy_top,
             inertia,
             invariants,
@@ -83,6 +89,8 @@ __all__ = [
     "ExactFreeBody",
     "ExplicitRK",
     "ExcitationDesign",
+    "Gyrostat",
+    "GyrostatTrajectory",
     "HeavyTop",
     "InertiaEstimate",
     "LiePoissonSplitting",
@@ -99,6 +107,7 @@ __all__ = [
     "Trajectory",
     "analytic",
     "andoyer",
+    "control",
     "angular_momentum",
     "darboux",
     "design_excitation",
@@ -106,6 +115,7 @@ __all__ = [
     "euler",
     "fit",
     "gibbs",
+    "gyrostat",
     "heavy_top",
     "identify_inertia",
     "inertia",

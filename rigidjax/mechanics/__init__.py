@@ -1,10 +1,11 @@
 """Mechanics: rigid bodies and inertia tensors, Euler's equations (`simulate`), invariants,
-stability of stationary rotations, the heavy top, 6-DOF bodies, the Kepler problem and the
-gravity-gradient satellite."""
+stability of stationary rotations, the gyrostat, the heavy top, 6-DOF bodies, the Kepler
+problem and the gravity-gradient satellite."""
 
 from . import (
     body,
     dynamics,
+    gyrostat,
     heavy_top,
     inertia,
     invariants,
@@ -15,10 +16,13 @@ from . import (
 )
 from .body import RigidBody
 from .dynamics import Trajectory, simulate
+from .gyrostat import Gyrostat, GyrostatTrajectory
 from .heavy_top import HeavyTop, simulate_heavy_top
 from .invariants import angular_momentum, energy
 
 __all__ = [
+    "Gyrostat",
+    "GyrostatTrajectory",
     "HeavyTop",
     "RigidBody",
     "Trajectory",
@@ -26,6 +30,7 @@ __all__ = [
     "body",
     "dynamics",
     "energy",
+    "gyrostat",
     "heavy_top",
     "inertia",
     "invariants",

@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Unpack, cast
+from typing import TYPE_CHECKING, Any, Unpack, cast
 
 import diffrax
 import equinox as eqx
@@ -35,6 +35,7 @@ from ..solvers.exact_free_body import ExactFreeBody, RigidBodyField, flow_from_s
 from ..solvers.explicit_rk import ExplicitRK
 from ..solvers.rkmk import LieTerm
 from ..solvers.splitting import LiePoissonSplitting
+from ._gyrostat_body import Gyrostat
 from ._rigid_model import moments_params, rigid_body_model
 from .body import RigidBody, euler_rhs
 
@@ -242,13 +243,18 @@ def fixed_steps(options: SolveOptions) -> SolveOptions:
 
 
 def simulate(
-    body: RigidBody,
+    body: RigidBody | Gyrostat,
     omega0: RealLike,
     q0: RealLike | None = None,
     ts: RealLike | None = None,
     torque: Torque | None = None,
     kinematics: str | AbstractKinematics = "quat",
     *,
+    wheel_speed0: RealLike | None = None,
+    h_rate: Callable[[Array], Array] | None = None,
+    controller: Callable[..., Array] | None = None,
+    control_period: float | None = None,
+    controller_params: Any = None,
     torque_frame: Frame = "body",
     options: SolveOptions | None = None,
     check: bool = True,
@@ -291,7 +297,33 @@ def simulate(
     for inputs validated beforehand: traced inputs then compile without runtime checks, which
     compiles faster and lets JAX's persistent compilation cache store the program (it refuses
     programs with host callbacks, which runtime checks are). The shapes are still checked.
+
+    A `rigidjax.Gyrostat` as `body` integrates `I Ω̇ + Ω × (IΩ + h) = τ − ḣ` instead
+    (`gyrostat.simulate_gyrostat`, which takes `wheel_speed0`, `h_rate`, and a sampled-data
+    `controller` with `control_period` and `controller_params`).
     """
+    if isinstance(body, Gyrostat):
+        from .gyrostat import simulate_gyrostat  # it imports this module
+
+        return simulate_gyrostat(
+            body, omega0, q0, ts, torque, kinematics, wheel_speed0=wheel_speed0,
+            h_rate=h_rate, controller=controller, control_period=control_period,
+            controller_params=controller_params, torque_frame=torque_frame, options=options,
+            check=check, **solve_kwargs,
+        )  # fmt: skip
+    gyro = dict(
+        wheel_speed0=wheel_speed0,
+        h_rate=h_rate,
+        controller=controller,
+        control_period=control_period,
+        controller_params=controller_params,
+    )
+    given = sorted(k for k, v in gyro.items() if v is not None)
+    if given:
+        raise ValueError(
+            f"{', '.join(given)} apply to a gyrostat: give rigidjax.Gyrostat(inertia, ...) as "
+            "the body (Gyrostat(inertia) is the rigid body itself, with h = 0)"
+        )
     options = SolveOptions.of(options, solve_kwargs)
     if ts is None:
         raise ValueError("ts (the output times) is required")

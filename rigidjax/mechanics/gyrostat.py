@@ -1,0 +1,302 @@
+"""The gyrostat: a rigid body carrying rotors, `I Ω̇ + Ω × (IΩ + h) = τ − ḣ` (body axes).
+
+`h` is the rotors' angular momentum relative to the body, in body axes; `I` the inertia of the
+whole system (rotors included, as if locked). Three ways to give `h`:
+
+- constant `h`: the Zhukovsky–Volterra gyrostat (Zhukovsky 1885, Volterra 1899; Wittenburg,
+  *Dynamics of Multibody Systems*, 2nd ed., §4.1). Without torque its integrals are the energy
+  `T = ½ Ω·IΩ` and the squared momentum `|IΩ + h|²`;
+- `h_rate(t)`: `ḣ` a function of time, `h(t) = h(t0) + ∫ ḣ` integrated with the state;
+- reaction wheels: unit spin axes `A = [a_1 … a_n] (3, n)`, axial inertias `J (n,)`, wheel
+  speeds relative to the body `ω_w (n,)` as states, motor torques `u (n,)` (on the wheels) as
+  inputs. Then `h = A J ω_w` and each wheel obeys `J_i (a_i·Ω̇ + ω̇_w,i) = u_i`, so
+  `(I − A J Aᵀ) Ω̇ = τ − A u − Ω × (IΩ + h)`, `ω̇_w = u/J − Aᵀ Ω̇`
+  (Schaub & Junkins, *Analytical Mechanics of Space Systems*, 4th ed., §4.5; Basilisk's
+  `reactionWheelStateEffector`). Without torque the energy
+  `½ Ω·(I − A J Aᵀ)Ω + ½ Σ J_i (a_i·Ω + ω_w,i)²` and `|IΩ + h|` are conserved.
+
+The attitude is `q̇ = ½ q ∘ (0, Ω)` (Borisov–Mamaev 001). `simulate(gyrostat, ...)` integrates
+the model on `rigidjax.models.solve_tree`: the CPU kernel written from the field at fixed
+explicit Runge–Kutta steps, else Diffrax; with a `controller`, sample by sample
+(`rigidjax.mechanics._zoh`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, Unpack
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from .._checks import (
+    as_float,
+    broadcast_batch,
+    check_finite,
+    check_times,
+    check_times_shape,
+    check_unit_norm,
+    vector,
+)
+from .._custom_types import Frame, RealLike
+from .._integrate import SolveKwargs, SolveOptions
+from ..kinematics.formulations import Quaternion
+from ..models.solve import solve_tree
+from ..rotations import quat
+from ._gyrostat_body import Gyrostat
+from ._zoh import Controller, held_solve
+from .body import _apply
+from .dynamics import Trajectory
+
+__all__ = ["Gyrostat", "GyrostatTrajectory", "angular_momentum", "energy", "simulate_gyrostat"]
+
+Torque = Callable[[Array, Array, Array], Array]
+_QUATERNION = Quaternion(frame="body")
+
+
+class GyrostatTrajectory(Trajectory):
+    """Solution of `simulate` for a `Gyrostat`: `omega`, `quat` as `Trajectory`, the rotors'
+    momentum `h (..., T, 3)`, with wheels `wheel_speed (..., T, n)` (relative to the body), and
+    with a controller the sample times `control_ts (K,)` and the commands applied (clipped)
+    from each sample to the next, `command (..., K, m)`."""
+
+    h: Float[Array, "*batch T 3"]
+    wheel_speed: Float[Array, "*batch T n"] | None = None
+    control_ts: Float[Array, " K"] | None = None
+    command: Float[Array, "*batch K m"] | None = None
+
+
+class _Field(eqx.Module):
+    """The gyrostat's field on one body's state `(Ω, q)`, `(Ω, q, h)` (`h_rate`) or
+    `(Ω, q, ω_w)` (wheels), args `(I, I⁻¹, h, command)` or, with wheels,
+    `(I, (I − A J Aᵀ)⁻¹, h, A, J, u)`; the command is a body torque `(3,)` or motor torques."""
+
+    torque: Torque | None
+    h_rate: Callable[[Array], Array] | None
+    torque_frame: str = eqx.field(static=True)
+    wheels: bool = eqx.field(static=True)
+
+    def __call__(self, t, y, args):
+        w, q = y[0], y[1]
+        K = jnp.zeros_like(w) if self.wheels else args[-1]
+        if self.torque is not None:
+            tau = jnp.asarray(self.torque(t, w, q)).astype(w.dtype)
+            K = K + (quat.rotate(quat.conj(q), tau) if self.torque_frame == "space" else tau)
+        dq = _QUATERNION.vector_field(q, w)
+        if self.wheels:
+            I, M_inv, h0, A, J, u = args
+            h = h0 + A @ (J * y[2])
+            dw = M_inv @ (K - A @ u - jnp.cross(w, I @ w + h))
+            return dw, dq, u / J - A.T @ dw
+        I, I_inv, h = args[0], args[1], args[2]
+        if self.h_rate is None:
+            return _apply(I_inv, K - jnp.cross(w, _apply(I, w) + h)), dq
+        h = y[2]
+        hd = jnp.asarray(self.h_rate(t)).astype(w.dtype)
+        return _apply(I_inv, K - hd - jnp.cross(w, _apply(I, w) + h)), dq, hd
+
+
+def _check_callable(f: Any, name: str, call: str, args: tuple, shape: tuple[int, ...]) -> None:
+    """A clear error, before integrating, if `f` is not a callable returning `shape` (found by
+    tracing it once, `jax.eval_shape`)."""
+    if not callable(f):
+        raise TypeError(f"{name} must be a callable {call} -> {shape}, got {f!r}")
+    out = jax.eval_shape(f, *args)
+    got = getattr(out, "shape", None)
+    if got != shape:
+        raise ValueError(
+            f"{name} must return shape {shape} for one body ({call}), got "
+            f"{got if got is not None else type(out).__name__}"
+        )
+
+
+def simulate_gyrostat(
+    gyrostat: Gyrostat,
+    omega0: RealLike,
+    q0: RealLike | None = None,
+    ts: RealLike | None = None,
+    torque: Torque | None = None,
+    kinematics: Any = "quat",
+    *,
+    wheel_speed0: RealLike | None = None,
+    h_rate: Callable[[Array], Array] | None = None,
+    controller: Controller | None = None,
+    control_period: float | None = None,
+    controller_params: Any = None,
+    torque_frame: Frame = "body",
+    options: SolveOptions | None = None,
+    check: bool = True,
+    **solve_kwargs: Unpack[SolveKwargs],
+) -> GyrostatTrajectory:
+    """Integrate `I Ω̇ + Ω × (IΩ + h) = τ − ḣ` with `q̇ = ½ q ∘ (0, Ω)` (module docstring);
+    `simulate(gyrostat, ...)` calls this.
+
+    `omega0 (..., 3)`, `q0 (..., 4)` (identity by default) and `wheel_speed0 (..., n)` (zero by
+    default) broadcast into a batch (each body its own solve, mapped with `jax.vmap`: one kernel
+    call per solve for the whole batch). `torque(t, Ω, q)`: an external torque (body frame, or
+    space with `torque_frame="space"`); `h_rate(t) -> (3,)`: a prescribed `ḣ` (no wheels);
+    `controller(t_k, Ω_k, q_k, controller_params) -> command` evaluated at
+    `ts[0] + k control_period` and held until the next sample (zero-order hold), a body torque
+    `(3,)` or, with wheels, the motor torques `(n,)` (clipped to `wheel_torque_max`); the solve
+    then steps from sample to sample (and to each output time), so that fixed steps never
+    straddle a switch. Options as `simulate`'s: fixed steps of an explicit Runge–Kutta method
+    run on the model's CPU kernel. Other `kinematics` than `"quat"` are taken for a constant `h`
+    without controller (as the torque `−Ω × h` of `simulate`)."""
+    options = SolveOptions.of(options, solve_kwargs)
+    if ts is None:
+        raise ValueError("ts (the output times) is required")
+    ts = check_times_shape(as_float(ts, "ts"))
+    dtype = ts.dtype
+    if check:
+        ts = check_times(ts)
+    g = jax.tree_util.tree_map(lambda a: a.astype(dtype), gyrostat)
+    n = g.wheels
+    if h_rate is not None and n:
+        raise ValueError(
+            "h_rate prescribes ḣ of a gyrostat without wheels; with wheels ḣ follows from the "
+            "motor torques (a controller's command)"
+        )
+    if wheel_speed0 is not None and not n:
+        raise ValueError("wheel_speed0 is the wheels' initial speeds: give Gyrostat(wheel_axes=…)")
+    if (controller is None) != (control_period is None):
+        raise ValueError(
+            "a controller is sampled every control_period: give both controller and "
+            "control_period (e.g. control_period=0.1)"
+        )
+    if kinematics != "quat":
+        return _other_kinematics(g, omega0, q0, ts, torque, kinematics, locals())
+    omega0 = check_finite(vector(omega0, 3, "omega0").astype(dtype), "omega0")
+    q0 = quat.identity(dtype=dtype) if q0 is None else vector(q0, 4, "q0").astype(dtype)
+    if check:
+        q0 = check_unit_norm(q0, "q0")
+    ws0 = jnp.zeros(n, dtype) if wheel_speed0 is None else vector(wheel_speed0, n, "wheel_speed0")
+    ws0 = check_finite(ws0.astype(dtype), "wheel_speed0")
+    batch = broadcast_batch(omega0=omega0.shape[:-1], q0=q0.shape[:-1], wheel_speed0=ws0.shape[:-1])
+    one = (ts[0], omega0.reshape(-1, 3)[0], q0.reshape(-1, 4)[0])
+    if torque is not None:
+        _check_callable(torque, "torque", "torque(t, omega, q)", one, (3,))
+    if h_rate is not None:
+        _check_callable(h_rate, "h_rate", "h_rate(t)", one[:1], (3,))
+    m = n if n else 3
+    if controller is not None:
+        _check_callable(
+            controller, "controller", "controller(t_k, omega_k, q_k, params)",
+            (*one, controller_params), (m,),
+        )  # fmt: skip
+    field = _Field(torque, h_rate, torque_frame, bool(n))
+    I = g.body.inertia if n else g.body.operator()[0]
+    if n:
+        assert g.wheel_axes is not None and g.wheel_inertia is not None
+        M_inv = jnp.linalg.inv(I - (g.wheel_axes * g.wheel_inertia) @ g.wheel_axes.T)
+        params = (I, M_inv, g.h, g.wheel_axes, g.wheel_inertia)
+    else:
+        params = (I, g.body.operator()[1]) + (() if h_rate is not None else (g.h,))
+
+    def one_body(w0, qq0, x0):
+        y0 = (w0, qq0) + ((x0,) if n else (g.h,) if h_rate is not None else ())
+
+        def step(t01, y, cmd, opts):
+            return solve_tree(field, t01, y, (*params, cmd), opts, unit=(1,), name="gyrostat")
+
+        if controller is None:
+            ys, stats, result = step(ts, y0, jnp.zeros(m, dtype), options)
+            return ys, stats, result, None, None
+        law = controller
+
+        def command(t, y):
+            u = law(t, y[0], y[1], controller_params)
+            return g.clip(jnp.asarray(u).astype(dtype)) if n else jnp.asarray(u).astype(dtype)
+
+        assert control_period is not None
+        return held_solve(step, command, y0, ts, control_period, jnp.zeros(m, dtype), options)
+
+    B = int(np.prod(batch))
+    flat = [
+        jnp.broadcast_to(a, (*batch, a.shape[-1])).reshape(B, a.shape[-1])
+        for a in (omega0, q0, ws0)
+    ]
+    if batch:
+        ys, stats, result, cts, cmds = jax.vmap(one_body)(*flat)
+        stats = {k: jnp.min(v) if k == "num_valid" else jnp.max(v) for k, v in stats.items()}
+        first = jnp.argmax(result != diffrax.RESULTS.successful)  # the first body that failed
+        result = jax.tree_util.tree_map(lambda v: v[first], result)
+    else:
+        ys, stats, result, cts, cmds = one_body(*(a[0] for a in flat))
+        ys = jax.tree_util.tree_map(lambda a: a[None], ys)
+        cmds = None if cmds is None else cmds[None]
+    return _trajectory(g, ts, batch, ys, stats, result, cts, cmds, h_rate is not None)
+
+
+def _trajectory(g, ts, batch, ys, stats, result, cts, cmds, integrated_h) -> GyrostatTrajectory:
+    """The trajectory of `batch` from the states `ys` (`(B, T, ...)` leaves)."""
+    T = ts.shape[0]
+
+    def shape(a):
+        return a.reshape(*batch, T, a.shape[-1])
+
+    omega, q = shape(ys[0]), shape(ys[1])
+    ws = shape(ys[2]) if g.wheels else None
+    if integrated_h:
+        h = shape(ys[2])
+    else:
+        h = jnp.broadcast_to(g.momentum(ws), (*batch, T, 3))
+    return GyrostatTrajectory(
+        omega,
+        q,
+        h,
+        ws,
+        cts,
+        None if cmds is None else cmds.reshape(*batch, *cmds.shape[-2:]),
+        ts=ts,
+        stats=stats,
+        result=result,
+    )
+
+
+def _other_kinematics(g, omega0, q0, ts, torque, kinematics, given) -> GyrostatTrajectory:
+    """A constant-h gyrostat without wheels or controller in another attitude formulation:
+    `simulate(RigidBody, ..., torque=τ − Ω × h)` (the same equations)."""
+    from .dynamics import simulate
+
+    if g.wheels or given["h_rate"] is not None or given["controller"] is not None:
+        raise ValueError(
+            f"kinematics={kinematics!r} is taken for a gyrostat with a constant h and no "
+            "controller; with wheels, h_rate or a controller use kinematics='quat'"
+        )
+    h = g.h
+
+    def total(t, w, q):
+        tau = jnp.zeros_like(w) if torque is None else jnp.asarray(torque(t, w, q))
+        if given["torque_frame"] == "space":
+            tau = quat.rotate(quat.conj(q), tau)
+        return tau - jnp.cross(w, h)
+
+    traj = simulate(
+        g.body, omega0, q0, ts, total, kinematics, options=given["options"], check=given["check"]
+    )
+    h_t = jnp.broadcast_to(h, traj.omega.shape)
+    return GyrostatTrajectory(
+        traj.omega, traj.quat, h_t, ts=traj.ts, stats=traj.stats, result=traj.result
+    )
+
+
+def angular_momentum(gyrostat: Gyrostat, traj: GyrostatTrajectory) -> Float[Array, "*batch T 3"]:
+    """The system's angular momentum in body axes, `IΩ + h` (its norm is conserved without
+    external torque; `P (IΩ + h)` is constant in space)."""
+    return jnp.einsum("ij,...j->...i", gyrostat.body.inertia, traj.omega) + traj.h
+
+
+def energy(gyrostat: Gyrostat, traj: GyrostatTrajectory) -> Float[Array, "*batch T"]:
+    """Kinetic energy: `½ Ω·IΩ` for constant h (the Zhukovsky–Volterra integral); with wheels
+    `½ Ω·(I − A J Aᵀ)Ω + ½ Σ J_i (a_i·Ω + ω_w,i)²` (rotor energy included)."""
+    I, w = gyrostat.body.inertia, traj.omega
+    if gyrostat.wheel_axes is None or gyrostat.wheel_inertia is None or traj.wheel_speed is None:
+        return 0.5 * jnp.einsum("...i,ij,...j->...", w, I, w)
+    A, J = gyrostat.wheel_axes, gyrostat.wheel_inertia
+    M = I - (A * J) @ A.T
+    spin = w @ A + traj.wheel_speed
+    return 0.5 * jnp.einsum("...i,ij,...j->...", w, M, w) + 0.5 * jnp.sum(J * spin**2, -1)
