@@ -14,6 +14,8 @@ Problem
     sixdof            ``jax.vmap(simulate_6dof)`` with the force F = (0.1, 0, −9.81 m) (space)
                       at the body point a = (0.1, 0.2, 0): state (R, V, q, Ω)
     satellite         ``jax.vmap(satellite.simulate_satellite)``: orbit + gravity gradient
+    gyrostat          ``jax.vmap(simulate)`` of a ``Gyrostat`` with constant rotor momentum
+                      h = (0.1, 0.2, 0.3) (Zhukovsky–Volterra), a batch of bodies each
 
 Parts (one run)
     speed     Each model on rigidjax's fast path (the kernel written from the JAX field) and its
@@ -67,6 +69,7 @@ DEFAULT_OUT = HERE / "results" / "models.json"
 GAIN = (0.3, 0.2, 0.1)
 MU, RADIUS = 398600.4418, 7000.0
 F_SPACE, POINT = (0.1, 0.0, -9.81), (0.1, 0.2, 0.0)
+H_ROTOR = (0.1, 0.2, 0.3)
 
 
 def inputs(B: int, seed: int = 0) -> dict:
@@ -155,6 +158,15 @@ def models(B: int, steps: int):
 
         return jax.vmap(one)(I, w, q)
 
+    h_rotor = jnp.array(H_ROTOR)
+
+    def gyro(I, w, q):
+        def one(I, w, q):
+            tr = rj.simulate(rj.Gyrostat(I, h=h_rotor), w, q, ts, dt0=dt, **fixed)
+            return jnp.concatenate([tr.omega[-1], tr.quat[-1]])
+
+        return jax.vmap(one)(I, w, q)
+
     I, w, q, com = x["I"], x["w"], x["q"], x["com"]
     ones = np.ones(B)
     wq = np.concatenate([w.T, q.T])
@@ -194,6 +206,13 @@ def models(B: int, steps: int):
             np.concatenate([np.outer(R0, ones), np.outer(V0, ones), q.T, small_w.T]),
             np.vstack([_cj(I), I.T, MU * ones[None]]),
             dt_sat,
+        ),
+        "gyrostat": (
+            gyro,
+            (I, w, q),
+            wq,
+            np.vstack([_cj(I), np.outer(H_ROTOR, ones)]),
+            dt,
         ),
     }
     diffrax_path = {

@@ -17,6 +17,7 @@
  *   6-DOF body         y = (R, V, q, Ω)  p = (c, J, 1/m, F, a)  Ṙ = V, V̇ = F/m, K = a × PᵀF
  *   satellite          y = (R, V, q, Ω)  p = (c, J, I, μ)     V̇ = −μR/r³, K = 3μ/r³ n × (I n),
  *                                                             n = PᵀR/r
+ *   gyrostat           y = (Ω, q)        p = (c, J, h)        K = −Ω × h (constant rotor momentum)
  * with c = ((I2 − I3)/I1, (I3 − I1)/I2, (I1 − I2)/I3), J = 1/I (principal axes).
  */
 #include <math.h>
@@ -110,6 +111,15 @@ static inline void rhs_satellite(const double *y, const double *p, double *k)
     euler(w, p, K, k + 10);
 }
 
+static inline void rhs_gyrostat(const double *y, const double *p, double *k)
+{
+    double K[3];
+    cross(y, p + 6, K);
+    for (int i = 0; i < 3; i++) K[i] = -K[i];
+    euler(y, p, K, k);
+    quat_rates(y, y + 3, k + 3);
+}
+
 /* `steps` RK4 steps of size h for the B bodies of `state` (N × B, in place), parameters
  * `par` (P × B): void <name>_rk4(double *state, const double *par, long B, long steps, double h). */
 #define RK4_MODEL(NAME, N, P, QO)                                                              \
@@ -159,3 +169,4 @@ RK4_MODEL(gravity_gradient, 7, 10, 3)
 RK4_MODEL(heavy_top, 10, 9, 6)
 RK4_MODEL(sixdof, 13, 13, 6)
 RK4_MODEL(satellite, 13, 10, 6)
+RK4_MODEL(gyrostat, 7, 9, 3)
