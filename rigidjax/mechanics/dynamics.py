@@ -14,12 +14,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .._checks import (
-    as_float,
     broadcast_batch,
-    check_finite,
-    check_times,
-    check_times_shape,
-    check_unit_norm,
     vector,
 )
 from .._custom_types import Frame, RealLike
@@ -36,6 +31,7 @@ from ..solvers.explicit_rk import ExplicitRK
 from ..solvers.rkmk import LieTerm
 from ..solvers.splitting import LiePoissonSplitting
 from ._gyrostat_body import Gyrostat
+from ._initial import initial_rotation
 from ._rigid_model import moments_params, rigid_body_model
 from .body import RigidBody, euler_rhs
 
@@ -325,16 +321,8 @@ def simulate(
             "the body (Gyrostat(inertia) is the rigid body itself, with h = 0)"
         )
     options = SolveOptions.of(options, solve_kwargs)
-    if ts is None:
-        raise ValueError("ts (the output times) is required")
-    ts = check_times_shape(as_float(ts, "ts"))
+    ts, omega0, q0 = initial_rotation(ts, omega0, q0, check)
     dtype = ts.dtype
-    omega0 = vector(omega0, 3, "omega0").astype(dtype)
-    q0 = quat.identity(dtype=dtype) if q0 is None else vector(q0, 4, "q0").astype(dtype)
-    if check:
-        ts = check_times(ts)
-        omega0 = check_finite(omega0, "omega0")
-        q0 = check_unit_norm(q0, "q0")
     batch = broadcast_batch(body=body.batch_shape, omega0=omega0.shape[:-1], q0=q0.shape[:-1])
     B = math.prod(batch)
     if B == 0:

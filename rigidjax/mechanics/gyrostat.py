@@ -34,12 +34,8 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._checks import (
-    as_float,
     broadcast_batch,
     check_finite,
-    check_times,
-    check_times_shape,
-    check_unit_norm,
     vector,
 )
 from .._custom_types import Frame, RealLike
@@ -48,6 +44,7 @@ from ..kinematics.formulations import Quaternion
 from ..models.solve import solve_tree
 from ..rotations import quat
 from ._gyrostat_body import Gyrostat
+from ._initial import initial_rotation
 from ._zoh import Controller, held_solve
 from .body import _apply
 from .dynamics import Trajectory
@@ -147,12 +144,8 @@ def simulate_gyrostat(
     run on the model's CPU kernel. Other `kinematics` than `"quat"` are taken for a constant `h`
     without controller (as the torque `−Ω × h` of `simulate`)."""
     options = SolveOptions.of(options, solve_kwargs)
-    if ts is None:
-        raise ValueError("ts (the output times) is required")
-    ts = check_times_shape(as_float(ts, "ts"))
+    ts, omega0, q0 = initial_rotation(ts, omega0, q0, check)
     dtype = ts.dtype
-    if check:
-        ts = check_times(ts)
     g = jax.tree_util.tree_map(lambda a: a.astype(dtype), gyrostat)
     n = g.wheels
     if h_rate is not None and n:
@@ -169,10 +162,6 @@ def simulate_gyrostat(
         )
     if kinematics != "quat":
         return _other_kinematics(g, omega0, q0, ts, torque, kinematics, locals())
-    omega0 = check_finite(vector(omega0, 3, "omega0").astype(dtype), "omega0")
-    q0 = quat.identity(dtype=dtype) if q0 is None else vector(q0, 4, "q0").astype(dtype)
-    if check:
-        q0 = check_unit_norm(q0, "q0")
     ws0 = jnp.zeros(n, dtype) if wheel_speed0 is None else vector(wheel_speed0, n, "wheel_speed0")
     ws0 = check_finite(ws0.astype(dtype), "wheel_speed0")
     batch = broadcast_batch(omega0=omega0.shape[:-1], q0=q0.shape[:-1], wheel_speed0=ws0.shape[:-1])
