@@ -306,9 +306,15 @@ def from_matrix(P: Mat33Like, seq: EulerSeq = "ZXZ", degrees: bool = False) -> V
     """Euler angles of a rotation matrix (via the largest-component `quat.from_matrix`), with the
     ranges and gimbal-lock convention of `from_quat` (3 axes; `degrees=True` returns degrees).
     `P` is checked and orthogonalised as by `quat.from_matrix` (det P ≤ 0 or a non-finite P is an
-    error)."""
+    error). One compiled program per shape, dtype and sequence, as `quat.from_matrix`."""
     _parse_seq(seq)
-    angles = _from_unit_quat(quat._from_matrix(matrix(P, "P"), "P"), seq)
+    P = matrix(P, "P")
+    return _from_matrix(P, seq, bool(degrees), quat._matrix_mode(P, "P"))
+
+
+@_validation.compiled
+def _from_matrix(P: Mat33, seq: EulerSeq, degrees: bool, mode: str) -> Vec3:
+    angles = _from_unit_quat(quat._quat_of_matrix(P, "P", mode), seq)
     return jnp.rad2deg(angles) if degrees else angles
 
 

@@ -38,8 +38,14 @@ def to_quat(p: Vec3Like) -> Quat:
 
 def from_matrix(P: Mat33Like) -> Vec3:
     """MRP (`|p| ≤ 1`) of a rotation matrix, through the largest-component quaternion; `P` is
-    checked and orthogonalised as by `quat.from_matrix`."""
-    return _from_unit_quat(quat._from_matrix(matrix(P, "P"), "P"))
+    checked and orthogonalised as by `quat.from_matrix` (one compiled program)."""
+    P = matrix(P, "P")
+    return _from_matrix(P, quat._matrix_mode(P, "P"))
+
+
+@_validation.compiled
+def _from_matrix(P: Mat33, mode: str) -> Vec3:
+    return _from_unit_quat(quat._quat_of_matrix(P, "P", mode))
 
 
 def to_matrix(p: Vec3Like) -> Mat33:

@@ -69,8 +69,15 @@ def log(P: Mat33Like) -> Vec3:
     (exact at θ = π, no loss of accuracy near it, finite gradients at the identity).
 
     As `quat.from_matrix` (and SciPy): a non-finite `P` or det P ≤ 0 is an error naming `P`;
-    a matrix with det > 0 that is not orthogonal is replaced by its nearest rotation."""
-    return quat._to_rotvec(quat._from_matrix(matrix(P, "P"), "P"))
+    a matrix with det > 0 that is not orthogonal is replaced by its nearest rotation. One
+    compiled program per shape and dtype, as `quat.from_matrix`."""
+    P = matrix(P, "P")
+    return _log(P, quat._matrix_mode(P, "P"))
+
+
+@_validation.compiled
+def _log(P: Mat33, mode: str) -> Vec3:
+    return quat._to_rotvec(quat._quat_of_matrix(P, "P", mode))
 
 
 def rotate(theta: Vec3Like, a: Vec3Like) -> Vec3:
@@ -180,9 +187,15 @@ def project(A: Mat33Like) -> Mat33:
 
 def distance(P1: Mat33Like, P2: Mat33Like) -> Scalar:
     """Geodesic distance `|log(P1ᵀ P2)|` ∈ [0, π] (the angle of the relative rotation); `P1`, `P2`
-    are checked and orthogonalised as by `quat.from_matrix`."""
-    q1 = quat._from_matrix(matrix(P1, "P1"), "P1")
-    q2 = quat._from_matrix(matrix(P2, "P2"), "P2")
+    are checked and orthogonalised as by `quat.from_matrix` (one compiled program)."""
+    P1, P2 = matrix(P1, "P1"), matrix(P2, "P2")
+    return _distance(P1, P2, quat._matrix_mode(P1, "P1"), quat._matrix_mode(P2, "P2"))
+
+
+@_validation.compiled
+def _distance(P1: Mat33, P2: Mat33, mode1: str, mode2: str) -> Scalar:
+    q1 = quat._quat_of_matrix(P1, "P1", mode1)
+    q2 = quat._quat_of_matrix(P2, "P2", mode2)
     return quat._angle(quat.mul(quat.conj(q1), q2))
 
 
