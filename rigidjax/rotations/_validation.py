@@ -4,28 +4,13 @@ checks of quaternions and of matrices passed as rotations (built on `rigidjax._c
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import Any, TypeVar
+from typing import Any
 
-import equinox as eqx
 import numpy as np
 from jaxtyping import Array
 
 from .._checks import Check, at, first, fmt, validate_all
 from .._custom_types import Mat33, Quat
-
-F = TypeVar("F", bound=Callable)
-
-
-def compiled(core: F) -> F:
-    """`core` as one compiled program (`equinox.filter_jit`: arrays traced, the other arguments,
-    e.g. a sequence string or a check mode, static; one compilation per shape, dtype and static
-    arguments, kept for the process). An eager call of a public map is then one cached
-    executable instead of dozens of op-by-op dispatches, and `jacfwd`/`jacrev`/`grad` of it
-    differentiate that program (one more compilation each); its run-time checks fail as
-    `equinox.EquinoxRuntimeError`, as in a user's `equinox.filter_jit`."""
-    return eqx.filter_jit(core)  # pyright: ignore[reportReturnType]
-
 
 NONFINITE_HINT = "; replace its NaN/inf entries (they come from an earlier overflow or 0/0)"
 

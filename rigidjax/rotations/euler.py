@@ -41,6 +41,7 @@ from .._custom_types import (
     Vec3Like,
 )
 from . import _validation, quat
+from ._compiled import compiled
 
 SEQUENCES: tuple[str, ...] = tuple(
     s
@@ -309,10 +310,10 @@ def from_matrix(P: Mat33Like, seq: EulerSeq = "ZXZ", degrees: bool = False) -> V
     error). One compiled program per shape, dtype and sequence, as `quat.from_matrix`."""
     _parse_seq(seq)
     P = matrix(P, "P")
-    return _from_matrix(P, seq, bool(degrees), quat._matrix_mode(P, "P"))
+    return _from_matrix(P, seq=seq, degrees=bool(degrees), mode=quat._matrix_mode(P, "P"))
 
 
-@_validation.compiled
+@compiled(2)
 def _from_matrix(P: Mat33, seq: EulerSeq, degrees: bool, mode: str) -> Vec3:
     angles = _from_unit_quat(quat._quat_of_matrix(P, "P", mode), seq)
     return jnp.rad2deg(angles) if degrees else angles

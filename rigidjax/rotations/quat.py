@@ -38,6 +38,7 @@ from .._custom_types import (
 )
 from . import _series
 from . import _validation as _v
+from ._compiled import compiled
 
 
 def _split(q: Quat) -> tuple[Scalar, Vec3]:
@@ -296,12 +297,12 @@ def _quat_of_matrix(P: Mat33, name: str, mode: str) -> Quat:
     return _from_orthogonal(_orthogonalised(P))
 
 
-_quat_of_matrix_jit = _v.compiled(_quat_of_matrix)
+_quat_of_matrix_jit = compiled(2)(_quat_of_matrix)
 
 
 def _from_matrix(P: Mat33, name: str) -> Quat:
     """`from_matrix` of `P`, checked (errors naming `name`) and orthogonalised, compiled."""
-    return _quat_of_matrix_jit(P, name, _matrix_mode(P, name))
+    return _quat_of_matrix_jit(P, name=name, mode=_matrix_mode(P, name))
 
 
 def from_matrix(P: Mat33Like, *, assume_valid: bool = False) -> Quat:
@@ -321,7 +322,8 @@ def from_matrix(P: Mat33Like, *, assume_valid: bool = False) -> Quat:
     NumPy when the value of `P` is known.
     """
     P = matrix(P, "P")
-    return _quat_of_matrix_jit(P, "P", "assume_valid" if assume_valid else _matrix_mode(P, "P"))
+    mode = "assume_valid" if assume_valid else _matrix_mode(P, "P")
+    return _quat_of_matrix_jit(P, name="P", mode=mode)
 
 
 def angle(q: QuatLike) -> Scalar:

@@ -15,6 +15,7 @@ from jaxtyping import DTypeLike, PRNGKeyArray
 from .._checks import is_concrete, matrix, validate, vector
 from .._custom_types import Frame, Mat33, Mat33Like, Scalar, Vec3, Vec3Like
 from . import _series, _validation, quat
+from ._compiled import compiled
 
 
 def hat(v: Vec3Like) -> Mat33:
@@ -72,10 +73,10 @@ def log(P: Mat33Like) -> Vec3:
     a matrix with det > 0 that is not orthogonal is replaced by its nearest rotation. One
     compiled program per shape and dtype, as `quat.from_matrix`."""
     P = matrix(P, "P")
-    return _log(P, quat._matrix_mode(P, "P"))
+    return _log(P, mode=quat._matrix_mode(P, "P"))
 
 
-@_validation.compiled
+@compiled(2)
 def _log(P: Mat33, mode: str) -> Vec3:
     return quat._to_rotvec(quat._quat_of_matrix(P, "P", mode))
 
@@ -189,10 +190,10 @@ def distance(P1: Mat33Like, P2: Mat33Like) -> Scalar:
     """Geodesic distance `|log(P1ᵀ P2)|` ∈ [0, π] (the angle of the relative rotation); `P1`, `P2`
     are checked and orthogonalised as by `quat.from_matrix` (one compiled program)."""
     P1, P2 = matrix(P1, "P1"), matrix(P2, "P2")
-    return _distance(P1, P2, quat._matrix_mode(P1, "P1"), quat._matrix_mode(P2, "P2"))
+    return _distance(P1, P2, mode1=quat._matrix_mode(P1, "P1"), mode2=quat._matrix_mode(P2, "P2"))
 
 
-@_validation.compiled
+@compiled(2, 2)
 def _distance(P1: Mat33, P2: Mat33, mode1: str, mode2: str) -> Scalar:
     q1 = quat._quat_of_matrix(P1, "P1", mode1)
     q2 = quat._quat_of_matrix(P2, "P2", mode2)
