@@ -29,12 +29,8 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from .._checks import concrete_value
+from .._checks import concrete_value, is_concrete
 from .._compile import quick_compile_jit
-
-
-def _is_tracer(x: Any) -> bool:
-    return isinstance(x, jax.core.Tracer)
 
 
 class compiled:  # noqa: N801 - used as a decorator, like eqx.filter_jit
@@ -59,7 +55,7 @@ class _Compiled:
 
     def __call__(self, *arrays: Any, **static: Hashable) -> Any:
         single = all(jnp.ndim(a) == n for a, n in zip(arrays, self._ndims, strict=True))
-        if not any(map(_is_tracer, arrays)):
+        if all(map(is_concrete, arrays)):
             return (self._small if single else self._quick)(*arrays, **static)
         if single and all(concrete_value(a) is not None for a in arrays):
             return self._differentiated(tuple(sorted(static.items())))(*arrays)
@@ -83,7 +79,7 @@ class _Compiled:
 
         @f.defjvp
         def f_jvp(primals: tuple, tangents: tuple) -> tuple[Any, Any]:
-            vj = plain if any(map(_is_tracer, primals)) else quick
+            vj = quick if all(map(is_concrete, primals)) else plain
             out, jacobians = vj(*primals)
             terms = [
                 jnp.tensordot(J, dx, axes=jnp.ndim(dx))

@@ -276,10 +276,18 @@ def _to_quat(angles: Float[Array, "*batch k"], seq: EulerSeq) -> Quat:
 def to_matrix(angles: RealLike, seq: EulerSeq = "ZXZ", degrees: bool = False) -> Mat33:
     """Rotation tensor of Euler angles, e.g. `"ZXZ"`: `P = Rz(ψ) Rx(θ) Rz(φ)` (THEORY §4;
     `Pᵀ` is the direction-cosine matrix of Borisov–Mamaev 001, remark 2). 1 to 3 axes and
-    `degrees` as `to_quat`."""
+    `degrees` as `to_quat`. One compiled program per shape, dtype and sequence."""
+    n = len(_parse_axes(seq, False)[0])
+    a = _angles_arg(angles, n, seq=str(seq))
+    return _to_matrix(a, seq=seq, degrees=bool(degrees))
+
+
+@compiled(1)
+def _to_matrix(angles: Float[Array, "*batch k"], seq: EulerSeq, degrees: bool) -> Mat33:
     # the barrier keeps XLA from fusing the quaternion into each of the nine entries, which
     # recomputed its sines and cosines (1.4× faster for 10⁶ angles; benchmarks/bench_rotations.py)
-    q = jax.lax.optimization_barrier(to_quat(angles, seq, degrees))
+    q = _to_quat(jnp.deg2rad(angles) if degrees else angles, seq)
+    q = jax.lax.optimization_barrier(q)
     return quat._to_matrix(q, quat.norm2(q))
 
 

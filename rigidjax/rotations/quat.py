@@ -185,9 +185,19 @@ def _to_matrix(q: Quat, n2: Scalar) -> Mat33:
 
 def to_matrix(q: QuatLike) -> Mat33:
     """`P = E + 2(λ0 λ × E + (λ × E)²)/|q|²`; for unit q this is `2{λλ + (λ0² − ½)E + λ0 λ × E}`
-    (Borisov–Mamaev; THEORY §3). `q` must be finite and non-zero."""
+    (Borisov–Mamaev; THEORY §3). `q` must be finite and non-zero. One compiled program per
+    shape and dtype, its check made in NumPy when the value of `q` is known."""
     q = vector(q, 4, "q")
-    return _to_matrix(q, _checked_norm2(q, "q"))
+    checked = concrete_value(q) is not None
+    if checked:
+        _v.check_quat(q, "q")
+    return _to_matrix_compiled(q, checked=checked)
+
+
+@compiled(1)
+def _to_matrix_compiled(q: Quat, checked: bool) -> Mat33:
+    """`to_matrix` of `q`, checked at run time unless `checked` already."""
+    return _to_matrix(q, norm2(q) if checked else _checked_norm2(q, "q"))
 
 
 def _from_orthogonal(P: Mat33) -> Quat:

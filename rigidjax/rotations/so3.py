@@ -54,10 +54,16 @@ def _hat_sq(theta: Vec3, x2: Scalar) -> Mat33:
 def exp(theta: Vec3Like) -> Mat33:
     """`P(θ) = exp(θ × E) = E + (sin θ/θ) R + ((1 − cos θ)/θ²) R²`, `R = θ × E` (Zhilin; Euler's
     theorem). Finite values and gradients at θ = 0. A non-finite concrete `theta` is an error
-    naming it; traced, no check (the integrators' hot path): NaN in, NaN out."""
+    naming it; traced, no check (the integrators' hot path): NaN in, NaN out. One compiled
+    program per shape and dtype (see `rotations._compiled`)."""
     theta = vector(theta, 3, "theta")
     if is_concrete(theta):
         theta = _validation.check_finite(theta, "theta", 1)
+    return _exp(theta)
+
+
+@compiled(1)
+def _exp(theta: Vec3) -> Mat33:
     x2 = _sq(theta)
     R = hat(theta)
     a = _series.sin_over(x2)[..., None, None]
