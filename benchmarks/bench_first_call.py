@@ -127,7 +127,9 @@ def main(argv=None) -> int:
     p.add_argument("--repeats", type=int, default=3, help="rounds of fresh processes")
     p.add_argument("--maps", nargs="*", default=list(MAPS), help="a subset of the maps")
     p.add_argument("--out", default=str(Path(__file__).parent / "results" / "first_call.json"))
-    p.add_argument("--worker", nargs=3, metavar=("LIB", "MAP", "DERIVATIVE"), help=argparse.SUPPRESS)
+    p.add_argument(
+        "--worker", nargs=3, metavar=("LIB", "MAP", "DERIVATIVE"), help=argparse.SUPPRESS
+    )
     args = p.parse_args(argv)
     if args.worker:
         worker(*args.worker)
