@@ -5,9 +5,11 @@ the same rotation. Functions that map a quaternion to a rotation accept any non-
 it as `q/|q|` (like SciPy).
 
 Bad input is an error naming the argument: a zero or non-finite quaternion, a non-finite or
-improper (det ≤ 0) matrix passed as a rotation. On concrete input it is a `ValueError` with the
-offending value and the fix; under `jit`/`vmap`/`grad` the same message comes from an
-`equinox.error_if` at run time. The algebra used inside integrators (`mul`, `rotate`,
+improper (det ≤ 0) matrix passed as a rotation. On concrete input (also the primal of an eager
+`grad`/`jacfwd`/`jacrev`) it is a `ValueError` with the offending value and the fix; under
+`jit`/`vmap` the same message comes from an `equinox.error_if` at run time. `from_matrix` and
+`to_matrix` run as one compiled program per shape (`rotations._compiled`): their first eager
+call, and that of their derivatives, costs one compilation. The algebra used inside integrators (`mul`, `rotate`,
 `normalize`, `to_matrix`, `inv`) keeps a single check of `|q| > 0`, finite; `from_matrix`,
 `to_rotvec`, `angle` and the other conversions check their arguments fully.
 
