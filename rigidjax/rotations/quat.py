@@ -9,9 +9,9 @@ improper (det ≤ 0) matrix passed as a rotation. On concrete input (also the pr
 `grad`/`jacfwd`/`jacrev`) it is a `ValueError` with the offending value and the fix; under
 `jit`/`vmap` the same message comes from an `equinox.error_if` at run time. `from_matrix` and
 `to_matrix` run as one compiled program per shape (`rotations._compiled`): their first eager
-call, and that of their derivatives, costs one compilation. The algebra used inside integrators (`mul`, `rotate`,
-`normalize`, `to_matrix`, `inv`) keeps a single check of `|q| > 0`, finite; `from_matrix`,
-`to_rotvec`, `angle` and the other conversions check their arguments fully.
+call, and that of their derivatives, costs one compilation. The algebra used inside integrators
+(`mul`, `rotate`, `normalize`, `to_matrix`, `inv`) keeps a single check of `|q| > 0`, finite;
+`from_matrix`, `to_rotvec`, `angle` and the other conversions check their arguments fully.
 
 Also here, from modules of their own: `mean` (`average`), `align_vectors` (`align`), `power`,
 `magnitude`, `approx_equal` (`powers`), `rotation_group`, `reduce` (`groups`), `from_scipy`,
@@ -27,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, DTypeLike, Float, PRNGKeyArray, Real
 
-from .._checks import as_float, concrete_value, matrix, vector
+from .._checks import as_float, concrete_value, is_concrete, matrix, vector
 from .._custom_types import (
     Mat33,
     Mat33Like,
@@ -288,13 +288,17 @@ def _rotation_jvp(primals, tangents):
 
 def _matrix_mode(P: Mat33, name: str) -> str:
     """How `_quat_of_matrix` takes `P`: with its value known now (`concrete_value`), checked here
-    in NumPy (errors naming `name`) and `"rotation"` if every matrix is orthogonal to rounding,
-    else `"orthogonalise"`; `"traced"` (under jit/vmap) checked at run time."""
+    in NumPy (errors naming `name`) and `"rotation"` if every matrix is orthogonal to rounding
+    (and `P` is concrete or a first-order derivative's tracer), else `"orthogonalise"`;
+    `"traced"` (under jit/vmap) checked at run time."""
     Pn = concrete_value(P)
     if Pn is None:
         return "traced"
     _v.check_matrix(P, name)
-    return "rotation" if np.all(_is_orthogonal(np, Pn)) else "orthogonalise"
+    # `_rotation`'s tangent is the polar factor's first derivative only: higher derivatives
+    # (the tracer of a tracer, e.g. `jax.hessian`) go through the Newton iteration
+    first_order = is_concrete(getattr(P, "primal", P))
+    return "rotation" if first_order and np.all(_is_orthogonal(np, Pn)) else "orthogonalise"
 
 
 def _quat_of_matrix(P: Mat33, name: str, mode: str) -> Quat:
