@@ -123,7 +123,7 @@ def check_agreement(name: str) -> float | None:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
     p.add_argument("--repeats", type=int, default=3, help="rounds of fresh processes")
     p.add_argument("--maps", nargs="*", default=list(MAPS), help="a subset of the maps")
     p.add_argument("--out", default=str(Path(__file__).parent / "results" / "first_call.json"))

@@ -66,7 +66,7 @@ def test_second_derivatives_of_the_eager_path():
 def test_a_repeated_eager_call_compiles_nothing():
     compiles = []
 
-    def count(event, seconds, **kwargs):
+    def count(event: str, duration_secs: float, **kwargs: str | int) -> None:
         compiles.append(event == "/jax/core/compile/backend_compile_duration")
 
     P = jnp.asarray(Rotation.from_rotvec([1.0, 0.2, -0.3]).as_matrix())
