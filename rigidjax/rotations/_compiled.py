@@ -28,6 +28,7 @@ from typing import Any
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+from jax.custom_derivatives import SymbolicZero
 
 from .._checks import concrete_value, is_concrete
 from .._compile import quick_compile_jit
@@ -63,12 +64,13 @@ class _Compiled:
 
     @functools.cache  # noqa: B019 - one per map and static arguments, kept for the process
     def _differentiated(self, static: tuple[tuple[str, Hashable], ...]) -> Callable:
-        """`core(*, **static)` with the tangent `Σ_k J_k · dx_k` (`J_k = ∂ out/∂ x_k`)."""
+        """`core(*, **static)` with the tangent `Σ_k J_k · dx_k` (`J_k = ∂ out/∂ x_k`, over the
+        arguments with a non-zero tangent)."""
         kwargs = dict(static)
 
-        def value_and_jacobians(*x: Any) -> tuple[Any, tuple[Any, ...]]:
+        def value_and_jacobians(*x: Any, argnums: tuple[int, ...]) -> tuple[Any, tuple]:
             f = functools.partial(self._core, **kwargs)
-            return f(*x), jax.jacfwd(f, argnums=tuple(range(len(x))))(*x)
+            return f(*x), jax.jacfwd(f, argnums=argnums)(*x)
 
         quick = quick_compile_jit(value_and_jacobians, small=True)
         plain = eqx.filter_jit(value_and_jacobians)
@@ -77,14 +79,18 @@ class _Compiled:
         def f(*x: Any) -> Any:
             return self._plain(*x, **kwargs)
 
-        @f.defjvp
         def f_jvp(primals: tuple, tangents: tuple) -> tuple[Any, Any]:
+            # Jacobians only for the arguments with a tangent (`so3.distance(E, P)`: P's)
+            live = tuple(k for k, t in enumerate(tangents) if not isinstance(t, SymbolicZero))
             vj = quick if all(map(is_concrete, primals)) else plain
-            out, jacobians = vj(*primals)
+            out, jacobians = vj(*primals, argnums=live)
+            if not live:
+                return out, jnp.zeros_like(out)
             terms = [
-                jnp.tensordot(J, dx, axes=jnp.ndim(dx))
-                for J, dx in zip(jacobians, tangents, strict=True)
+                jnp.tensordot(J, tangents[k], axes=jnp.ndim(tangents[k]))
+                for J, k in zip(jacobians, live, strict=True)
             ]
             return out, functools.reduce(operator.add, terms)  # no `0 +`: one op less
 
+        f.defjvp(f_jvp, symbolic_zeros=True)
         return f
