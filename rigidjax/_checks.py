@@ -65,6 +65,19 @@ def is_concrete(x: object) -> bool:
     return not isinstance(x, jax.core.Tracer)
 
 
+def concrete_value(x: object) -> np.ndarray | None:
+    """The value of `x` as a NumPy array if it is known now, else None: `x` itself if it is not
+    a tracer, or the primal of a tracer of `jax.jvp`/`grad`/`jacfwd`/`jacrev` applied to an
+    eager call (JAX's `Tracer.to_concrete_value`, which lets Python control flow run under
+    `grad`); None inside `jit` and `vmap`, whose values are known only at run time."""
+    if isinstance(x, jax.core.Tracer):
+        to_value = getattr(x, "to_concrete_value", None)  # absent from other JAX versions
+        x = to_value() if to_value is not None else None
+        if x is None or isinstance(x, jax.core.Tracer):
+            return None
+    return np.asarray(x)
+
+
 class Check(NamedTuple):
     """One check: `bad(xp, x)` (xp is NumPy or jax.numpy) is true where `x` fails; the error is
     `message + detail(x) + hint` (the detail, with the offending value, on concrete `x` only)."""
@@ -77,13 +90,18 @@ class Check(NamedTuple):
 
 def validate_all(x: Array, checks: Sequence[Check], on: Array | None = None) -> Array:
     """Several checks of `x` at the cost of one: the ValueError of the first check that fails
-    (concrete `x`; the check runs in NumPy, so it works on constants inside a trace as well), or
-    one `equinox.branched_error_if` carrying the message of the first failing check (traced
-    `x`). Returns `on` (default `x`) with the run-time check attached.
-    The predicates see `x` through `stop_gradient`: they add nothing to derivatives."""
+    when the value of `x` is known now (`concrete_value`: concrete `x`, also a constant inside a
+    trace or the primal under an eager `grad`/`jacfwd`/`jacrev`; the check runs in NumPy), or
+    one `equinox.branched_error_if` carrying the message of the first failing check (`x` known
+    only at run time, under jit/vmap). Returns `on` (default `x`) with the run-time check
+    attached. The predicates see `x` through `stop_gradient`: they add nothing to derivatives.
+
+    The NumPy path also keeps eager derivatives free of `error_if`: each of its run-time checks
+    evaluated op by op compiles a new executable with its own host callbacks, which a long
+    process accumulates (issue 26: a segmentation fault after some thousands of them)."""
     out = x if on is None else on
-    if is_concrete(x):
-        xn = np.asarray(x)
+    xn = concrete_value(x)
+    if xn is not None:
         with np.errstate(all="ignore"):
             for c in checks:
                 if np.any(c.bad(np, xn)):

@@ -542,6 +542,20 @@ def _models(d: dict) -> str:
             "with empty caches and again with the caches of the first process:\n\n"
             + _table(["caches", "model", "forward s", "gradient s"], first),
         ]
+def _first_call(d: dict) -> str:
+    head = ["map", "jaxlie counterpart"]
+    for k in ("value", "jacfwd", "jacrev"):
+        head += [f"{k} rigidjax", f"{k} jaxlie"]
+    rows = []
+    for r in _list(d.get("results")):
+        row = [f"`{r.get('map')}`", f"`{r.get('jaxlie')}`"]
+        for k in ("value", "jacfwd", "jacrev"):
+            row += [_ms(_get(r, k, "rigidjax_seconds")), _ms(_get(r, k, "jaxlie_seconds"))]
+        rows.append(row)
+    return (
+        "First call of each rotation map, eager, and of its eager `jax.jacfwd`/`jax.jacrev`, "
+        "each in a fresh process after JAX has started (float64, a half-turn), against jaxlie "
+        "measured in the same run; best of the rounds.\n\n" + _table(head, rows)
     )
 
 
@@ -561,6 +575,7 @@ SECTIONS: dict[str, tuple[str, Callable[[dict], str]]] = {
     "sweep.json": ("Sweeps: throughput, devices, memory", _sweep),
     "kernel.json": ("The CPU kernels against hand-written C, 1e3 to 1e7 bodies", _generic),
     "models.json": ("Every model at kernel speed: torques, tops, 6-DOF bodies against C", _models),
+    "first_call.json": ("First calls of the rotation maps vs jaxlie", _first_call),
 }
 
 

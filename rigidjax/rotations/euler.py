@@ -41,6 +41,7 @@ from .._custom_types import (
     Vec3Like,
 )
 from . import _validation, quat
+from ._compiled import compiled
 
 SEQUENCES: tuple[str, ...] = tuple(
     s
@@ -275,10 +276,18 @@ def _to_quat(angles: Float[Array, "*batch k"], seq: EulerSeq) -> Quat:
 def to_matrix(angles: RealLike, seq: EulerSeq = "ZXZ", degrees: bool = False) -> Mat33:
     """Rotation tensor of Euler angles, e.g. `"ZXZ"`: `P = Rz(ψ) Rx(θ) Rz(φ)` (THEORY §4;
     `Pᵀ` is the direction-cosine matrix of Borisov–Mamaev 001, remark 2). 1 to 3 axes and
-    `degrees` as `to_quat`."""
+    `degrees` as `to_quat`. One compiled program per shape, dtype and sequence."""
+    n = len(_parse_axes(seq, False)[0])
+    a = _angles_arg(angles, n, seq=str(seq))
+    return _to_matrix(a, seq=seq, degrees=bool(degrees))
+
+
+@compiled(1)
+def _to_matrix(angles: Float[Array, "*batch k"], seq: EulerSeq, degrees: bool) -> Mat33:
     # the barrier keeps XLA from fusing the quaternion into each of the nine entries, which
     # recomputed its sines and cosines (1.4× faster for 10⁶ angles; benchmarks/bench_rotations.py)
-    q = jax.lax.optimization_barrier(to_quat(angles, seq, degrees))
+    q = _to_quat(jnp.deg2rad(angles) if degrees else angles, seq)
+    q = jax.lax.optimization_barrier(q)
     return quat._to_matrix(q, quat.norm2(q))
 
 
@@ -306,9 +315,15 @@ def from_matrix(P: Mat33Like, seq: EulerSeq = "ZXZ", degrees: bool = False) -> V
     """Euler angles of a rotation matrix (via the largest-component `quat.from_matrix`), with the
     ranges and gimbal-lock convention of `from_quat` (3 axes; `degrees=True` returns degrees).
     `P` is checked and orthogonalised as by `quat.from_matrix` (det P ≤ 0 or a non-finite P is an
-    error)."""
+    error). One compiled program per shape, dtype and sequence, as `quat.from_matrix`."""
     _parse_seq(seq)
-    angles = _from_unit_quat(quat._from_matrix(matrix(P, "P"), "P"), seq)
+    P = matrix(P, "P")
+    return _from_matrix(P, seq=seq, degrees=bool(degrees), mode=quat._matrix_mode(P, "P"))
+
+
+@compiled(2)
+def _from_matrix(P: Mat33, seq: EulerSeq, degrees: bool, mode: str) -> Vec3:
+    angles = _from_unit_quat(quat._quat_of_matrix(P, "P", mode), seq)
     return jnp.rad2deg(angles) if degrees else angles
 
 

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 from .._checks import matrix, vector
 from .._custom_types import Mat33, Mat33Like, Quat, QuatLike, Vec3, Vec3Like
 from . import _validation, quat
+from ._compiled import compiled
 
 
 def _from_unit_quat(q: Quat) -> Vec3:
@@ -38,8 +39,14 @@ def to_quat(p: Vec3Like) -> Quat:
 
 def from_matrix(P: Mat33Like) -> Vec3:
     """MRP (`|p| ≤ 1`) of a rotation matrix, through the largest-component quaternion; `P` is
-    checked and orthogonalised as by `quat.from_matrix`."""
-    return _from_unit_quat(quat._from_matrix(matrix(P, "P"), "P"))
+    checked and orthogonalised as by `quat.from_matrix` (one compiled program)."""
+    P = matrix(P, "P")
+    return _from_matrix(P, mode=quat._matrix_mode(P, "P"))
+
+
+@compiled(2)
+def _from_matrix(P: Mat33, mode: str) -> Vec3:
+    return _from_unit_quat(quat._quat_of_matrix(P, "P", mode))
 
 
 def to_matrix(p: Vec3Like) -> Mat33:

@@ -5,11 +5,13 @@ the same rotation. Functions that map a quaternion to a rotation accept any non-
 it as `q/|q|` (like SciPy).
 
 Bad input is an error naming the argument: a zero or non-finite quaternion, a non-finite or
-improper (det ≤ 0) matrix passed as a rotation. On concrete input it is a `ValueError` with the
-offending value and the fix; under `jit`/`vmap`/`grad` the same message comes from an
-`equinox.error_if` at run time. The algebra used inside integrators (`mul`, `rotate`,
-`normalize`, `to_matrix`, `inv`) keeps a single check of `|q| > 0`, finite; `from_matrix`,
-`to_rotvec`, `angle` and the other conversions check their arguments fully.
+improper (det ≤ 0) matrix passed as a rotation. On concrete input (also the primal of an eager
+`grad`/`jacfwd`/`jacrev`) it is a `ValueError` with the offending value and the fix; under
+`jit`/`vmap` the same message comes from an `equinox.error_if` at run time. `from_matrix` and
+`to_matrix` run as one compiled program per shape (`rotations._compiled`): their first eager
+call, and that of their derivatives, costs one compilation. The algebra used inside integrators
+(`mul`, `rotate`, `normalize`, `to_matrix`, `inv`) keeps a single check of `|q| > 0`, finite;
+`from_matrix`, `to_rotvec`, `angle` and the other conversions check their arguments fully.
 
 Also here, from modules of their own: `mean` (`average`), `align_vectors` (`align`), `power`,
 `magnitude`, `approx_equal` (`powers`), `rotation_group`, `reduce` (`groups`), `from_scipy`,
@@ -22,9 +24,10 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, DTypeLike, Float, PRNGKeyArray, Real
 
-from .._checks import as_float, matrix, vector
+from .._checks import as_float, concrete_value, is_concrete, matrix, vector
 from .._custom_types import (
     Mat33,
     Mat33Like,
@@ -37,6 +40,7 @@ from .._custom_types import (
 )
 from . import _series
 from . import _validation as _v
+from ._compiled import compiled
 
 
 def _split(q: Quat) -> tuple[Scalar, Vec3]:
@@ -183,9 +187,19 @@ def _to_matrix(q: Quat, n2: Scalar) -> Mat33:
 
 def to_matrix(q: QuatLike) -> Mat33:
     """`P = E + 2(λ0 λ × E + (λ × E)²)/|q|²`; for unit q this is `2{λλ + (λ0² − ½)E + λ0 λ × E}`
-    (Borisov–Mamaev; THEORY §3). `q` must be finite and non-zero."""
+    (Borisov–Mamaev; THEORY §3). `q` must be finite and non-zero. One compiled program per
+    shape and dtype, its check made in NumPy when the value of `q` is known."""
     q = vector(q, 4, "q")
-    return _to_matrix(q, _checked_norm2(q, "q"))
+    checked = concrete_value(q) is not None
+    if checked:
+        _v.check_quat(q, "q")
+    return _to_matrix_compiled(q, checked=checked)
+
+
+@compiled(1)
+def _to_matrix_compiled(q: Quat, checked: bool) -> Mat33:
+    """`to_matrix` of `q`, checked at run time unless `checked` already."""
+    return _to_matrix(q, norm2(q) if checked else _checked_norm2(q, "q"))
 
 
 def _from_orthogonal(P: Mat33) -> Quat:
@@ -202,18 +216,19 @@ def _from_orthogonal(P: Mat33) -> Quat:
         P[..., 0, 2] + P[..., 2, 0],
         P[..., 1, 2] + P[..., 2, 1],
     )
-    t = jnp.stack([1 + tr, 1 + 2 * p00 - tr, 1 + 2 * p11 - tr, 1 + 2 * p22 - tr], axis=-1)
-    candidates = jnp.stack(
-        [
-            jnp.stack([t[..., 0], d21, d02, d10], axis=-1),
-            jnp.stack([d21, t[..., 1], s01, s02], axis=-1),
-            jnp.stack([d02, s01, t[..., 2], s12], axis=-1),
-            jnp.stack([d10, s02, s12, t[..., 3]], axis=-1),
-        ],
-        axis=-2,
-    )
-    k = jnp.argmax(t, axis=-1)
-    c = jnp.take_along_axis(candidates, k[..., None, None], axis=-2)[..., 0, :]
+    t = [1 + tr, 1 + 2 * p00 - tr, 1 + 2 * p11 - tr, 1 + 2 * p22 - tr]
+    candidates = [
+        jnp.stack([t[0], d21, d02, d10], axis=-1),
+        jnp.stack([d21, t[1], s01, s02], axis=-1),
+        jnp.stack([d02, s01, t[2], s12], axis=-1),
+        jnp.stack([d10, s02, s12, t[3]], axis=-1),
+    ]
+    k = jnp.argmax(jnp.stack(t, axis=-1), axis=-1)[..., None]
+    # the row of the largest t_k, chosen by `where` (a gather compiles, and differentiates,
+    # several times slower)
+    c = candidates[3]
+    for i in (2, 1, 0):
+        c = jnp.where(k == i, candidates[i], c)
     # c = 4 λk λ; normalising it directly avoids a square root of a possibly tiny number.
     return canonical(c / jnp.linalg.norm(c, axis=-1, keepdims=True))
 
@@ -234,10 +249,10 @@ def _polar_step(_: Any, X: Mat33) -> Mat33:
     return 0.5 * (X / g + C * (g / d))
 
 
-def _is_orthogonal(P: Mat33) -> Array:
-    """`|P Pᵀ − E| ≤ 100 eps` entrywise (a rotation to rounding)."""
-    G = P @ jnp.swapaxes(P, -1, -2) - jnp.eye(3, dtype=P.dtype)
-    return jnp.all(jnp.abs(G) <= 100 * jnp.finfo(P.dtype).eps, axis=(-2, -1))
+def _is_orthogonal(xp: Any, P: Any) -> Any:
+    """`|P Pᵀ − E| ≤ 100 eps` entrywise (a rotation to rounding); `xp` is NumPy or jax.numpy."""
+    G = P @ xp.swapaxes(P, -1, -2) - xp.eye(3, dtype=P.dtype)
+    return xp.all(xp.abs(G) <= 100 * xp.finfo(P.dtype).eps, axis=(-2, -1))
 
 
 @jax.custom_jvp
@@ -246,7 +261,7 @@ def _orthogonalised(P: Mat33) -> Mat33:
     `Rotation.from_matrix`, which takes the SVD `U Vᵀ`). The derivative is always that of the
     polar factor (at a rotation: the projection of `dP` on the tangent space), consistent with the
     value off SO(3)."""
-    return jnp.where(_is_orthogonal(jax.lax.stop_gradient(P))[..., None, None], P, _polar(P))
+    return jnp.where(_is_orthogonal(jnp, jax.lax.stop_gradient(P))[..., None, None], P, _polar(P))
 
 
 @_orthogonalised.defjvp
@@ -256,9 +271,54 @@ def _orthogonalised_jvp(primals, tangents):
     return _orthogonalised(P), dX
 
 
+@jax.custom_jvp
+def _rotation(P: Mat33) -> Mat33:
+    """`_orthogonalised` of matrices known to be orthogonal to rounding: `P`, with the derivative
+    of the polar factor at a rotation, `dU = P skew(Pᵀ dP)` (`skew A = (A − Aᵀ)/2`; one Newton
+    step of `_polar` gives it, the others keep it), without compiling the Newton iteration."""
+    return P
+
+
+@_rotation.defjvp
+def _rotation_jvp(primals, tangents):
+    (P,), (dP,) = primals, tangents
+    A = jnp.swapaxes(P, -1, -2) @ dP
+    return P, P @ (A - jnp.swapaxes(A, -1, -2)) / 2
+
+
+def _matrix_mode(P: Mat33, name: str) -> str:
+    """How `_quat_of_matrix` takes `P`: with its value known now (`concrete_value`), checked here
+    in NumPy (errors naming `name`) and `"rotation"` if every matrix is orthogonal to rounding
+    (and `P` is concrete or a first-order derivative's tracer), else `"orthogonalise"`;
+    `"traced"` (under jit/vmap) checked at run time."""
+    Pn = concrete_value(P)
+    if Pn is None:
+        return "traced"
+    _v.check_matrix(P, name)
+    # `_rotation`'s tangent is the polar factor's first derivative only: higher derivatives
+    # (the tracer of a tracer, e.g. `jax.hessian`) go through the Newton iteration
+    first_order = is_concrete(getattr(P, "primal", P))
+    return "rotation" if first_order and np.all(_is_orthogonal(np, Pn)) else "orthogonalise"
+
+
+def _quat_of_matrix(P: Mat33, name: str, mode: str) -> Quat:
+    """`from_matrix` of `P` taken as `_matrix_mode` says: checked (errors naming `name`) and
+    orthogonalised. Called inside the jitted cores of the public maps."""
+    if mode == "assume_valid":
+        return _from_orthogonal(P)
+    if mode == "rotation":
+        return _from_orthogonal(_rotation(P))
+    if mode == "traced":
+        P = _v.check_matrix(P, name)
+    return _from_orthogonal(_orthogonalised(P))
+
+
+_quat_of_matrix_jit = compiled(2)(_quat_of_matrix)
+
+
 def _from_matrix(P: Mat33, name: str) -> Quat:
-    """`from_matrix` of `P`, checked (errors naming `name`) and orthogonalised."""
-    return _from_orthogonal(_orthogonalised(_v.check_matrix(P, name)))
+    """`from_matrix` of `P`, checked (errors naming `name`) and orthogonalised, compiled."""
+    return _quat_of_matrix_jit(P, name=name, mode=_matrix_mode(P, name))
 
 
 def from_matrix(P: Mat33Like, *, assume_valid: bool = False) -> Quat:
@@ -274,9 +334,12 @@ def from_matrix(P: Mat33Like, *, assume_valid: bool = False) -> Quat:
     integrator's output) is replaced by its nearest rotation, the polar factor `U Vᵀ` of its SVD
     (computed by a Newton iteration, with finite derivatives). `assume_valid=True` (as in SciPy)
     skips both for matrices known to be rotations (e.g. inside an integrator's vector field).
+    One compiled program per shape and dtype (also under `jacfwd`/`jacrev`), its checks made in
+    NumPy when the value of `P` is known.
     """
     P = matrix(P, "P")
-    return _from_orthogonal(P) if assume_valid else _from_matrix(P, "P")
+    mode = "assume_valid" if assume_valid else _matrix_mode(P, "P")
+    return _quat_of_matrix_jit(P, name="P", mode=mode)
 
 
 def angle(q: QuatLike) -> Scalar:

@@ -15,6 +15,7 @@ from jaxtyping import DTypeLike, PRNGKeyArray
 from .._checks import is_concrete, matrix, validate, vector
 from .._custom_types import Frame, Mat33, Mat33Like, Scalar, Vec3, Vec3Like
 from . import _series, _validation, quat
+from ._compiled import compiled
 
 
 def hat(v: Vec3Like) -> Mat33:
@@ -53,10 +54,16 @@ def _hat_sq(theta: Vec3, x2: Scalar) -> Mat33:
 def exp(theta: Vec3Like) -> Mat33:
     """`P(θ) = exp(θ × E) = E + (sin θ/θ) R + ((1 − cos θ)/θ²) R²`, `R = θ × E` (Zhilin; Euler's
     theorem). Finite values and gradients at θ = 0. A non-finite concrete `theta` is an error
-    naming it; traced, no check (the integrators' hot path): NaN in, NaN out."""
+    naming it; traced, no check (the integrators' hot path): NaN in, NaN out. One compiled
+    program per shape and dtype (see `rotations._compiled`)."""
     theta = vector(theta, 3, "theta")
     if is_concrete(theta):
         theta = _validation.check_finite(theta, "theta", 1)
+    return _exp(theta)
+
+
+@compiled(1)
+def _exp(theta: Vec3) -> Mat33:
     x2 = _sq(theta)
     R = hat(theta)
     a = _series.sin_over(x2)[..., None, None]
@@ -69,8 +76,15 @@ def log(P: Mat33Like) -> Vec3:
     (exact at θ = π, no loss of accuracy near it, finite gradients at the identity).
 
     As `quat.from_matrix` (and SciPy): a non-finite `P` or det P ≤ 0 is an error naming `P`;
-    a matrix with det > 0 that is not orthogonal is replaced by its nearest rotation."""
-    return quat._to_rotvec(quat._from_matrix(matrix(P, "P"), "P"))
+    a matrix with det > 0 that is not orthogonal is replaced by its nearest rotation. One
+    compiled program per shape and dtype, as `quat.from_matrix`."""
+    P = matrix(P, "P")
+    return _log(P, mode=quat._matrix_mode(P, "P"))
+
+
+@compiled(2)
+def _log(P: Mat33, mode: str) -> Vec3:
+    return quat._to_rotvec(quat._quat_of_matrix(P, "P", mode))
 
 
 def rotate(theta: Vec3Like, a: Vec3Like) -> Vec3:
@@ -180,9 +194,15 @@ def project(A: Mat33Like) -> Mat33:
 
 def distance(P1: Mat33Like, P2: Mat33Like) -> Scalar:
     """Geodesic distance `|log(P1ᵀ P2)|` ∈ [0, π] (the angle of the relative rotation); `P1`, `P2`
-    are checked and orthogonalised as by `quat.from_matrix`."""
-    q1 = quat._from_matrix(matrix(P1, "P1"), "P1")
-    q2 = quat._from_matrix(matrix(P2, "P2"), "P2")
+    are checked and orthogonalised as by `quat.from_matrix` (one compiled program)."""
+    P1, P2 = matrix(P1, "P1"), matrix(P2, "P2")
+    return _distance(P1, P2, mode1=quat._matrix_mode(P1, "P1"), mode2=quat._matrix_mode(P2, "P2"))
+
+
+@compiled(2, 2)
+def _distance(P1: Mat33, P2: Mat33, mode1: str, mode2: str) -> Scalar:
+    q1 = quat._quat_of_matrix(P1, "P1", mode1)
+    q2 = quat._quat_of_matrix(P2, "P2", mode2)
     return quat._angle(quat.mul(quat.conj(q1), q2))
 
 

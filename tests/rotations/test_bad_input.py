@@ -1,5 +1,6 @@
 """Bad input to the rotation maps is a clear error naming the argument: a ValueError with the value
-and the fix on concrete input, the same message from `equinox.error_if` under jit/vmap/grad.
+and the fix on concrete input (also under an eager grad/jacfwd/jacrev, whose primal is known),
+the same message from `equinox.error_if` under jit/vmap.
 Valid input (identity, θ = π, 180° rotations, slightly non-orthogonal matrices) keeps finite
 values and gradients, and the algebra of the integrators gains no checks."""
 
@@ -188,10 +189,14 @@ def test_improper_matrix_is_an_error(fn):
 
 
 def test_log_of_a_non_rotation():
-    """`so3.log(ones((3, 3)))` was silently [0, 0, 0]; now an error, also under vmap and grad."""
+    """`so3.log(ones((3, 3)))` was silently [0, 0, 0]; now an error, also under vmap and grad
+    (an eager grad knows the value: the ValueError with it, at once)."""
     raises_everywhere(so3.log, (np.ones((3, 3)),), "P is not a rotation matrix")
-    with pytest.raises(RUNTIME, match="P is not a rotation matrix"):
-        jax.grad(lambda P: so3.log(P).sum())(jnp.ones((3, 3)))
+    for d in (jax.grad(lambda P: so3.log(P).sum()), jax.jacfwd(so3.log), jax.jacrev(so3.log)):
+        with pytest.raises(ValueError, match=r"P is not a rotation matrix.*: det P = 0 for P"):
+            d(jnp.ones((3, 3)))
+    with raises_in_jit("P is not a rotation matrix"):
+        jax.block_until_ready(jax.jit(jax.grad(lambda P: so3.log(P).sum()))(jnp.ones((3, 3))))
     with pytest.raises(RUNTIME, match=r"P is not a rotation matrix"):
         jax.block_until_ready(jax.vmap(so3.log)(jnp.stack([jnp.eye(3), -jnp.eye(3)])))
 
