@@ -542,6 +542,9 @@ def _models(d: dict) -> str:
             "with empty caches and again with the caches of the first process:\n\n"
             + _table(["caches", "model", "forward s", "gradient s"], first),
         ]
+    )
+
+
 def _first_call(d: dict) -> str:
     head = ["map", "jaxlie counterpart"]
     for k in ("value", "jacfwd", "jacrev"):
