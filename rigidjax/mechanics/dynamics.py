@@ -410,6 +410,7 @@ def simulate(
     if not structured:  # other states give q up to sign: continue the integrated q0
         q = quat.continuous(jnp.moveaxis(q, 0, 1))  # (B, T, 4)
         q = jnp.moveaxis(q * jnp.sign(jnp.sum(q[:, :1] * q0[:, None], -1, keepdims=True)), 1, 0)
+        q = q.at[0].set(q0)  # `quat[0] = q0` exactly (the chart's round trip is ulp-close)
     return _trajectory(ts, batch, omega, q, stats, result)
 
 
