@@ -110,7 +110,30 @@ def validate_all(x: Array, checks: Sequence[Check], on: Array | None = None) -> 
     xs = jax.lax.stop_gradient(x)
     fails = jnp.stack([jnp.any(c.bad(jnp, xs)) for c in checks])
     msgs = [c.message + c.hint for c in checks]
-    return eqx.branched_error_if(out, jnp.any(fails), jnp.argmax(fails), msgs)
+    return attach_check(out, jnp.any(fails), jnp.argmax(fails), msgs)
+
+
+def attach_check(out: Any, pred: Array, index: Array, msgs: Sequence[str]) -> Any:
+    """`out` (a PyTree) with `equinox.branched_error_if(pred, index, msgs)` attached through a
+    scalar: the check's branch passes the scalar, not `out`, which it would copy whole (under
+    `jax.vmap`, once per check: a third of a 1e5-body sweep step), and every floating array of
+    `out` then depends on the scalar (a zero added to one element, in place), so that the check
+    runs whenever `out` is used."""
+    leaves, tree = jax.tree_util.tree_flatten(out)
+    floating = [hasattr(a, "dtype") and jnp.issubdtype(a.dtype, jnp.inexact) for a in leaves]
+    if not any(f and a.size for f, a in zip(floating, leaves, strict=True)):
+        return eqx.branched_error_if(out, pred, index, msgs)  # nothing to carry a scalar
+    flag = eqx.branched_error_if(jnp.zeros((), jnp.int32), pred, index, msgs)
+
+    def depend(a: Any, f: bool) -> Any:
+        if not f or a.size == 0:
+            return a
+        zero = jnp.zeros((), a.dtype) * flag.astype(a.dtype)
+        return a.at[(0,) * a.ndim].add(zero) if a.ndim else a + zero
+
+    return jax.tree_util.tree_unflatten(
+        tree, [depend(a, f) for a, f in zip(leaves, floating, strict=True)]
+    )
 
 
 def first(mask: Any) -> tuple[int, ...]:

@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import optimistix as optx
 from jaxtyping import Array, PyTree
 
-from ._checks import is_concrete
+from ._checks import attach_check, is_concrete
 from ._custom_types import Frame
 from .solvers.explicit_rk import unrolled
 from .solvers.rkmk import RKMK
@@ -126,15 +126,7 @@ def raise_failure(
     index = jnp.asarray(len(causes))
     for i, r in enumerate(causes):
         index = jnp.where(result == r, i, index)
-    # the check on a scalar that every returned array then depends on (a zero added to one
-    # element: in place), not on `ys` itself, which the check's branch would copy whole
-    flag = eqx.branched_error_if(num_valid, result != diffrax.RESULTS.successful, index, messages)
-
-    def depend(a: Array) -> Array:
-        zero = jnp.zeros((), a.dtype) * flag.astype(a.dtype)
-        return a.at[(0,) * a.ndim].add(zero) if a.ndim else a + zero
-
-    return jax.tree_util.tree_map(depend, ys)
+    return attach_check(ys, result != diffrax.RESULTS.successful, index, messages)
 
 
 def _warn_unattainable(dtype, rtol: float | None, atol: float | None) -> None:
