@@ -120,13 +120,20 @@ def attach_check(out: Any, pred: Array, index: Array, msgs: Sequence[str]) -> An
     `out` then depends on the scalar (a zero added to one element, in place), so that the check
     runs whenever `out` is used."""
     leaves, tree = jax.tree_util.tree_flatten(out)
-    floating = [hasattr(a, "dtype") and jnp.issubdtype(a.dtype, jnp.inexact) for a in leaves]
-    if not any(f and a.size for f, a in zip(floating, leaves, strict=True)):
+    # strongly typed floating arrays carry it (adding a typed zero would strip a weak type)
+    floating = [
+        hasattr(a, "dtype")
+        and jnp.issubdtype(a.dtype, jnp.inexact)
+        and a.size > 0
+        and not getattr(getattr(a, "aval", a), "weak_type", False)
+        for a in leaves
+    ]
+    if not any(floating):
         return eqx.branched_error_if(out, pred, index, msgs)  # nothing to carry a scalar
     flag = eqx.branched_error_if(jnp.zeros((), jnp.int32), pred, index, msgs)
 
     def depend(a: Any, f: bool) -> Any:
-        if not f or a.size == 0:
+        if not f:
             return a
         zero = jnp.zeros((), a.dtype) * flag.astype(a.dtype)
         return a.at[(0,) * a.ndim].add(zero) if a.ndim else a + zero
