@@ -244,3 +244,12 @@ def load_report(out: dict) -> str:
         f"load average start {out['load_average_start']}, end {out['load_average_end']}; "
         f"total {out['total_wall_s']:.0f} s"
     )
+
+
+def finish(out: dict, path: Path, t0: float) -> None:
+    """Close a run: the load average at the end and the wall time since `t0` into `out`,
+    written atomically to `path`, and the closing line printed."""
+    out["load_average_end"] = load_average()
+    out["total_wall_s"] = time.perf_counter() - t0
+    write_json(Path(path), out)
+    print(load_report(out))

@@ -44,11 +44,10 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 from _harness import (  # noqa: E402
     Timing,
+    finish,
     interleaved,
     load_average,
-    load_report,
     machine_info,
-    write_json,
 )
 
 import rigidjax as rj  # noqa: E402
@@ -145,10 +144,7 @@ def main(argv=None) -> int:
         "load_average_start": load_average(),
     }
     out["results"] = [one_size(B, N, args.repeats, args.seed, print) for B, N in sizes]
-    out["load_average_end"] = load_average()
-    out["total_wall_s"] = time.perf_counter() - t0
-    write_json(Path(args.out), out)
-    print(load_report(out))
+    finish(out, args.out, t0)
     return 0
 
 

@@ -25,7 +25,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _harness import fresh_process, load_average, load_report, machine_info, write_json  # noqa: E402
+from _harness import finish, fresh_process, load_average, machine_info  # noqa: E402
 
 DERIVATIVES = ("value", "jacfwd", "jacrev")
 
@@ -172,10 +172,7 @@ def main(argv=None) -> int:
             )
         results.append(entry)
     out["results"] = results
-    out["load_average_end"] = load_average()
-    out["total_wall_s"] = time.perf_counter() - t0
-    write_json(Path(args.out), out)
-    print(load_report(out))
+    finish(out, args.out, t0)
     return 0
 
 

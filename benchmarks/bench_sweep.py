@@ -43,7 +43,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _harness import fresh_process, load_average, load_report, machine_info, write_json  # noqa: E402
+from _harness import finish, fresh_process, load_average, machine_info  # noqa: E402
 
 N_STEPS, DT = 100, 0.01
 
@@ -184,10 +184,7 @@ def main(argv=None) -> int:
     out["memory_ratio_points"] = last["points"] / first["points"]
     for r in out["memory"]:
         print(f"{r['points']} points to a store: peak RSS {r['peak_rss_bytes'] / 2**20:.0f} MiB")
-    out["load_average_end"] = load_average()
-    out["total_wall_s"] = time.perf_counter() - t0
-    write_json(Path(args.out), out)
-    print(load_report(out))
+    finish(out, args.out, t0)
     return 0
 
 
