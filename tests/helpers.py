@@ -83,3 +83,15 @@ def rigid_body_dop853(I, w0, q0, ts, torque_body=None, t0=None):
             out[np.flatnonzero(mask)[order]] = sol.y.T
     q = out[:, 3:]
     return out[:, :3], q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def fd_jacobian(f, x, h=1e-6) -> np.ndarray:
+    """Central differences of `f` at `x`: `(*f(x).shape, x.size)` (the inputs flattened)."""
+    x = np.asarray(x, float)
+    cols = []
+    for i in range(x.size):
+        e = np.zeros(x.size)
+        e[i] = h
+        e = e.reshape(x.shape)
+        cols.append((np.asarray(f(x + e)) - np.asarray(f(x - e))) / (2 * h))
+    return np.stack(cols, axis=-1)

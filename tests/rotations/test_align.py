@@ -13,6 +13,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from rigidjax import quat
+from tests.helpers import fd_jacobian
 from tests.rotations.test_bad_input import raises_in_jit
 
 N = 6
@@ -160,17 +161,6 @@ def test_degenerate_sets():
     q1, rssd1, _ = ALIGN(a, a, w)
     np.testing.assert_allclose(q1, [1, 0, 0, 0], atol=1e-15)
     assert rssd1 == 0.0
-
-
-def fd_jacobian(f, x, h=1e-6):
-    x = np.asarray(x, float)
-    cols = []
-    for i in range(x.size):
-        e = np.zeros(x.size)
-        e[i] = h
-        e = e.reshape(x.shape)
-        cols.append((np.asarray(f(x + e)) - np.asarray(f(x - e))) / (2 * h))
-    return np.stack(cols, axis=-1)
 
 
 def test_gradients_match_finite_differences():

@@ -11,6 +11,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from rigidjax.rotations import euler, mrp, quat, so3
+from tests.helpers import fd_jacobian
 
 P0 = Rotation.from_rotvec([0.4, -1.1, 2.0]).as_matrix()
 HALF = 2 * np.outer([1.0, 2, 2], [1.0, 2, 2]) / 9 - np.eye(3)
@@ -32,14 +33,9 @@ MAPS = {
 }
 
 
-def central_differences(f, x, h=1e-6):
-    cols = []
-    for k in range(x.size):
-        e = np.zeros(x.size)
-        e[k] = h
-        e = e.reshape(x.shape)
-        cols.append((np.asarray(f(x + e)) - np.asarray(f(x - e))) / (2 * h))
-    return np.stack(cols, axis=-1).reshape(np.shape(f(x)) + x.shape)
+def central_differences(f, x):
+    """`fd_jacobian` in JAX's Jacobian shape `(*f(x).shape, *x.shape)`."""
+    return fd_jacobian(f, x).reshape(np.shape(f(x)) + x.shape)
 
 
 @pytest.mark.parametrize("name", MAPS)
