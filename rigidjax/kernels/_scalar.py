@@ -15,7 +15,8 @@ carries that arithmetic out:
 
 Runtime checks inside the field (`equinox.error_if`, e.g. of `quat.to_matrix`) are dropped:
 their host callbacks cost ~10× the arithmetic of an attitude torque, and the state they check
-is a unit quaternion by construction; a non-finite state still fails the solve. A primitive
+is a unit quaternion by construction; a non-finite state still fails the solve (a check on the
+field's own parameters is dropped too: validate them where they are built). A primitive
 with no scalar form (`while`, `scan`, a host callback, a data-dependent index, ...) raises
 `Unsupported` naming it, and the caller falls back to evaluating the field as it is."""
 
