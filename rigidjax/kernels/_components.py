@@ -23,8 +23,17 @@ class Components:
         floats = [
             a.dtype for a in args if not _is_const(a) and jnp.issubdtype(a.dtype, jnp.floating)
         ]
-        real = floats[0] if floats else dtype
-        xs = [a if not _is_const(a) else jnp.asarray(a, _const_dtype(a, real)) for a in args]
+        # the float operands in the result's type (a `dot_general` of float32 and float64
+        # operands, unrolled, multiplies float32 scalars into a float64 result)
+        real = dtype if jnp.issubdtype(dtype, jnp.floating) else jnp.result_type(*floats, dtype)
+        xs = [
+            jnp.asarray(a, _const_dtype(a, real))
+            if _is_const(a)
+            else a.astype(real)
+            if jnp.issubdtype(a.dtype, jnp.floating) and name != "convert_element_type"
+            else a
+            for a in args
+        ]
         shape = jnp.broadcast_shapes(*(jnp.shape(x) for x in xs))
         xs = [jnp.broadcast_to(x, shape) for x in xs]
         if name == "integer_pow":

@@ -76,7 +76,7 @@ class Hoisted:
     def components(self) -> Callable:
         """The field as the Diffrax path evaluates it: `(t, y, p, c) -> ẏ` on tuples of
         component arrays (`y`: N arrays, e.g. `(B,)` each; `p`: P arrays, scalars or `(B,)`;
-        `c (Pc,)`), the same scalar operations as the kernel's `F`."""
+        `c`: `(Pc,)` or Pc arrays), the same scalar operations as the kernel's `F`."""
         forward, n, p = self.forward, self.n, self.p
 
         def fn(t, y, pp, c):
@@ -84,7 +84,7 @@ class Hoisted:
                 scalars([t], ()),
                 scalars(list(y), (n,)),
                 scalars(list(pp), (p,)),
-                scalars([c[i] for i in range(c.shape[0])], c.shape),
+                scalars([c[i] for i in range(len(c))], (len(c),)),
             ]
             (k,) = unroll(forward, Components(), _consts(forward), ins)
             like = y[0]

@@ -1,6 +1,6 @@
 """The torque-free rigid body in principal axes with its body-frame attitude quaternion, written
-component by component: the one formula that `simulate`'s component path (Diffrax) and the GPU
-kernel (`rigidjax.kernels.free_body_pallas`) both evaluate, so that their numbers agree."""
+component by component: the one formula of the free body's model (`_rigid_model`), which every
+backend evaluates, so that their numbers agree."""
 
 from __future__ import annotations
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, Unpack, cast
+from typing import TYPE_CHECKING, Any, Unpack
 
 import diffrax
 import equinox as eqx
@@ -18,16 +18,12 @@ from .._checks import (
     vector,
 )
 from .._custom_types import Frame, RealLike
-from .._integrate import SolveKwargs, SolveOptions, fixed_step_count, raise_failure, solve_saved
+from .._integrate import SolveKwargs, SolveOptions, solve_saved
 from .._trajectory import AbstractTrajectory
-from ..kernels import free_body as kernel
-from ..kernels import free_body_pallas as pallas_kernel
 from ..kinematics.formulations import AbstractKinematics, Quaternion, lookup
-from ..models import Model
-from ..models.solve import BatchMaxRMS, kernel_options, kernel_solve, method_of, solve_model
+from ..models.solve import BatchMaxRMS, solve_model
 from ..rotations import quat
 from ..solvers.exact_free_body import ExactFreeBody, RigidBodyField, flow_from_start
-from ..solvers.explicit_rk import ExplicitRK
 from ..solvers.rkmk import LieTerm
 from ..solvers.splitting import LiePoissonSplitting
 from ._gyrostat_body import Gyrostat
@@ -174,47 +170,6 @@ def _structured(
     return term, options, args[0]
 
 
-def _gpu_serves(options: SolveOptions, torque: Torque | None, dtype) -> bool:
-    """Whether the Pallas kernel (`rigidjax.kernels.free_body_pallas`) integrates this
-    component-path solve: a torque-free body at fixed steps of a method with a kernel, where
-    no CPU kernel serves and the Pallas kernel passed its one-time check on this GPU."""
-    if torque is not None or not kernel_options(options):
-        return False
-    method = method_of(options)
-    return not kernel.serves(method, dtype) and pallas_kernel.serves(method, dtype)
-
-
-def _gpu_kernel(model: Model, options: SolveOptions, y0: Array, p: Array, ts: Array):
-    """`(states (T, B, 7), stats, result)` from the Pallas kernel (in Pallas' interpreter where
-    the backend is not a GPU: the tests). The kernel has no adjoint of its own: reverse mode
-    runs the same steps through Diffrax (`solve_model` with `ExplicitRK(method)`), whose
-    reverse mode differentiates them."""
-    method = method_of(options)
-    rk = cast(diffrax.AbstractRungeKutta, method)  # an explicit RK: `_gpu_serves` checked
-    through = dataclasses.replace(options, solver=ExplicitRK(rk), throw=False)
-
-    def forward(y0, p, ts):
-        width = ts[1:] - ts[:-1]
-        n = fixed_step_count(width, jnp.asarray(options.dt0, ts.dtype))
-        taken = jnp.minimum(n, options.max_steps).astype(jnp.int32)
-        interpret = jax.default_backend() != "gpu"
-        w, q = pallas_kernel.free_body_pallas(
-            type(method), y0[:, :3], y0[:, 3:], p[:, :3].T, taken, width / n, interpret=interpret
-        )
-        return jnp.concatenate([w, q], axis=-1)
-
-    def through_diffrax(y0, p, ts):
-        return jnp.moveaxis(solve_model(model, ts, y0, p, through)[0], 0, 1)
-
-    run = jax.custom_vjp(forward)
-    run.defvjp(lambda *a: jax.vjp(through_diffrax, *a), lambda pullback, g: pullback(g))
-    ys, stats, result = kernel_solve(lambda n, taken, h, t0: run(y0, p, ts), ts, options)
-    ys = jnp.moveaxis(ys, 1, 0)
-    if options.throw:
-        ys = raise_failure(result, stats["num_valid"], ts, ys, options.max_steps)
-    return ys, stats, result
-
-
 def fixed_steps(options: SolveOptions) -> SolveOptions:
     """`options` for `ExactFreeBody` or `LiePoissonSplitting`: `diffrax.ConstantStepSize`, by
     default one step per output interval for `ExactFreeBody` (exact for any step), `dt0`
@@ -278,9 +233,9 @@ def simulate(
     (`rigidjax.models`, `rigidjax.kernels.model`), built on first use: the same steps and
     numbers as the Diffrax path, with its own adjoint for `jax.grad`; 0.8–0.9× a hand-written C
     kernel of the same model (benchmarks/results/models.json); a torque the kernel cannot take
-    runs through Diffrax with one warning. On a GPU the torque-free body runs in a Pallas
-    kernel that fuses the time loop (`rigidjax.kernels.free_body_pallas`; gradients through
-    Diffrax; not yet measured on a GPU);
+    runs through Diffrax with one warning. On a GPU the same model, torque included, runs in a
+    Pallas kernel that fuses the time loop (`rigidjax.kernels.model_pallas`; gradients
+    through Diffrax);
     `ExplicitRK(method)` runs the same scheme through Diffrax.
     `solver=rigidjax.ExactFreeBody()` (no torque) steps by the exact Euler–Poinsot flow, exact
     to rounding for any step (by default one step from `ts[0]` to each output time, without a
@@ -364,12 +319,9 @@ def simulate(
         I = body.operator()[0].astype(dtype)
         p = moments_params(I)[None] if body.batch_shape == () else moments_params(args[0])
         y0 = jnp.concatenate([omega0, q0], axis=-1)
-        if _gpu_serves(options, torque, dtype):
-            ys, stats, result = _gpu_kernel(model, options, y0, p, ts)
-        else:
-            # one body: scalar components (under `jax.vmap`, e.g. in a sweep, they become (N,)
-            # arrays, not (N, 1), which XLA vectorises poorly)
-            ys, stats, result = solve_model(model, ts, y0, p, options, single=not batch)
+        # one body: scalar components (under `jax.vmap`, e.g. in a sweep, they become (N,)
+        # arrays, not (N, 1), which XLA vectorises poorly)
+        ys, stats, result = solve_model(model, ts, y0, p, options, single=not batch)
         return _trajectory(ts, batch, ys[..., :3], ys[..., 3:], stats, result)
 
     elif kinematics == "geometric":

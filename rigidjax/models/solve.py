@@ -1,6 +1,7 @@
 """One model, every backend: `solve` integrates a `Model` for a batch of bodies on the CPU kernel
-written from its field (`rigidjax.kernels.model`) where one serves, and through Diffrax
-otherwise, with the same steps and the same scalar operations."""
+written from its field (`rigidjax.kernels.model`) or on a GPU's Pallas kernel evaluating it
+(`rigidjax.kernels.model_pallas`) where one serves, and through Diffrax otherwise, with the same
+steps and the same scalar operations."""
 
 from __future__ import annotations
 
@@ -26,6 +27,7 @@ from .._integrate import (
     solve_saved,
 )
 from ..kernels import model as model_kernel
+from ..kernels import model_pallas
 from ..kernels._scalar import Unsupported
 from ..solvers.explicit_rk import ExplicitRK
 from .model import Model, ravel, tree_model
@@ -183,23 +185,27 @@ def solve_model(
 def _solve(
     model: Model, ts: Array, y0: Array, p: Array, options: SolveOptions, single: bool
 ) -> tuple[Array, dict[str, Array], diffrax.RESULTS]:
-    """`solve_model` without raising failures."""
+    """`solve_model` without raising failures: the CPU kernel, the GPU kernel, or Diffrax."""
     dtype = ts.dtype
     hoisted, missing = _compile(model, dtype)
     if hoisted is not None and kernel_options(options):
         c = hoisted.c.astype(dtype)
+        method = method_of(options)
         try:
-            kernel = model_kernel.build(hoisted, model.unit, method_of(options))
+            kernel = model_kernel.build(hoisted, model.unit, method)
+            gpu = kernel is None and model_pallas.serves(hoisted, model.unit, method)
         except Unsupported as e:
-            kernel, hoisted, missing = None, None, e.primitive
+            kernel, gpu, hoisted, missing = None, False, None, e.primitive
         if kernel is not None:
-            pk = jnp.concatenate([p, jnp.broadcast_to(c, (p.shape[0], c.shape[0]))], axis=1).T
+            pk = _packed(p, c)
 
             def run(n, taken, h, t0):
                 return model_kernel.run(kernel, y0, pk, taken, h, t0)
 
             ys, stats, result = kernel_solve(run, ts, options)
             return jnp.moveaxis(ys, 1, 0), stats, result
+        if gpu and hoisted is not None:
+            return _gpu(model, hoisted, ts, y0, p, c, options)
     if missing is not None and kernel_options(options):
         warnings.warn(
             f"the {model.name} uses `{missing}`, which the fast path (the CPU kernel written "
@@ -208,11 +214,28 @@ def _solve(
             RuntimeWarning,
             stacklevel=4,
         )
-    if hoisted is not None:
-        field = hoisted.components
-        c = hoisted.c.astype(dtype)
-    else:
-        field, c = model.field, jnp.zeros((0,), dtype)
+    c = jnp.zeros((0,), dtype) if hoisted is None else hoisted.c.astype(dtype)
+    return _diffrax(model, hoisted, ts, y0, p, c, options, single)
+
+
+def _packed(p: Array, c: Array) -> Array:
+    """The kernels' parameter rows `(P + Pc, Bp)`: the parameters, then the lifted constants."""
+    return jnp.concatenate([p, jnp.broadcast_to(c, (p.shape[0], c.shape[0]))], axis=1).T
+
+
+def _diffrax(
+    model: Model,
+    hoisted: model_kernel.Hoisted | None,
+    ts: Array,
+    y0: Array,
+    p: Array,
+    c: Array,
+    options: SolveOptions,
+    single: bool,
+) -> tuple[Array, dict[str, Array], diffrax.RESULTS]:
+    """The Diffrax path on the component state: the scalar program of `hoisted` (constants
+    `c`), or the model's own field where it has none."""
+    field = model.field if hoisted is None else hoisted.components
     shared = p.shape[0] == 1
     comps = (lambda a: tuple(a[0])) if (single or shared) else (lambda a: tuple(a.T))
     y_init = tuple(y0[0]) if single else tuple(y0.T)
@@ -227,6 +250,40 @@ def _solve(
     )
     ys = jnp.stack(ys, axis=-1)  # (T, B, N) or (T, N)
     return (ys[:, None] if single else ys), stats, result
+
+
+def _gpu(
+    model: Model,
+    hoisted: model_kernel.Hoisted,
+    ts: Array,
+    y0: Array,
+    p: Array,
+    c: Array,
+    options: SolveOptions,
+) -> tuple[Array, dict[str, Array], diffrax.RESULTS]:
+    """The Pallas kernel's solve (`model_pallas`, in Pallas' interpreter where the backend is
+    not a GPU: the tests). The kernel has no adjoint of its own: reverse mode runs the same
+    steps through Diffrax (`ExplicitRK(method)`), whose reverse mode differentiates them."""
+    method = cast(diffrax.AbstractERK, method_of(options))  # one of METHODS: `serves` checked
+    through = dataclasses.replace(options, solver=ExplicitRK(method), throw=False)
+
+    def forward(y0, p, c, ts):
+        width = ts[1:] - ts[:-1]
+        n = fixed_step_count(width, jnp.asarray(options.dt0, ts.dtype))
+        taken = jnp.minimum(n, options.max_steps).astype(jnp.int32)
+        pk = _packed(p, c)
+        interpret = jax.default_backend() != "gpu"
+        args = (hoisted, model.unit, type(method), y0, pk, taken, width / n, ts[:-1])
+        return model_pallas.run(*args, interpret=interpret)
+
+    def through_diffrax(y0, p, c, ts):
+        ys = _diffrax(model, hoisted, ts, y0, p, c, through, False)[0]
+        return jnp.moveaxis(ys, 0, 1)
+
+    run = jax.custom_vjp(forward)
+    run.defvjp(lambda *a: jax.vjp(through_diffrax, *a), lambda pullback, g: pullback(g))
+    ys, stats, result = kernel_solve(lambda n, taken, h, t0: run(y0, p, c, ts), ts, options)
+    return jnp.moveaxis(ys, 1, 0), stats, result
 
 
 def solve_tree(

@@ -1,0 +1,239 @@
+"""The Pallas kernel (the GPU fast path of every model at fixed steps of an explicit Runge–Kutta
+method), run in Pallas' interpreter on the CPU, against the Diffrax path on the same steps
+(`ExplicitRK(method)`, which never takes a kernel); and its wiring into `solve_model`, with the
+backend's choice forced to the GPU kernel: the free body, a torque with a traced gain, the heavy
+top."""
+
+import functools
+import re
+import warnings
+
+import diffrax
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import rigidjax as rj
+from rigidjax.kernels import model as model_kernel
+from rigidjax.kernels import model_pallas as pk
+from rigidjax.mechanics import heavy_top as ht
+from rigidjax.mechanics._rigid_model import moments_params, rigid_body_model
+from rigidjax.solvers import ExplicitRK
+from tests.helpers import rigid_body_dop853
+
+BODY = rj.RigidBody(jnp.array([1.0, 2.0, 3.0]))
+TS = jnp.asarray([0.0, 0.1, 0.12, 0.35])  # 5, 1 and 12 steps of at most 0.02
+FIXED = dict(stepsize_controller=diffrax.ConstantStepSize(), dt0=0.02)
+E_Z = jnp.array([0.0, 0.0, 1.0])
+
+
+def _inputs(B, seed=0, dtype=jnp.float64):
+    rng = np.random.default_rng(seed)
+    q = rng.normal(size=(B, 4))
+    w, q = rng.normal(size=(B, 3)), q / np.linalg.norm(q, axis=1)[:, None]
+    return jnp.asarray(w, dtype), jnp.asarray(q, dtype)
+
+
+def _free(dtype=jnp.float64):
+    model = rigid_body_model(None)
+    return model, model_kernel.hoist(model.field, model.size, model.params, dtype)
+
+
+def _steps(ts=TS, n=(5, 1, 12)):
+    n = jnp.asarray(n, jnp.int32)
+    return n, jnp.diff(ts) / n, ts[:-1]
+
+
+@pytest.fixture
+def on_gpu_kernel(monkeypatch):
+    """`solve_model` as on a GPU: no C++ kernel, and the Pallas kernel served for its methods
+    (run in Pallas' interpreter here)."""
+    monkeypatch.setattr(model_kernel, "build", lambda hoisted, unit, solver: None)
+    monkeypatch.setattr(pk, "serves", lambda hoisted, unit, solver: type(solver) in pk.METHODS)
+
+
+@pytest.mark.parametrize(
+    "method", [rj.RK4, diffrax.Tsit5, diffrax.Dopri8], ids=lambda m: m.__name__
+)
+def test_kernel_equals_diffrax_path(method):
+    """Every body of a full and a partial block (padded), per-body moments, three intervals of
+    unequal steps: the Diffrax path's numbers, and SciPy's solution within the method's
+    error."""
+    B = pk.BLOCK + 5
+    w, q = _inputs(B)
+    I = jnp.asarray(np.random.default_rng(1).uniform(1.5, 2.5, size=(B, 3)))
+    want = rj.simulate(rj.RigidBody(I), w, q, ts=TS, solver=ExplicitRK(method()), **FIXED)
+    model, hoisted = _free()
+    y0 = jnp.concatenate([w, q], axis=1)
+    got = pk.run(hoisted, model.unit, method, y0, moments_params(I).T, *_steps(), interpret=True)
+    # the same field and stages: equal but for 1 / sqrt against rsqrt (measured 4.4e-16)
+    np.testing.assert_allclose(got[..., :3], want.omega, rtol=0, atol=2e-15)
+    np.testing.assert_allclose(got[..., 3:], want.quat, rtol=0, atol=2e-15)
+    # and SciPy's DOP853 at 1e-13, an independent reference (measured: RK4 4.7e-10, Tsit5
+    # and Dopri8 1.5e-13, SciPy's own tolerance)
+    atol = 2e-9 if method is rj.RK4 else 1e-12
+    for i in (0, B - 1):
+        w_ref, q_ref = rigid_body_dop853(I[i], w[i], q[i], TS)
+        np.testing.assert_allclose(got[i, :, :3], w_ref, rtol=0, atol=atol)
+        np.testing.assert_allclose(got[i, :, 3:], q_ref, rtol=0, atol=atol)
+
+
+def test_shared_parameters_float32_and_vmap():
+    """One body for the whole batch (`p (P, 1)`), an interval without steps (the state kept),
+    float32 against float64, and `jax.vmap` over the kernel (a batch of step sequences) equal
+    to a loop."""
+    w, q = _inputs(7)
+    y0 = jnp.concatenate([w, q], axis=1)
+    p = moments_params(jnp.array([1.0, 2.0, 3.0]))[:, None]
+    n, h, t0 = jnp.asarray([4, 0, 6], jnp.int32), jnp.asarray([0.05, 0.1, 0.02]), jnp.zeros(3)
+    model, hoisted = _free()
+    run = functools.partial(pk.run, hoisted, model.unit, rj.RK4, interpret=True)
+    y64 = run(y0, p, n, h, t0)
+    assert y64.shape == (7, 4, 7)
+    np.testing.assert_array_equal(y64[:, 2], y64[:, 1])
+    _, hoisted32 = _free(jnp.float32)
+    y32 = pk.run(hoisted32, model.unit, rj.RK4, y0.astype(jnp.float32), p, n, h, t0, interpret=True)
+    assert y32.dtype == jnp.float32
+    np.testing.assert_allclose(y32, y64, rtol=0, atol=2e-6)
+    hs = jnp.stack([h, 2 * h])
+    mapped = jax.vmap(lambda h: run(y0, p, n, h, t0))(hs)
+    for i in range(2):
+        np.testing.assert_allclose(mapped[i], run(y0, p, n, hs[i], t0), rtol=0, atol=1e-15)
+
+
+def _gravity_gradient(gain):
+    def torque(t, w, q):
+        c = rj.quat.to_matrix(q).T @ E_Z
+        return gain * jnp.cross(c, jnp.array([1.0, 2.0, 3.0]) * c) - 0.1 * jnp.sin(t) * w
+
+    return torque
+
+
+def test_torque_through_gpu_kernel_with_diffrax_gradients(on_gpu_kernel):
+    """`simulate` with a torque (an attitude torque with a traced gain, and a time-dependent
+    damping) through the GPU kernel, which evaluates the JAX torque itself: the Diffrax path's
+    trajectory and statistics, and reverse-mode gradients (through Diffrax, the kernel having
+    no adjoint) with respect to the moments, the gain, the initial state and the output times
+    equal to the Diffrax path's, under `jax.jit`."""
+    w, q = _inputs(3)
+    jaxpr = jax.make_jaxpr(
+        lambda g: (
+            rj.simulate(BODY, w, q, TS, torque=_gravity_gradient(g), solver=rj.RK4(), **FIXED).omega
+        )
+    )
+    assert "pallas_call" in str(jaxpr(0.3))
+
+    def loss(I, g, w, ts, solver):
+        tr = rj.simulate(
+            rj.RigidBody(I), w, q, ts, torque=_gravity_gradient(g), solver=solver, **FIXED
+        )
+        q_end = tr.quat[:, -1, 1:] * jnp.arange(1.0, 4.0)
+        return jnp.sum(tr.omega[:, 1:] ** 2) + jnp.sum(q_end)
+
+    args = (jnp.asarray([1.0, 2.0, 3.0]), jnp.asarray(0.3), w, TS)
+    fast = rj.simulate(BODY, w, q, TS, torque=_gravity_gradient(0.3), solver=rj.RK4(), **FIXED)
+    slow = rj.simulate(
+        BODY, w, q, TS, torque=_gravity_gradient(0.3), solver=ExplicitRK(rj.RK4()), **FIXED
+    )
+    np.testing.assert_allclose(fast.omega, slow.omega, rtol=0, atol=2e-15)
+    np.testing.assert_allclose(fast.quat, slow.quat, rtol=0, atol=2e-15)
+    assert int(fast.stats["num_steps"]) == int(slow.stats["num_steps"]) == 18  # 5 + 1 + 12
+    grads = jax.jit(jax.grad(loss, argnums=(0, 1, 2, 3)), static_argnums=4)
+    want = grads(*args, ExplicitRK(rj.RK4()))
+    for g, r in zip(grads(*args, rj.RK4()), want, strict=True):
+        np.testing.assert_allclose(g, r, rtol=1e-10, atol=1e-12)
+
+
+def test_heavy_top_through_gpu_kernel(on_gpu_kernel):
+    """The heavy top's model (a PyTree state) takes the GPU kernel too: the Diffrax path's
+    numbers."""
+    top = ht.HeavyTop(np.array([1.0, 1.4, 1.9]), 1.0, [0.1, -0.05, 0.2])
+    w0, q0 = np.array([0.5, -1.0, 2.0]), np.array([0.9, 0.2, -0.3, 0.1]) / np.sqrt(0.95)
+    run = functools.partial(ht.simulate_heavy_top, top, w0, ts=TS, q0=q0, **FIXED)
+    assert "pallas_call" in str(jax.make_jaxpr(lambda: run(solver=rj.RK4()).omega)())
+    fast, slow = run(solver=rj.RK4()), run(solver=ExplicitRK(rj.RK4()))
+    for a, b in ((fast.omega, slow.omega), (fast.gamma, slow.gamma), (fast.quat, slow.quat)):
+        np.testing.assert_allclose(a, b, rtol=0, atol=2e-15)
+
+
+def test_gpu_kernel_reports_max_steps(on_gpu_kernel):
+    """An interval with more steps than `max_steps` is the same clear error as on the
+    Diffrax path."""
+    w, q = _inputs(2)
+    with pytest.raises(rj.IntegrationError, match="max_steps"):
+        rj.simulate(BODY, w, q, TS, solver=rj.RK4(), max_steps=4, **FIXED)
+
+
+def test_served_only_where_checked(monkeypatch):
+    """Not on the CPU; on a GPU only after a small batch, compiled, gave the interpreter's
+    states: a kernel that fails to lower, or gives other numbers, warns once and is not
+    served."""
+    model, hoisted = _free()
+    key = pk._Key(hoisted, model.unit)
+    assert not pk.serves(hoisted, model.unit, rj.RK4())
+    assert not pk.serves(hoisted, model.unit, ExplicitRK(rj.RK4()))
+    with pytest.warns(RuntimeWarning, match="Pallas kernel for RK4 in float64"):
+        assert not pk._checked.__wrapped__(key, rj.RK4)  # Pallas can't compile for CPU
+    run = pk.run
+
+    def interpreted(*args, interpret=False, shift=0.0):
+        return run(*args, interpret=True) + (0.0 if interpret else shift)
+
+    monkeypatch.setattr(pk, "run", interpreted)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert pk._checked.__wrapped__(key, rj.RK4)
+    monkeypatch.setattr(pk, "run", lambda *a, **k: interpreted(*a, **k, shift=1e-6))
+    with pytest.warns(RuntimeWarning, match="differ from Pallas' interpreter"):
+        assert not pk._checked.__wrapped__(key, rj.RK4)
+
+
+@pytest.fixture
+def triton_modules(monkeypatch):
+    """The list into which the text of each Triton module that Pallas builds goes (a private
+    JAX function wrapped: skipped where this JAX lays it out otherwise)."""
+    try:
+        from jax._src.pallas.triton import lowering
+    except ImportError as e:
+        pytest.skip(f"this JAX has no Pallas Triton lowering where expected: {e}")
+    modules = []
+    lower = lowering.lower_jaxpr_to_triton_module
+
+    def lower_and_keep(*args, **kwargs):
+        result = lower(*args, **kwargs)
+        modules.append(result.module.operation.get_asm())
+        return result
+
+    monkeypatch.setattr(lowering, "lower_jaxpr_to_triton_module", lower_and_keep)
+    return modules
+
+
+@pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
+def test_kernel_lowers_to_triton(triton_modules, dtype):
+    """Lowered for CUDA on a machine without a GPU, the kernel of a model with an attitude
+    torque and `sin(t)` takes Pallas' Triton backend (not Mosaic GPU, Pallas' default), whose
+    module Triton takes (ops, dynamic loops, loads and stores, in float32 and float64), and
+    the time loop is inside it: the lowered program is one Triton call and no loop of XLA's,
+    also under `jax.vmap` (a sweep). The renormalisation is `1 / sqrt`, not `rsqrt`, which
+    Triton lowers to the approximate `rsqrt.approx.f64` (seen in its PTX). What remains
+    untested without a GPU, Triton's compile and the numbers, `serves` checks on the GPU
+    before first use."""
+    model = rigid_body_model(_gravity_gradient(0.3))
+    hoisted = model_kernel.hoist(model.field, model.size, model.params, dtype)
+    w, q = _inputs(pk.BLOCK + 5, dtype=dtype)
+    y0 = jnp.concatenate([w, q], axis=1)
+    p = moments_params(jnp.ones(3, dtype))[:, None]
+    n, h, t0 = jnp.asarray([3, 4], jnp.int32), jnp.asarray([0.1, 0.2], dtype), jnp.zeros(2, dtype)
+    run = functools.partial(pk.run, hoisted, model.unit, rj.RK4)
+    vrun = jax.vmap(run, in_axes=(None, None, None, 0, None))
+    for f, hs in ((run, h), (vrun, h * h[:, None])):
+        text = jax.jit(f).trace(y0, p, n, hs, t0).lower(lowering_platforms=("cuda",)).as_text()
+        assert text.count("__gpu$xla.gpu.triton") == 1 and "num_warps = 4 " in text
+        assert "stablehlo.while" not in text
+    assert len(triton_modules) == 2
+    for module in triton_modules:
+        symbols = set(re.findall(r'symbol = "(\w*)"', module))
+        assert symbols & {"__nv_sqrt", "__nv_sqrtf"} and not any("rsqrt" in s for s in symbols)
+        assert symbols & {"__nv_sin", "__nv_sinf"}
+        assert module.count("scf.for") == 2  # the intervals and, inside, their steps
