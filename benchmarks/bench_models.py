@@ -6,6 +6,7 @@ Problem
     body, Ω0 ~ N(0, 1)³, random unit q0; N = 200 RK4 steps of dt = 1e-3 (the satellite: dt = 1
     s on a 7000 km circular orbit), the quaternion renormalised after each, float64. Models:
 
+    free_body         ``simulate(...)`` without a torque
     damping           ``simulate(..., torque=lambda t, w, q: -k * w)``, k = (0.3, 0.2, 0.1)
     gravity_gradient  ``torque = 3e-4 * cross(c, I0 * c)``, ``c = quat.to_matrix(q).T @ e_Z``,
                       I0 = (1, 2, 3) (the attitude torque of issue 25, written as a user would)
@@ -94,9 +95,11 @@ def _gamma(q: np.ndarray) -> np.ndarray:
     return np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)
 
 
-def models(B: int, steps: int):
+def models(B: int, steps: int, solver=None):
     """Per model: (rigidjax forward (jit-able, of the inputs) returning the final state (B, N) in
-    the reference's order, its arguments, the reference's packed state and parameters, dt)."""
+    the reference's order, its arguments, the reference's packed state and parameters, dt);
+    `solver` (default `RK4()`, the fast path) for every model, and the Diffrax path of the
+    damping and gravity-gradient models."""
     import diffrax
     import jax
     import jax.numpy as jnp
@@ -107,7 +110,7 @@ def models(B: int, steps: int):
 
     x = inputs(B)
     dt, dt_sat = 1e-3, 1.0
-    fixed = dict(stepsize_controller=diffrax.ConstantStepSize(), solver=rj.RK4())
+    fixed = dict(stepsize_controller=diffrax.ConstantStepSize(), solver=solver or rj.RK4())
     gain, e_z, I0 = jnp.array(GAIN), jnp.array([0.0, 0.0, 1.0]), jnp.array([1.0, 2.0, 3.0])
     ts = jnp.array([0.0, steps * dt])
 
@@ -172,6 +175,7 @@ def models(B: int, steps: int):
     wq = np.concatenate([w.T, q.T])
     small_w = 1e-3 * w
     out = {
+        "free_body": (rigid(None), (I, w, q), wq, _cj(I), dt),
         "damping": (
             rigid(damping),
             (I, w, q),

@@ -100,7 +100,39 @@ def run(
     steps of `method` (a type in `tableau.METHODS`) of size `h[k]` from `t0[k]`; `p (P + Pc, B
     or 1)` holds the parameters and the lifted constants, as `model.run` takes them.
     `interpret=True` runs the kernel in Pallas' interpreter (any backend: the CPU tests). The
-    batch is padded to whole blocks with copies of the first body."""
+    batch is padded to whole blocks with copies of the first body. Under `jax.vmap` over the
+    bodies (a sweep of one-body solves), the mapped bodies join one kernel call."""
+    call = functools.partial(_blocks, hoisted, unit, method, interpret=interpret)
+    batched = jax.custom_batching.custom_vmap(call)
+
+    @batched.def_vmap
+    def _(size: int, mapped: list[bool], y0, p, n, h, t0):
+        if any(mapped[2:]):  # steps of their own per member: one kernel call each
+            axes = tuple(0 if m else None for m in mapped)
+            return jax.vmap(call, in_axes=axes)(y0, p, n, h, t0), True
+        y = y0 if mapped[0] else jnp.broadcast_to(y0, (size, *y0.shape))
+        V, B, N = y.shape
+        pv = p if mapped[1] else jnp.broadcast_to(p, (size, *p.shape))
+        pv = jnp.moveaxis(jnp.broadcast_to(pv, (V, p.shape[-2], B)), 0, 1)
+        out = batched(y.reshape(V * B, N), pv.reshape(-1, V * B), n, h, t0)
+        return out.reshape(V, B, *out.shape[1:]), True
+
+    return batched(y0, p, n, h, t0)
+
+
+def _blocks(
+    hoisted: Hoisted,
+    unit: Unit,
+    method: type[diffrax.AbstractERK],
+    y0: Float[Array, "B N"],
+    p: Float[Array, "P Bc"],
+    n: Int[Array, " K"],
+    h: Float[Array, " K"],
+    t0: Float[Array, " K"],
+    *,
+    interpret: bool,
+) -> Float[Array, "B T N"]:
+    """`run` of one batch: the `pallas_call` over its blocks."""
     B, N, K, dtype = y0.shape[0], y0.shape[1], h.shape[0], y0.dtype
     P = hoisted.p
     Bp = -(-B // BLOCK) * BLOCK

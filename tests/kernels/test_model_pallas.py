@@ -147,7 +147,7 @@ def test_torque_through_gpu_kernel_with_diffrax_gradients(on_gpu_kernel):
 
 def test_heavy_top_through_gpu_kernel(on_gpu_kernel):
     """The heavy top's model (a PyTree state) takes the GPU kernel too: the Diffrax path's
-    numbers."""
+    numbers; under `jax.vmap` over tops (one-body solves) the tops join one kernel call."""
     top = ht.HeavyTop(np.array([1.0, 1.4, 1.9]), 1.0, [0.1, -0.05, 0.2])
     w0, q0 = np.array([0.5, -1.0, 2.0]), np.array([0.9, 0.2, -0.3, 0.1]) / np.sqrt(0.95)
     run = functools.partial(ht.simulate_heavy_top, top, w0, ts=TS, q0=q0, **FIXED)
@@ -155,6 +155,17 @@ def test_heavy_top_through_gpu_kernel(on_gpu_kernel):
     fast, slow = run(solver=rj.RK4()), run(solver=ExplicitRK(rj.RK4()))
     for a, b in ((fast.omega, slow.omega), (fast.gamma, slow.gamma), (fast.quat, slow.quat)):
         np.testing.assert_allclose(a, b, rtol=0, atol=2e-15)
+
+    def one(com, solver):
+        tops = ht.HeavyTop(np.array([1.0, 1.4, 1.9]), 1.0, com)
+        return ht.simulate_heavy_top(tops, w0, ts=TS, q0=q0, solver=solver, **FIXED).omega
+
+    coms = jnp.asarray([[0.1, -0.05, 0.2], [0.0, 0.1, 0.3], [0.2, 0.0, -0.1]])
+    jaxpr = str(jax.make_jaxpr(jax.vmap(lambda c: one(c, rj.RK4())))(coms))
+    assert jaxpr.count("pallas_call") == 1 and "grid=(1,)" in jaxpr  # 3 tops: one block
+    mapped = jax.vmap(lambda c: one(c, rj.RK4()))(coms)
+    for i in range(3):
+        np.testing.assert_allclose(mapped[i], one(coms[i], ExplicitRK(rj.RK4())), atol=2e-15)
 
 
 def test_gpu_kernel_reports_max_steps(on_gpu_kernel):

@@ -1,0 +1,218 @@
+"""Every model on a GPU: rigidjax's Pallas kernel (the JAX field evaluated on register vectors,
+`rigidjax.kernels.model_pallas`) against hand-written CUDA kernels of the same models and against
+the Diffrax path on the same GPU, with gradients and first calls.
+
+Problem
+    As bench_models.py (its `models`): B bodies with their own principal moments, random Ω0 and
+    q0, N RK4 steps of dt (1e-3; the satellite 1 s), the quaternion renormalised after each,
+    float64. Models: free_body, damping, gravity_gradient, heavy_top, sixdof, satellite,
+    gyrostat.
+
+Parts (one run, on the default JAX backend: a GPU)
+    speed     Each model's fast path (``solver=RK4()``: on a GPU, the Pallas kernel), its CUDA C
+              reference (``benchmarks/reference/models.cu``, the right-hand sides of models.c,
+              one body per thread, built by NVRTC through CuPy) and its Diffrax path
+              (``solver=ExplicitRK(RK4())``: XLA's loop over the whole batch), timed in
+              interleaved rounds (best of --repeats) after checking that their final states
+              agree. Recorded: rates, ratios (Pallas / CUDA ≥ 0.8 wanted).
+    gradient  ``jax.value_and_grad`` of a loss of the final states w.r.t. the moments, over the
+              forward run (the Pallas kernel's reverse mode runs the same steps through Diffrax).
+    first     The first forward call of the gravity-gradient model (trace, the kernel's one-time
+              check against Pallas' interpreter, Triton compile, run), in this process.
+
+Usage
+    python benchmarks/bench_gpu.py [--bodies 1000000] [--steps 1000] [--repeats 5]
+        [--out benchmarks/results/gpu.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _harness import finish, interleaved, machine_info, measure  # noqa: E402
+from bench_models import models  # noqa: E402
+
+HERE = Path(__file__).resolve().parent
+DEFAULT_OUT = HERE / "results" / "gpu.json"
+THREADS = 128
+
+
+class Cuda:
+    """The CUDA references, built once (None with `.note` where CuPy or NVRTC is missing)."""
+
+    def __init__(self):
+        import cupy as cp
+
+        self.cp = cp
+        source = (HERE / "reference" / "models.cu").read_text()
+        self.module = cp.RawModule(
+            code=source, options=("-std=c++17", f"-I{HERE / 'reference'}"), backend="nvrtc"
+        )
+
+    def runner(self, name: str, state0: np.ndarray, par: np.ndarray, steps: int, dt: float):
+        cp = self.cp
+        kernel = self.module.get_function(f"{name}_rk4")
+        B = state0.shape[1]
+        x0, p = cp.asarray(state0), cp.asarray(np.ascontiguousarray(par))
+        work = cp.empty_like(x0)
+        grid = (-(-B // THREADS),)
+
+        def run():
+            work[...] = x0
+            kernel(grid, (THREADS,), (work, p, np.int64(B), np.int64(steps), np.float64(dt)))
+            cp.cuda.Device().synchronize()
+            return cp.asnumpy(work) if run.fetch else work
+
+        run.fetch = False
+        return run
+
+
+def speed(B: int, steps: int, repeats: int, log) -> tuple[dict, dict]:
+    import jax
+
+    import rigidjax as rj
+
+    table, _ = models(B, steps)
+    slow, _ = models(B, steps, rj.ExplicitRK(rj.RK4()))
+    try:
+        cuda, note = Cuda(), None
+    except Exception as e:  # no CuPy, no NVRTC: the CUDA rows are skipped
+        cuda, note = None, f"{type(e).__name__}: {e}"
+    rows = {}
+    for name, (fn, args, state0, par, dt) in table.items():
+        row: dict = {}
+        try:
+            t_fast = measure(jax.jit(fn), *args, repeats=1)
+            t_slow = measure(jax.jit(slow[name][0]), *args, repeats=1)
+            fast = np.asarray(t_fast.output)
+            row["max_abs_difference_diffrax"] = float(np.max(np.abs(fast - t_slow.output)))
+            timings = [t_fast, t_slow]
+            if cuda is not None:
+                run = cuda.runner(name, np.asarray(state0, np.float64), par, steps, dt)
+                run.fetch = True
+                ref = run()
+                run.fetch = False
+                row["max_abs_difference_cuda"] = float(np.max(np.abs(fast - ref.T)))
+                t_cuda = measure(run, repeats=1, aot=False)
+                timings.append(t_cuda)
+            interleaved(timings, repeats)
+            row.update(
+                pallas_body_steps_per_s=B * steps / t_fast.best,
+                diffrax_body_steps_per_s=B * steps / t_slow.best,
+                pallas_over_diffrax=t_slow.best / t_fast.best,
+                pallas=t_fast.summary(),
+                diffrax=t_slow.summary(),
+                pallas_trace_compile_s=t_fast.trace_lower_compile_s,
+            )
+            if cuda is not None:
+                row.update(
+                    cuda_body_steps_per_s=B * steps / t_cuda.best,
+                    ratio_pallas_over_cuda=t_cuda.best / t_fast.best,
+                    cuda=t_cuda.summary(),
+                )
+            log(
+                f"{name}: pallas {row['pallas_body_steps_per_s']:.3g}/s, diffrax "
+                f"{row['diffrax_body_steps_per_s']:.3g}/s, cuda "
+                f"{row.get('cuda_body_steps_per_s', float('nan')):.3g}/s, pallas/cuda "
+                f"{row.get('ratio_pallas_over_cuda', float('nan')):.2f}"
+            )
+        except Exception as e:  # recorded, and the other models still run
+            row["error"] = f"{type(e).__name__}: {str(e)[:2000]}"
+            log(f"{name}: {row['error'][:300]}")
+        rows[name] = row
+    return dict(models=rows, cuda_note=note), table
+
+
+def gradient(table: dict, repeats: int, log) -> dict:
+    import jax
+    import jax.numpy as jnp
+
+    out = {}
+    for name in ("damping", "gravity_gradient"):
+        fn, args = table[name][0], table[name][1]
+
+        def loss(*a, fn=fn):
+            return jnp.sum(fn(*a) ** 2)
+
+        try:
+            fwd = measure(jax.jit(loss), *args, repeats=1)
+            vg = measure(jax.jit(jax.value_and_grad(loss)), *args, repeats=1)
+            interleaved([fwd, vg], repeats)
+            out[name] = dict(forward_s=fwd.best, value_and_grad_s=vg.best)
+            out[name]["ratio"] = vg.best / fwd.best
+            log(f"gradient {name}: {vg.best / fwd.best:.2f}x forward")
+        except Exception as e:
+            out[name] = dict(error=f"{type(e).__name__}: {str(e)[:2000]}")
+    return out
+
+
+def first_call(log) -> dict:
+    """The first call of a new model (a torque not seen before in this process)."""
+    import diffrax
+    import jax
+    import jax.numpy as jnp
+
+    import rigidjax as rj
+
+    e_z, I0 = jnp.array([0.0, 0.0, 1.0]), jnp.array([1.0, 2.0, 3.0])
+
+    def torque(t, w, q):
+        c = rj.quat.to_matrix(q).T @ e_z
+        return 2e-4 * jnp.cross(c, I0 * c) - 1e-3 * w
+
+    B = 1000
+    rng = np.random.default_rng(3)
+    q = rng.normal(size=(B, 4))
+    w, q = rng.normal(size=(B, 3)), q / np.linalg.norm(q, axis=1, keepdims=True)
+    t0 = time.perf_counter()
+    tr = rj.simulate(
+        rj.RigidBody(jnp.array([1.5, 2.0, 2.5])),
+        w,
+        q,
+        jnp.array([0.0, 0.2]),
+        torque=torque,
+        solver=rj.RK4(),
+        stepsize_controller=diffrax.ConstantStepSize(),
+        dt0=1e-3,
+    )
+    jax.block_until_ready(tr.omega)
+    first = time.perf_counter() - t0
+    log(f"first call {first:.2f} s")
+    return dict(first_forward_s=first, bodies=B, steps=200)
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--bodies", type=int, default=1_000_000)
+    parser.add_argument("--steps", type=int, default=1000)
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
+    args = parser.parse_args(argv)
+    import jax
+
+    jax.config.update("jax_enable_x64", True)  # the benchmark's choice; rigidjax never sets it
+    start = time.perf_counter()
+
+    def log(msg):
+        print(f"[{time.perf_counter() - start:6.1f} s] {msg}", flush=True)
+
+    first = first_call(log)
+    res, table = speed(args.bodies, args.steps, args.repeats, log)
+    out = dict(
+        machine=machine_info(),
+        problem=dict(bodies=args.bodies, steps=args.steps, method="RK4", dtype="float64"),
+        speed=res,
+        gradient=gradient(table, args.repeats, log),
+        first_call=first,
+    )
+    finish(out, args.out, start)
+
+
+if __name__ == "__main__":
+    main()

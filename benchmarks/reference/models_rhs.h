@@ -1,0 +1,109 @@
+/* The right-hand sides of the reference models (see models.c), shared by the CPU reference
+ * (models.c) and the GPU one (models.cu): RJ_DEVICE is `__device__` under CUDA, empty in C.
+ * Needs sqrt (math.h in C; a CUDA built-in). */
+#ifndef RJ_DEVICE
+#define RJ_DEVICE
+#endif
+
+RJ_DEVICE static inline void quat_rates(const double *w, const double *q, double *dq)
+{
+    dq[0] = 0.5 * (-q[1] * w[0] - q[2] * w[1] - q[3] * w[2]);
+    dq[1] = 0.5 * (q[0] * w[0] + q[2] * w[2] - q[3] * w[1]);
+    dq[2] = 0.5 * (q[0] * w[1] + q[3] * w[0] - q[1] * w[2]);
+    dq[3] = 0.5 * (q[0] * w[2] + q[1] * w[1] - q[2] * w[0]);
+}
+
+/* Pᵀ v: v in space axes to body axes. */
+RJ_DEVICE static inline void to_body(const double *q, const double *v, double *out)
+{
+    const double w = q[0], x = q[1], y = q[2], z = q[3];
+    out[0] = (1 - 2 * (y * y + z * z)) * v[0] + 2 * (x * y + w * z) * v[1] + 2 * (x * z - w * y) * v[2];
+    out[1] = 2 * (x * y - w * z) * v[0] + (1 - 2 * (x * x + z * z)) * v[1] + 2 * (y * z + w * x) * v[2];
+    out[2] = 2 * (x * z + w * y) * v[0] + 2 * (y * z - w * x) * v[1] + (1 - 2 * (x * x + y * y)) * v[2];
+}
+
+/* Euler's equations in principal axes: Ω̇ = c-terms + J K. */
+RJ_DEVICE static inline void euler(const double *w, const double *p, const double *K, double *dw)
+{
+    dw[0] = p[0] * w[1] * w[2] + p[3] * K[0];
+    dw[1] = p[1] * w[2] * w[0] + p[4] * K[1];
+    dw[2] = p[2] * w[0] * w[1] + p[5] * K[2];
+}
+
+RJ_DEVICE static inline void cross(const double *a, const double *b, double *out)
+{
+    out[0] = a[1] * b[2] - a[2] * b[1];
+    out[1] = a[2] * b[0] - a[0] * b[2];
+    out[2] = a[0] * b[1] - a[1] * b[0];
+}
+
+RJ_DEVICE static inline void rhs_free_body(const double *y, const double *p, double *k)
+{
+    k[0] = p[0] * y[1] * y[2];
+    k[1] = p[1] * y[2] * y[0];
+    k[2] = p[2] * y[0] * y[1];
+    quat_rates(y, y + 3, k + 3);
+}
+
+RJ_DEVICE static inline void rhs_damping(const double *y, const double *p, double *k)
+{
+    const double K[3] = {-p[6] * y[0], -p[7] * y[1], -p[8] * y[2]};
+    euler(y, p, K, k);
+    quat_rates(y, y + 3, k + 3);
+}
+
+RJ_DEVICE static inline void rhs_gravity_gradient(const double *y, const double *p, double *k)
+{
+    const double *q = y + 3;
+    const double c[3] = {2 * (q[1] * q[3] - q[0] * q[2]), 2 * (q[2] * q[3] + q[0] * q[1]),
+                         1 - 2 * (q[1] * q[1] + q[2] * q[2])};
+    const double Ic[3] = {p[6] * c[0], p[7] * c[1], p[8] * c[2]};
+    double K[3];
+    cross(c, Ic, K);
+    for (int i = 0; i < 3; i++) K[i] *= p[9];
+    euler(y, p, K, k);
+    quat_rates(y, q, k + 3);
+}
+
+RJ_DEVICE static inline void rhs_heavy_top(const double *y, const double *p, double *k)
+{
+    double K[3];
+    cross(y + 3, p + 6, K);
+    euler(y, p, K, k);
+    cross(y + 3, y, k + 3);
+    quat_rates(y, y + 6, k + 6);
+}
+
+RJ_DEVICE static inline void rhs_sixdof(const double *y, const double *p, double *k)
+{
+    const double *F = p + 7, *a = p + 10, *q = y + 6, *w = y + 10;
+    double Fb[3], K[3];
+    to_body(q, F, Fb);
+    cross(a, Fb, K);
+    for (int i = 0; i < 3; i++) k[i] = y[3 + i], k[3 + i] = p[6] * F[i];
+    quat_rates(w, q, k + 6);
+    euler(w, p, K, k + 10);
+}
+
+RJ_DEVICE static inline void rhs_satellite(const double *y, const double *p, double *k)
+{
+    const double *R = y, *q = y + 6, *w = y + 10, mu = p[9];
+    const double r2 = R[0] * R[0] + R[1] * R[1] + R[2] * R[2], r = sqrt(r2);
+    const double g = mu / (r2 * r);
+    double n[3], In[3], K[3];
+    to_body(q, R, n);
+    for (int i = 0; i < 3; i++) n[i] /= r, In[i] = p[6 + i] * n[i];
+    cross(n, In, K);
+    for (int i = 0; i < 3; i++) K[i] *= 3 * g, k[i] = y[3 + i], k[3 + i] = -g * R[i];
+    quat_rates(w, q, k + 6);
+    euler(w, p, K, k + 10);
+}
+
+RJ_DEVICE static inline void rhs_gyrostat(const double *y, const double *p, double *k)
+{
+    double K[3];
+    cross(y, p + 6, K);
+    for (int i = 0; i < 3; i++) K[i] = -K[i];
+    euler(y, p, K, k);
+    quat_rates(y, y + 3, k + 3);
+}
