@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _harness import finish, interleaved, machine_info, measure  # noqa: E402
+from _harness import finish, interleaved, load_average, machine_info, measure  # noqa: E402
 from bench_models import models  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
@@ -59,17 +59,17 @@ class Cuda:
         cp = self.cp
         kernel = self.module.get_function(f"{name}_rk4")
         B = state0.shape[1]
-        x0, p = cp.asarray(state0), cp.asarray(np.ascontiguousarray(par))
+        x0 = cp.asarray(np.ascontiguousarray(state0))  # (N, B) rows, as the kernel reads them
+        p = cp.asarray(np.ascontiguousarray(par))
         work = cp.empty_like(x0)
         grid = (-(-B // THREADS),)
 
-        def run():
+        def run(fetch: bool = False):
             work[...] = x0
             kernel(grid, (THREADS,), (work, p, np.int64(B), np.int64(steps), np.float64(dt)))
             cp.cuda.Device().synchronize()
-            return cp.asnumpy(work) if run.fetch else work
+            return cp.asnumpy(work) if fetch else work
 
-        run.fetch = False
         return run
 
 
@@ -92,12 +92,10 @@ def speed(B: int, steps: int, repeats: int, log) -> tuple[dict, dict]:
             t_slow = measure(jax.jit(slow[name][0]), *args, repeats=1)
             fast = np.asarray(t_fast.output)
             row["max_abs_difference_diffrax"] = float(np.max(np.abs(fast - t_slow.output)))
-            timings = [t_fast, t_slow]
+            timings, t_cuda = [t_fast, t_slow], None
             if cuda is not None:
                 run = cuda.runner(name, np.asarray(state0, np.float64), par, steps, dt)
-                run.fetch = True
-                ref = run()
-                run.fetch = False
+                ref = run(fetch=True)
                 row["max_abs_difference_cuda"] = float(np.max(np.abs(fast - ref.T)))
                 t_cuda = measure(run, repeats=1, aot=False)
                 timings.append(t_cuda)
@@ -110,7 +108,7 @@ def speed(B: int, steps: int, repeats: int, log) -> tuple[dict, dict]:
                 diffrax=t_slow.summary(),
                 pallas_trace_compile_s=t_fast.trace_lower_compile_s,
             )
-            if cuda is not None:
+            if t_cuda is not None:
                 row.update(
                     cuda_body_steps_per_s=B * steps / t_cuda.best,
                     ratio_pallas_over_cuda=t_cuda.best / t_fast.best,
@@ -197,7 +195,7 @@ def main(argv=None) -> None:
     import jax
 
     jax.config.update("jax_enable_x64", True)  # the benchmark's choice; rigidjax never sets it
-    start = time.perf_counter()
+    start, load_start = time.perf_counter(), load_average()
 
     def log(msg):
         print(f"[{time.perf_counter() - start:6.1f} s] {msg}", flush=True)
@@ -210,6 +208,7 @@ def main(argv=None) -> None:
         speed=res,
         gradient=gradient(table, args.repeats, log),
         first_call=first,
+        load_average_start=load_start,
     )
     finish(out, args.out, start)
 

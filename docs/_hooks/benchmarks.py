@@ -545,6 +545,53 @@ def _models(d: dict) -> str:
     )
 
 
+def _gpu(d: dict) -> str:
+    sp, prob = _obj(d.get("speed")), _obj(d.get("problem"))
+    rows = [
+        [
+            name.replace("_", " "),
+            _g(r.get("pallas_body_steps_per_s")),
+            _g(r.get("cuda_body_steps_per_s")),
+            _ratio(r.get("ratio_pallas_over_cuda")),
+            _g(r.get("diffrax_body_steps_per_s")),
+            _ratio(r.get("pallas_over_diffrax")),
+            _g(r.get("max_abs_difference_cuda")),
+        ]
+        for name, r in _dicts(sp.get("models")).items()
+    ]
+    grads = [
+        [name.replace("_", " "), _ratio(r.get("ratio"))]
+        for name, r in _dicts(d.get("gradient")).items()
+    ]
+    first = _obj(d.get("first_call"))
+    return "\n\n".join(
+        [
+            f"Each model at {_g(prob.get('bodies'))} bodies × {_g(prob.get('steps'))} RK4 steps "
+            "(float64) on a GPU: rigidjax's Pallas kernel (the JAX field evaluated on register "
+            "vectors), a hand-written CUDA kernel of the same model (one body per thread, "
+            "`benchmarks/reference/models.cu`) and the Diffrax path (XLA's loop over the whole "
+            "batch), in interleaved rounds; the last column is the largest difference of the "
+            "Pallas and CUDA final states.",
+            _table(
+                [
+                    "model",
+                    "Pallas body-steps/s",
+                    "CUDA body-steps/s",
+                    "Pallas ÷ CUDA",
+                    "Diffrax body-steps/s",
+                    "Pallas ÷ Diffrax",
+                    "max |Δ|",
+                ],
+                rows,
+            ),
+            "**Gradients** (the Pallas kernel has no adjoint: reverse mode runs the same steps "
+            "through Diffrax), over the forward run:\n\n" + _table(["model", "÷ forward"], grads),
+            f"**First call** of a new torque model (1000 bodies, trace, check, compile, run): "
+            f"{_g(first.get('first_forward_s'))} s.",
+        ]
+    )
+
+
 def _first_call(d: dict) -> str:
     head = ["map", "jaxlie counterpart"]
     for k in ("value", "jacfwd", "jacrev"):
@@ -578,6 +625,7 @@ SECTIONS: dict[str, tuple[str, Callable[[dict], str]]] = {
     "sweep.json": ("Sweeps: throughput, devices, memory", _sweep),
     "kernel.json": ("The CPU kernels against hand-written C, 1e3 to 1e7 bodies", _generic),
     "models.json": ("Every model at kernel speed: torques, tops, 6-DOF bodies against C", _models),
+    "gpu.json": ("Every model on a GPU: the Pallas kernel against CUDA and Diffrax", _gpu),
     "first_call.json": ("First calls of the rotation maps vs jaxlie", _first_call),
 }
 

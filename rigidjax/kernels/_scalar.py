@@ -213,7 +213,7 @@ class _Unroller:
             ins = [read(v) for v in used]
             outs = self.eqn(eqn, ins)
             for v, x in zip(eqn.outvars, outs, strict=True):
-                env[v] = np.asarray(x, dtype=object).reshape(v.aval.shape)
+                env[v] = objects(x).reshape(v.aval.shape)
         return [read(v) for v in jaxpr.outvars]
 
     def eqn(self, eqn, ins: list[np.ndarray]) -> list[np.ndarray]:
@@ -247,9 +247,7 @@ class _Unroller:
             x = ins[0]
             axis = p["axis"]
             if name == "unstack":
-                return [
-                    np.asarray(np.take(x, i, axis=axis), dtype=object) for i in range(x.shape[axis])
-                ]
+                return [objects(np.take(x, i, axis=axis)) for i in range(x.shape[axis])]
             bounds = np.cumsum([0, *p["sizes"]])
             return [
                 np.take(x, range(a, b), axis=axis)
@@ -478,6 +476,23 @@ def unroll(
     arrays of scalars, one per input, in the input's shape), the jaxpr's constants given as
     `consts` in the same form."""
     return _Unroller(backend).run(closed.jaxpr, consts, args)
+
+
+def objects(x) -> np.ndarray:
+    """`x` (an object array, a scalar, or a nested list of them) as an object array whose
+    elements are `x`'s scalars themselves: never `np.asarray(x, dtype=object)`, which NumPy
+    2.5 answers by asking a JAX tracer for its value (`__array__`)."""
+    if isinstance(x, np.ndarray):
+        return x if x.dtype == object else x.astype(object)
+    if isinstance(x, list | tuple):
+        parts = [objects(e) for e in x]
+        out = np.empty((len(parts), *(parts[0].shape if parts else ())), dtype=object)
+        for i, part in enumerate(parts):
+            out[i, ...] = part
+        return out
+    out = np.empty((), dtype=object)
+    out[()] = x
+    return out
 
 
 def scalars(names: Sequence[Scalar], shape: tuple[int, ...]) -> np.ndarray:
