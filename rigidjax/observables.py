@@ -19,6 +19,8 @@ from jaxtyping import Array, Float
 
 from ._custom_types import Scalar
 from .mechanics import RigidBody, Trajectory, angular_momentum, energy
+from .mechanics.gyrostat import GyrostatTrajectory
+from .rotations import quat
 
 __all__ = ["energy_drift", "first_flip_time", "max_nutation", "momentum_drift"]
 
@@ -115,3 +117,44 @@ def momentum_drift(body: RigidBody, traj: Trajectory) -> Scalar:
     M = _rotate(traj.quat, angular_momentum(body, traj.omega))  # (..., T, 3)
     M0 = M[..., :1, :]
     return _relative(_safe_norm(M - M0), _safe_norm(M0[..., 0, :]))
+
+
+def pointing_error(traj: Trajectory, q_target: Float[Array, "4"]) -> Float[Array, "*batch T"]:
+    """Angle (radians, in `[0, π]`) between the attitude and the target attitude `q_target`
+    (unit, body → space) at each sample: the rotation angle of the error quaternion
+    `q_e = q_target⁻¹ ∘ q`, `2 atan2(|q_e,1:3|, |q_e0|)` (the shorter way round; accurate near
+    0 and π). Finite gradients at 0 (the double-`where` trick on the norm)."""
+    qe = quat.mul(quat.conj(jnp.asarray(q_target, traj.quat.dtype)), traj.quat)
+    return 2 * jnp.arctan2(_safe_norm(qe[..., 1:]), jnp.abs(qe[..., 0]))
+
+
+def settling_time(traj: Trajectory, q_target: Float[Array, "4"], tolerance: float) -> Scalar:
+    """First sample time after which the pointing error (`pointing_error`) stays within
+    `tolerance` (radians) up to the last sample: `ts[i + 1]`, `i` the last sample outside;
+    `ts[0]` if it never leaves, `inf` if the last sample is outside (it has not settled within
+    `traj.ts`). Resolution: the sample spacing. NaN states give NaN."""
+    err = pointing_error(traj, q_target)
+    T = err.shape[-1]
+    last = jnp.max(jnp.where(err > tolerance, jnp.arange(T), -1), axis=-1)
+    ts = jnp.broadcast_to(traj.ts, err.shape)
+    t = jnp.take_along_axis(ts, jnp.clip(last + 1, 0, T - 1)[..., None], axis=-1)[..., 0]
+    t = jnp.where(last + 1 < T, t, jnp.inf)
+    return jnp.where(jnp.any(jnp.isnan(err), axis=-1), jnp.nan, t)
+
+
+def peak_wheel_speed(traj: GyrostatTrajectory) -> Scalar:
+    """Largest `|ω_w|` (rad/s, relative to the body) of any wheel at any sample of a gyrostat's
+    trajectory with wheels."""
+    if traj.wheel_speed is None:
+        raise ValueError("peak_wheel_speed needs a trajectory of a gyrostat with wheels")
+    return jnp.max(jnp.abs(traj.wheel_speed), axis=(-2, -1))
+
+
+def saturation_count(traj: GyrostatTrajectory, torque_max: float) -> Array:
+    """Number of control samples at which some wheel's motor torque was held at its bound
+    `torque_max` (the command is clipped to `±wheel_torque_max`; counted within a relative
+    1e-12 of it), for a trajectory with a controller."""
+    if traj.command is None:
+        raise ValueError("saturation_count needs a trajectory with a controller (its commands)")
+    at_bound = jnp.abs(traj.command) >= torque_max * (1 - 1e-12)
+    return jnp.sum(jnp.any(at_bound, axis=-1), axis=-1)

@@ -37,6 +37,21 @@ SECTIONS: dict[str, dict[str, str]] = {
         "seed": "sample: the random seed (default 0)",
         "ranges": "sample: NAME = [low, high] or [low, high, 'log']",
     },
+    "wheels": {
+        "axes": "spin axes of the n reaction wheels, one row [x, y, z] each (body axes)",
+        "inertia": "axial inertia of each wheel [kg m²]",
+        "torque_max": "motor torque bound of each wheel [N m] (default: unbounded)",
+        "tilt": "misalignment of each wheel [rad], n numbers or factor names: its axis turned "
+        "by that angle about a fixed perpendicular (default: none)",
+    },
+    "control": {
+        "law": "quaternion_pd (u = −kp sgn(q_e0) q_e,1:3 − kd Ω, allocated to the nominal axes)",
+        "kp": "proportional gain [N m]",
+        "kd": "derivative gain [N m s]",
+        "period": "control period [s]: sampled and held (zero-order hold)",
+        "target": "target attitude as a rotation vector [x, y, z] in degrees (body → space)",
+        "tolerance": "settling tolerance on the pointing error [deg] (default 0.5)",
+    },
     "observables": {"names": "which observables to compute (default: all of OBSERVABLES)"},
     "run": {
         "chunk_size": "points per compiled chunk (default: from the memory per point)",
@@ -52,6 +67,8 @@ OBSERVABLES = (
     "omega_end",
     "quat_end",
 )
+CLOSED_LOOP = ("settling_time", "peak_wheel_speed", "saturation_count", "pointing_error_end")
+"""The observables of a sweep with `[wheels]` and `[control]` (a closed loop)."""
 METHODS = ("tsit5", "dopri5", "dopri8", "rk4")
 KINEMATICS = ("quat", "rotvec", "matrix", "euler", "cayley_klein", "geometric")
 Template = Any  # nested lists of floats and factor names
@@ -79,6 +96,8 @@ class Config:
     observables: tuple[str, ...]
     chunk_size: int | None
     float32: bool
+    wheels: dict[str, Any] | None = None  # axes (n, 3), perpendiculars (n, 3), inertia, ...
+    control: dict[str, Any] | None = None  # kp, kd, period, target (4,), tolerance [rad]
 
 
 def _fail(path: Path, where: str, problem: str) -> UsageError:
@@ -208,6 +227,64 @@ def _design(path: Path, d: dict[str, Any]) -> tuple[dict[str, Any], tuple[str, .
     raise _fail(path, "[design] kind", f"must be 'grid' or 'sample', got {kind!r}")
 
 
+def _closed_loop(path: Path, raw: dict) -> tuple[dict | None, dict | None]:
+    """`[wheels]` and `[control]`, checked (both or neither): the nominal axes and the
+    perpendiculars about which `tilt` turns them (each axis `a`: `a × e`, `e` the coordinate
+    axis least along `a`), and the law's gains, period, target quaternion and tolerance."""
+    wheels, control = raw.get("wheels"), raw.get("control")
+    if wheels is None and control is None:
+        return None, None
+    if wheels is None or control is None:
+        raise _fail(path, "[wheels]/[control]", "a closed loop needs both tables: give both")
+    axes = wheels.get("axes")
+    if not isinstance(axes, list) or not axes:
+        raise _fail(path, "[wheels] axes", "missing: one row [x, y, z] per wheel")
+    A = np.array([[_number(path, "[wheels] axes", x) for x in row] for row in axes])
+    if A.ndim != 2 or A.shape[1] != 3 or np.any(np.linalg.norm(A, axis=1) == 0):
+        raise _fail(path, "[wheels] axes", f"must be non-zero rows [x, y, z], got {axes!r}")
+    if np.linalg.matrix_rank(A) < 3:
+        raise _fail(path, "[wheels] axes", "must span 3-D space (three independent axes)")
+    A = A / np.linalg.norm(A, axis=1, keepdims=True)
+    e = np.eye(3)[np.argmin(np.abs(A), axis=1)]
+    perp = np.cross(A, e)
+    n = A.shape[0]
+    if "inertia" not in wheels:
+        raise _fail(path, "[wheels] inertia", "missing: the axial inertia of a wheel [kg m²]")
+    tilt = _template(path, "[wheels] tilt", wheels.get("tilt", [0.0] * n), ((n,),))
+    u_max = wheels.get("torque_max")
+    out_w = dict(
+        axes=A,
+        perp=perp / np.linalg.norm(perp, axis=1, keepdims=True),
+        inertia=_number(path, "[wheels] inertia", wheels["inertia"], positive=True),
+        torque_max=None
+        if u_max is None
+        else _number(path, "[wheels] torque_max", u_max, positive=True),
+        tilt=tilt,
+    )
+    law = control.get("law", "quaternion_pd")
+    if law != "quaternion_pd":
+        raise _fail(path, "[control] law", f"must be quaternion_pd, got {law!r}")
+    for key in ("kp", "kd", "period", "target"):
+        if key not in control:
+            raise _fail(path, f"[control] {key}", f"missing: {SECTIONS['control'][key]}")
+    target = control["target"]
+    if not isinstance(target, list) or len(target) != 3:
+        raise _fail(path, "[control] target", f"must be [x, y, z] in degrees, got {target!r}")
+    rv = np.radians([_number(path, "[control] target", x) for x in target])
+    angle = np.linalg.norm(rv)
+    axis = rv / angle if angle > 0 else np.zeros(3)
+    out_c = dict(
+        kp=_number(path, "[control] kp", control["kp"], positive=True),
+        kd=_number(path, "[control] kd", control["kd"], positive=True),
+        period=_number(path, "[control] period", control["period"], positive=True),
+        target=np.r_[np.cos(angle / 2), np.sin(angle / 2) * axis],
+        tolerance=np.radians(
+            _number(path, "[control] tolerance", control.get("tolerance", 0.5), positive=True)
+        ),
+    )
+    return out_w, out_c
+
+
 def _unknown(path: Path, where: str, table: dict, allowed: set[str] | dict) -> None:
     extra = sorted(set(table) - set(allowed))
     if extra:
@@ -242,12 +319,16 @@ def load(path: Path) -> Config:
     q0 = _template(path, "[initial] q0", initial.get("q0", [1.0, 0.0, 0.0, 0.0]), ((4,),))
     design, logs = _design(path, raw.get("design", {}))
     factors = design["factors"] if design["kind"] == "grid" else design["ranges"]
+    wheels, control = _closed_loop(path, raw)
     used = _names(inertia) | _names(omega0) | _names(q0)
+    used |= _names(wheels["tilt"]) if wheels else set()
     for name in sorted(used - set(factors)):
         raise _fail(path, "[body]/[initial]", f"factor {name!r} is not defined in [design]")
     for name in sorted(set(factors) - used):
         raise _fail(
-            path, "[design]", f"factor {name!r} is not used in [body] or [initial]; remove it"
+            path,
+            "[design]",
+            f"factor {name!r} is not used in [body], [initial] or [wheels]; remove it",
         )
     method = solver.get("method", "tsit5")
     if method not in METHODS:
@@ -263,12 +344,16 @@ def load(path: Path) -> Config:
     dt = _number(path, "[solver] dt", solver["dt"], positive=True) if "dt" in solver else None
     if method == "rk4" and dt is None:
         raise _fail(path, "[solver] dt", "rk4 takes fixed steps: give dt, the step size [s]")
-    names = raw.get("observables", {}).get("names", list(OBSERVABLES[:4]))
+    known = CLOSED_LOOP if control else OBSERVABLES
+    names = raw.get("observables", {}).get("names", list(known[:4]))
     if not isinstance(names, list) or not names:
         raise _fail(path, "[observables] names", "must be a non-empty list")
     for n in names:
-        if n not in OBSERVABLES:
-            raise _fail(path, "[observables] names", f"unknown {n!r}; choose from {OBSERVABLES}")
+        if n not in known:
+            kind = "a closed loop" if control else "a free body ([control] adds CLOSED_LOOP)"
+            raise _fail(
+                path, "[observables] names", f"unknown {n!r} for {kind}; choose from {known}"
+            )
     precision = run.get("precision", "float64")
     if precision not in ("float64", "float32"):
         raise _fail(path, "[run] precision", f"must be float64 or float32, got {precision!r}")
@@ -292,6 +377,8 @@ def load(path: Path) -> Config:
         observables=tuple(names),
         chunk_size=None if chunk is None else _integer(path, "[run] chunk_size", chunk, 1),
         float32=precision == "float32",
+        wheels=wheels,
+        control=control,
     )
 
 
@@ -335,6 +422,8 @@ def make_model(c: Config) -> Callable[[dict], dict]:
         max_steps=c.max_steps,
         throw=False,
     )
+    if c.control is not None:
+        return _closed_loop_model(c, ts, options)
     compute = {
         "max_nutation": lambda body, tr: obs.max_nutation(tr),
         "first_flip_time": lambda body, tr: obs.first_flip_time(tr),
@@ -349,5 +438,52 @@ def make_model(c: Config) -> Callable[[dict], dict]:
         w0, q0 = fill(c.omega0, p, jnp).astype(dtype), fill(c.q0, p, jnp).astype(dtype)
         tr = simulate(body, w0, q0, ts, kinematics=c.kinematics, options=options, check=False)
         return {n: compute[n](body, tr) for n in c.observables} | {"result": tr.result}
+
+    return model
+
+
+def _closed_loop_model(c: Config, ts, options) -> Callable[[dict], dict]:
+    """The one-point model of a closed loop: a gyrostat with the config's wheels (each axis
+    turned by its `tilt` about its perpendicular: `a cos t + p sin t`), the quaternion PD law
+    on the nominal axes, sampled every `period` and held, and the `CLOSED_LOOP` observables."""
+    import jax.numpy as jnp
+
+    from .. import observables as obs
+    from ..control import quaternion_pd
+    from ..mechanics import Gyrostat
+    from ..mechanics.dynamics import simulate
+
+    w, k = c.wheels, c.control
+    assert w is not None and k is not None  # `load` gives both or neither
+    dtype = ts.dtype
+    A0, perp = (jnp.asarray(w[key].T, dtype) for key in ("axes", "perp"))  # (3, n)
+    target = jnp.asarray(k["target"], dtype)
+    law = quaternion_pd(k["kp"], k["kd"], target, wheel_axes=A0)
+    n = A0.shape[1]
+    compute = {
+        "settling_time": lambda tr: obs.settling_time(tr, target, k["tolerance"]),
+        "peak_wheel_speed": obs.peak_wheel_speed,
+        "saturation_count": lambda tr: (
+            obs.saturation_count(tr, w["torque_max"])
+            if w["torque_max"] is not None
+            else jnp.zeros((), jnp.int32)
+        ),
+        "pointing_error_end": lambda tr: obs.pointing_error(tr, target)[-1],
+    }
+
+    def model(p: dict) -> dict:
+        tilt = fill(w["tilt"], p, jnp).astype(dtype)
+        sc = Gyrostat(
+            fill(c.inertia, p, jnp).astype(dtype),
+            wheel_axes=A0 * jnp.cos(tilt) + perp * jnp.sin(tilt),
+            wheel_inertia=jnp.full(n, w["inertia"], dtype),
+            wheel_torque_max=w["torque_max"],
+        )
+        w0, q0 = fill(c.omega0, p, jnp).astype(dtype), fill(c.q0, p, jnp).astype(dtype)
+        tr = simulate(
+            sc, w0, q0, ts, controller=law, control_period=k["period"], options=options,
+            check=False,
+        )  # fmt: skip
+        return {name: compute[name](tr) for name in c.observables} | {"result": tr.result}
 
     return model

@@ -85,6 +85,8 @@ def check_points(c: Config, design) -> None:
         RigidBody(inertia)
         check_finite(fill(c.omega0, sub, jnp), "omega0")
         check_unit_norm(fill(c.q0, sub, jnp), "q0", "; give a unit quaternion")
+        if c.wheels is not None:
+            check_finite(fill(c.wheels["tilt"], sub, jnp), "[wheels] tilt")
 
     try:
         check(0, design.size)

@@ -121,18 +121,11 @@ def run(
 
 
 def _blocks(
-    hoisted: Hoisted,
-    unit: Unit,
-    method: type[diffrax.AbstractERK],
-    y0: Float[Array, "B N"],
-    p: Float[Array, "P Bc"],
-    n: Int[Array, " K"],
-    h: Float[Array, " K"],
-    t0: Float[Array, " K"],
-    *,
-    interpret: bool,
+    hoisted: Hoisted, unit: Unit, method: type[diffrax.AbstractERK], *arrays: Array, interpret: bool
 ) -> Float[Array, "B T N"]:
-    """`run` of one batch: the `pallas_call` over its blocks."""
+    """`run` of one batch (`arrays`: its `y0, p, n, h, t0`): the `pallas_call` over its
+    blocks."""
+    y0, p, n, h, t0 = arrays
     B, N, K, dtype = y0.shape[0], y0.shape[1], h.shape[0], y0.dtype
     P = hoisted.p
     Bp = -(-B // BLOCK) * BLOCK

@@ -45,12 +45,7 @@ def quat_checks(name: str) -> list[Check]:
         return f": {at(name, k)} = {fmt(q[k])}"
 
     return [
-        Check(
-            finite_check(name, 1).bad,
-            f"{name} must be a finite quaternion (w, x, y, z)",
-            finite_check(name, 1).detail,
-            NONFINITE_HINT,
-        ),
+        finite_check(name, 1)._replace(message=f"{name} must be a finite quaternion (w, x, y, z)"),
         Check(
             zero,
             f"{name} is a zero quaternion, which is no rotation",
@@ -85,12 +80,7 @@ def matrix_checks(name: str) -> list[Check]:
         return f": det {at(name, k)} = {det(np, P[k]):.6g} for {at(name, k)} = {fmt(P[k])}"
 
     return [
-        Check(
-            finite_check(name, 2).bad,
-            f"{name} must be a finite rotation matrix",
-            finite_check(name, 2).detail,
-            NONFINITE_HINT,
-        ),
+        finite_check(name, 2)._replace(message=f"{name} must be a finite rotation matrix"),
         Check(
             improper,
             f"{name} is not a rotation matrix: non-positive determinant (a left-handed or "
