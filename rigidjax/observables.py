@@ -10,6 +10,9 @@ refine `ts` to resolve a peak between samples.
 The *initially dominant axis* `d` is the body coordinate axis `e_d` with the largest `|Ω0_d|`
 (`Ω0 = traj.omega[..., 0, :]`; on a tie the first one; with a body given by its principal moments
 these are principal axes), the same contract as `rigidjax.analytic.time_of_first_flip`.
+
+Closed loops (a `Gyrostat` with wheels and a controller: `GyrostatTrajectory`):
+`pointing_error`, `settling_time`, `peak_wheel_speed`, `saturation_count`.
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ._custom_types import Scalar
+from ._custom_types import QuatLike, Scalar
 from .mechanics import RigidBody, Trajectory, angular_momentum, energy
 from .mechanics.gyrostat import GyrostatTrajectory
 from .rotations import quat
@@ -119,7 +122,7 @@ def momentum_drift(body: RigidBody, traj: Trajectory) -> Scalar:
     return _relative(_safe_norm(M - M0), _safe_norm(M0[..., 0, :]))
 
 
-def pointing_error(traj: Trajectory, q_target: Float[Array, "4"]) -> Float[Array, "*batch T"]:
+def pointing_error(traj: Trajectory, q_target: QuatLike) -> Float[Array, "*batch T"]:
     """Angle (radians, in `[0, π]`) between the attitude and the target attitude `q_target`
     (unit, body → space) at each sample: the rotation angle of the error quaternion
     `q_e = q_target⁻¹ ∘ q`, `2 atan2(|q_e,1:3|, |q_e0|)` (the shorter way round; accurate near
@@ -128,7 +131,7 @@ def pointing_error(traj: Trajectory, q_target: Float[Array, "4"]) -> Float[Array
     return 2 * jnp.arctan2(_safe_norm(qe[..., 1:]), jnp.abs(qe[..., 0]))
 
 
-def settling_time(traj: Trajectory, q_target: Float[Array, "4"], tolerance: float) -> Scalar:
+def settling_time(traj: Trajectory, q_target: QuatLike, tolerance: float) -> Scalar:
     """First sample time after which the pointing error (`pointing_error`) stays within
     `tolerance` (radians) up to the last sample: `ts[i + 1]`, `i` the last sample outside;
     `ts[0]` if it never leaves, `inf` if the last sample is outside (it has not settled within
@@ -142,19 +145,19 @@ def settling_time(traj: Trajectory, q_target: Float[Array, "4"], tolerance: floa
     return jnp.where(jnp.any(jnp.isnan(err), axis=-1), jnp.nan, t)
 
 
-def peak_wheel_speed(traj: GyrostatTrajectory) -> Scalar:
+def peak_wheel_speed(traj: Trajectory) -> Scalar:
     """Largest `|ω_w|` (rad/s, relative to the body) of any wheel at any sample of a gyrostat's
     trajectory with wheels."""
-    if traj.wheel_speed is None:
+    if not isinstance(traj, GyrostatTrajectory) or traj.wheel_speed is None:
         raise ValueError("peak_wheel_speed needs a trajectory of a gyrostat with wheels")
     return jnp.max(jnp.abs(traj.wheel_speed), axis=(-2, -1))
 
 
-def saturation_count(traj: GyrostatTrajectory, torque_max: float) -> Array:
+def saturation_count(traj: Trajectory, torque_max: float) -> Array:
     """Number of control samples at which some wheel's motor torque was held at its bound
     `torque_max` (the command is clipped to `±wheel_torque_max`; counted within a relative
     1e-12 of it), for a trajectory with a controller."""
-    if traj.command is None:
+    if not isinstance(traj, GyrostatTrajectory) or traj.command is None:
         raise ValueError("saturation_count needs a trajectory with a controller (its commands)")
     at_bound = jnp.abs(traj.command) >= torque_max * (1 - 1e-12)
     return jnp.sum(jnp.any(at_bound, axis=-1), axis=-1)

@@ -210,6 +210,7 @@ def simulate_gyrostat(
     ]
     if batch:
         ys, stats, result, cts, cmds = jax.vmap(one_body)(*flat)
+        cts = None if cts is None else cts[0]  # the same sample times for every body
         stats = {k: jnp.min(v) if k == "num_valid" else jnp.max(v) for k, v in stats.items()}
         first = jnp.argmax(result != diffrax.RESULTS.successful)  # the first body that failed
         result = jax.tree_util.tree_map(lambda v: v[first], result)
