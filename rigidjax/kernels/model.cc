@@ -4,6 +4,8 @@
 //   the model (model.h, written from the JAX field's jaxpr)  ẏ = f(t, y, p), y ∈ R^N, p ∈ R^P
 //   one step  z_i = y + h Σ_{l<i} a_il k_l,  k_i = f(t + c_i h, z_i),  u = y + h Σ_l b_l k_l
 //   after every step  each unit group of u (a quaternion) ← itself / its norm
+//   at the start of each interval k with jump[k] ≠ 0 (a sample of a held command)
+//                     y ← J(t0[k], y, p)   (Model::J; its transposed Jacobian Model::JT)
 //
 // model.h holds the tableau (Diffrax's coefficients, stages that never reach the solution
 // dropped), Model::F (the field) and Model::FT (its transposed Jacobian-vector product, written
@@ -14,8 +16,9 @@
 // Shapes (L: leading batch dimensions added by jax.vmap, flattened):
 //   y0 (L, B, N)  initial states;  p (L, P, Bc)  parameters, per body (Bc = B) or per row (1)
 //   n (L, K) int32  steps in output interval k;  h (L, K)  their size;  t0 (L, K)  its start
+//   jump (L, K) int32  whether interval k starts with the jump map J
 //   y (L, B, K + 1, N)  the state at every output time, [:, :, 0] = initial
-// Reverse mode: from y, p, n, h, t0 and gy (L, B, K + 1, N), the cotangents
+// Reverse mode: from y, p, n, h, t0, jump and gy (L, B, K + 1, N), the cotangents
 //   y0b (L, B, N), pb (L, P, B), hb (L, K, B), t0b (L, K, B)
 #include <algorithm>
 #include <cmath>
@@ -138,9 +141,47 @@ struct Layout {
   }
 };
 
+// The jump map at time t on the m bodies of x (in place).
 template <typename T>
-void Group(const T* y0, const T* pp, const int32_t* n, const T* h, const T* t0, T* y,
-           int64_t first, int64_t count, const Layout& at) {
+void Jump(int64_t m, T (*__restrict x)[kBlock], const T (*__restrict C)[kBlock], T t) {
+  for (int64_t i = 0; i < m; ++i) {
+    T y[N], p[P], u[N];
+    RJ_UNROLL
+    for (int j = 0; j < N; ++j) y[j] = x[j][i];
+    RJ_UNROLL
+    for (int j = 0; j < Model::P; ++j) p[j] = C[j][i];
+    Model::J(t, y, p, u);
+    RJ_UNROLL
+    for (int j = 0; j < N; ++j) x[j][i] = u[j];
+  }
+}
+
+// Its reverse at time t from the states x0 it was applied to: lam, the cotangent of its
+// result, becomes that of its argument; pb and tb collect those of the parameters and time.
+template <typename T>
+void JumpBack(int64_t m, const T (*__restrict x0)[kBlock], const T (*__restrict C)[kBlock], T t,
+              T (*__restrict lam)[kBlock], T (*__restrict pb)[kBlock], T* __restrict tb) {
+  for (int64_t i = 0; i < m; ++i) {
+    T y[N], p[P], v[N], yb[N], pbar[P];
+    RJ_UNROLL
+    for (int j = 0; j < N; ++j) y[j] = x0[j][i], v[j] = lam[j][i], yb[j] = T(0);
+    RJ_UNROLL
+    for (int j = 0; j < Model::P; ++j) p[j] = C[j][i];
+    RJ_UNROLL
+    for (int j = 0; j < P; ++j) pbar[j] = T(0);
+    T tbar = T(0);
+    Model::JT(t, y, p, v, yb, pbar, tbar);
+    RJ_UNROLL
+    for (int j = 0; j < N; ++j) lam[j][i] = yb[j];
+    RJ_UNROLL
+    for (int j = 0; j < Model::P; ++j) pb[j][i] += pbar[j];
+    tb[i] += tbar;
+  }
+}
+
+template <typename T>
+void Group(const T* y0, const T* pp, const int32_t* n, const T* h, const T* t0,
+           const int32_t* jump, T* y, int64_t first, int64_t count, const Layout& at) {
   const int64_t blocks = (count + kBlock - 1) / kBlock;
 #pragma omp parallel for schedule(static)
   for (int64_t blk = 0; blk < blocks; ++blk) {
@@ -156,7 +197,12 @@ void Group(const T* y0, const T* pp, const int32_t* n, const T* h, const T* t0, 
       for (int j = 0; j < Model::P; ++j) C[j][i] = pp[at.p(row[i], col[i], j)];
     }
     for (int64_t k = 0; k <= at.K; ++k) {
-      if (k > 0) Steps<T>(m, x, C, 0, n[k - 1], t0[k - 1], h[k - 1]);
+      if (k > 0) {
+        if constexpr (Model::kJump) {
+          if (jump[k - 1]) Jump<T>(m, x, C, t0[k - 1]);
+        }
+        Steps<T>(m, x, C, 0, n[k - 1], t0[k - 1], h[k - 1]);
+      }
       for (int64_t i = 0; i < m; ++i) {
         RJ_UNROLL
         for (int j = 0; j < N; ++j) y[at.y(row[i], col[i], k, j)] = x[j][i];
@@ -266,8 +312,9 @@ void StepBack(int64_t m, const T (*__restrict x)[kBlock], const T (*__restrict C
 constexpr int64_t kStoreAll = 2048;
 
 template <typename T>
-void GroupBack(const T* y, const T* pp, const int32_t* n, const T* h, const T* t0, const T* gy,
-               T* y0b, T* pbo, T* hbo, T* tbo, int64_t first, int64_t count, const Layout& at) {
+void GroupBack(const T* y, const T* pp, const int32_t* n, const T* h, const T* t0,
+               const int32_t* jump, const T* gy, T* y0b, T* pbo, T* hbo, T* tbo, int64_t first,
+               int64_t count, const Layout& at) {
   const int64_t blocks = (count + kBlock - 1) / kBlock;
   const int64_t K = at.K;
 #pragma omp parallel
@@ -276,6 +323,7 @@ void GroupBack(const T* y, const T* pp, const int32_t* n, const T* h, const T* t
 #pragma omp for schedule(static)
     for (int64_t blk = 0; blk < blocks; ++blk) {
       alignas(64) T x[N][kBlock];
+      alignas(64) T x0[N][kBlock];  // the state before a jump
       alignas(64) T C[P][kBlock];
       alignas(64) T lam[N][kBlock];
       alignas(64) T pb[P][kBlock];
@@ -313,6 +361,11 @@ void GroupBack(const T* y, const T* pp, const int32_t* n, const T* h, const T* t
           RJ_UNROLL
           for (int j = 0; j < N; ++j) x[j][i] = y[at.y(row[i], col[i], k, j)];
         }
+        const bool jumped = Model::kJump && jump[k];
+        if (jumped) {
+          std::memcpy(x0, x, sizeof(x));
+          Jump<T>(m, x, C, t0[k]);
+        }
         for (int64_t s = 0; s < segments; ++s) {
           std::memcpy(ckpt[s], x, sizeof(x));
           if (s + 1 < segments) Steps<T>(m, x, C, s * S, S, t0[k], h[k]);
@@ -328,6 +381,7 @@ void GroupBack(const T* y, const T* pp, const int32_t* n, const T* h, const T* t
           for (int64_t j = len - 1; j >= 0; --j)
             StepBack<T>(m, states[j], C, s * S + j, t0[k], h[k], lam, pb, hsum, tsum);
         }
+        if (jumped) JumpBack<T>(m, x0, C, t0[k], lam, pb, tsum);
         for (int64_t i = 0; i < m; ++i) {
           hbo[(row[i] * K + k) * at.B + col[i]] = hsum[i];
           tbo[(row[i] * K + k) * at.B + col[i]] = tsum[i];
@@ -347,9 +401,11 @@ void GroupBack(const T* y, const T* pp, const int32_t* n, const T* h, const T* t
 
 // Whether the L batch rows share their steps (n, h, t0): then they are one group of L·B bodies.
 template <typename T>
-bool Shared(const int32_t* n, const T* h, const T* t0, int64_t L, int64_t K) {
+bool Shared(const int32_t* n, const T* h, const T* t0, const int32_t* jump, int64_t L,
+            int64_t K) {
   for (int64_t l = 1; l < L; ++l) {
     if (std::memcmp(n, n + l * K, K * sizeof(int32_t)) != 0 ||
+        std::memcmp(jump, jump + l * K, K * sizeof(int32_t)) != 0 ||
         std::memcmp(h, h + l * K, K * sizeof(T)) != 0 ||
         std::memcmp(t0, t0 + l * K, K * sizeof(T)) != 0)
       return false;
@@ -361,23 +417,24 @@ bool Shared(const int32_t* n, const T* h, const T* t0, int64_t L, int64_t K) {
 // the rows share them (a vmapped single body still fills the vector lanes), else row by row;
 // s is the offset of the group's steps in n, h and t0.
 template <typename T, class Run>
-void ForEachGroup(const int32_t* n, const T* h, const T* t0, int64_t L, const Layout& at,
-                  Run run) {
-  const bool shared = Shared<T>(n, h, t0, L, at.K);
+void ForEachGroup(const int32_t* n, const T* h, const T* t0, const int32_t* jump, int64_t L,
+                  const Layout& at, Run run) {
+  const bool shared = Shared<T>(n, h, t0, jump, L, at.K);
   for (int64_t l = 0; l < (shared ? 1 : L); ++l) {
     run(l * at.K, shared ? 0 : l, shared ? L * at.B : at.B);
   }
 }
 
 ffi::Error Shapes(size_t y0, const ffi::Span<const int64_t>& pdims, size_t n, size_t h,
-                  size_t t0, Layout* at, int64_t* L) {
+                  size_t t0, size_t jump, Layout* at, int64_t* L) {
   if (pdims.size() < 2 || pdims[pdims.size() - 2] != Model::P) {
     return ffi::Error::InvalidArgument("model kernel: p must have shape (..., P, B or 1)");
   }
   const int64_t Bc = pdims[pdims.size() - 1];
   int64_t rows = 1;
   for (size_t i = 0; i + 2 < pdims.size(); ++i) rows *= pdims[i];
-  if (rows == 0 || y0 % (N * rows) != 0 || n != h || n != t0 || n % rows != 0) {
+  if (rows == 0 || y0 % (N * rows) != 0 || n != h || n != t0 || n != jump ||
+      n % rows != 0) {
     return ffi::Error::InvalidArgument("model kernel: inconsistent shapes");
   }
   const int64_t B = static_cast<int64_t>(y0) / (N * rows);
@@ -391,35 +448,37 @@ ffi::Error Shapes(size_t y0, const ffi::Span<const int64_t>& pdims, size_t n, si
 
 template <ffi::DataType DT>
 ffi::Error ModelSteps(ffi::Buffer<DT> y0, ffi::Buffer<DT> p, ffi::Buffer<ffi::S32> n,
-                      ffi::Buffer<DT> h, ffi::Buffer<DT> t0, ffi::ResultBuffer<DT> y) {
+                      ffi::Buffer<DT> h, ffi::Buffer<DT> t0, ffi::Buffer<ffi::S32> jump,
+                      ffi::ResultBuffer<DT> y) {
   using T = ffi::NativeType<DT>;
   Layout at;
   int64_t L;
   ffi::Error e = Shapes(y0.element_count(), p.dimensions(), n.element_count(), h.element_count(),
-                        t0.element_count(), &at, &L);
+                        t0.element_count(), jump.element_count(), &at, &L);
   if (e.failure()) return e;
   if (y->element_count() != static_cast<size_t>(L * at.B * (at.K + 1) * N)) {
     return ffi::Error::InvalidArgument("model kernel: inconsistent output shape");
   }
-  const int32_t* nn = n.typed_data();
+  const int32_t *nn = n.typed_data(), *jj = jump.typed_data();
   const T *hh = h.typed_data(), *tt = t0.typed_data();
-  ForEachGroup(nn, hh, tt, L, at, [&](int64_t s, int64_t first, int64_t count) {
-    Group<T>(y0.typed_data(), p.typed_data(), nn + s, hh + s, tt + s, y->typed_data(), first,
-             count, at);
+  ForEachGroup(nn, hh, tt, jj, L, at, [&](int64_t s, int64_t first, int64_t count) {
+    Group<T>(y0.typed_data(), p.typed_data(), nn + s, hh + s, tt + s, jj + s, y->typed_data(),
+             first, count, at);
   });
   return ffi::Error::Success();
 }
 
 template <ffi::DataType DT>
 ffi::Error ModelStepsBack(ffi::Buffer<DT> y, ffi::Buffer<DT> p, ffi::Buffer<ffi::S32> n,
-                          ffi::Buffer<DT> h, ffi::Buffer<DT> t0, ffi::Buffer<DT> gy,
+                          ffi::Buffer<DT> h, ffi::Buffer<DT> t0, ffi::Buffer<ffi::S32> jump,
+                          ffi::Buffer<DT> gy,
                           ffi::ResultBuffer<DT> y0b, ffi::ResultBuffer<DT> pb,
                           ffi::ResultBuffer<DT> hb, ffi::ResultBuffer<DT> tb) {
   using T = ffi::NativeType<DT>;
   Layout at;
   int64_t L;
   ffi::Error e = Shapes(y0b->element_count(), p.dimensions(), n.element_count(),
-                        h.element_count(), t0.element_count(), &at, &L);
+                        h.element_count(), t0.element_count(), jump.element_count(), &at, &L);
   if (e.failure()) return e;
   const size_t ys = static_cast<size_t>(L * at.B * (at.K + 1) * N);
   if (y.element_count() != ys || gy.element_count() != ys ||
@@ -428,10 +487,10 @@ ffi::Error ModelStepsBack(ffi::Buffer<DT> y, ffi::Buffer<DT> p, ffi::Buffer<ffi:
       tb->element_count() != static_cast<size_t>(L * at.K * at.B)) {
     return ffi::Error::InvalidArgument("model kernel (reverse): inconsistent shapes");
   }
-  const int32_t* nn = n.typed_data();
+  const int32_t *nn = n.typed_data(), *jj = jump.typed_data();
   const T *hh = h.typed_data(), *tt = t0.typed_data();
-  ForEachGroup(nn, hh, tt, L, at, [&](int64_t s, int64_t first, int64_t count) {
-    GroupBack<T>(y.typed_data(), p.typed_data(), nn + s, hh + s, tt + s, gy.typed_data(),
+  ForEachGroup(nn, hh, tt, jj, L, at, [&](int64_t s, int64_t first, int64_t count) {
+    GroupBack<T>(y.typed_data(), p.typed_data(), nn + s, hh + s, tt + s, jj + s, gy.typed_data(),
                  y0b->typed_data(), pb->typed_data(), hb->typed_data(), tb->typed_data(), first,
                  count, at);
   });
@@ -447,7 +506,8 @@ auto BindInputs() {
       .template Arg<ffi::Buffer<DT>>()
       .template Arg<ffi::Buffer<ffi::S32>>()
       .template Arg<ffi::Buffer<DT>>()
-      .template Arg<ffi::Buffer<DT>>();
+      .template Arg<ffi::Buffer<DT>>()
+      .template Arg<ffi::Buffer<ffi::S32>>();
 }
 
 // The one handler of this build, named by model.h: the forward steps (RJ_FORWARD), or their

@@ -42,11 +42,19 @@ _NAME = "model"
 class Hoisted:
     """A field of N states and P parameters with its traced float constants lifted out:
     `fn(t, y, p, c)`, the constants' values `c (Pc,)` (traced or not), and the jaxprs of `fn`
-    and of its cotangent map, traced once."""
+    and of its cotangent map, traced once; optionally a jump map `jump_fn(t, y, p, c) -> y`
+    (applied at the start of flagged intervals: a sampled command), with the same constants."""
 
-    def __init__(self, fn: Callable, c: Array, n: int, p: int, dtype):
-        self.fn, self.c, self.n, self.p, self.dtype = fn, c, n, p, jnp.dtype(dtype)
+    def __init__(self, fns: Callable, c: Array, n: int, p: int, dtype, jumps: bool):
+        self.fns, self.c, self.n, self.p, self.dtype = fns, c, n, p, jnp.dtype(dtype)
+        self.jumps = jumps
         self._sources: dict[tuple, str] = {}
+
+    def fn(self, t, y, p, c):
+        return self.fns(t, y, p, c)[0]
+
+    def jump_fn(self, t, y, p, c):
+        return self.fns(t, y, p, c)[1]
 
     def _avals(self):
         dt = self.dtype
@@ -65,9 +73,21 @@ class Hoisted:
     @functools.cached_property
     def backward(self):
         """The jaxpr of its cotangent map `(t, y, p, c, v) -> (t̄, ȳ, p̄, c̄)`."""
+        return self._cotangents(self.fn)
 
+    @functools.cached_property
+    def jump_forward(self):
+        """The jaxpr of the jump map `jump_fn(t, y, p, c)`."""
+        return jax.make_jaxpr(self.jump_fn)(*self._avals())
+
+    @functools.cached_property
+    def jump_backward(self):
+        """The jaxpr of the jump map's cotangent map."""
+        return self._cotangents(self.jump_fn)
+
+    def _cotangents(self, fn: Callable):
         def cotangents(t, y, p, c, v):
-            return jax.vjp(self.fn, t, y, p, c)[1](v)
+            return jax.vjp(fn, t, y, p, c)[1](v)
 
         avals = self._avals()
         return jax.make_jaxpr(cotangents)(*avals, avals[1])
@@ -77,7 +97,15 @@ class Hoisted:
         """The field as the Diffrax path evaluates it: `(t, y, p, c) -> ẏ` on tuples of
         component arrays (`y`: N arrays, e.g. `(B,)` each; `p`: P arrays, scalars or `(B,)`;
         `c`: `(Pc,)` or Pc arrays), the same scalar operations as the kernel's `F`."""
-        forward, n, p = self.forward, self.n, self.p
+        return self._on_components(self.forward)
+
+    @functools.cached_property
+    def jump_components(self) -> Callable:
+        """The jump map on component arrays (as `components`), the kernel's `J`."""
+        return self._on_components(self.jump_forward)
+
+    def _on_components(self, forward) -> Callable:
+        n, p = self.n, self.p
 
         def fn(t, y, pp, c):
             ins = [
@@ -108,39 +136,43 @@ class _Traced(Exception):
     """The field closes over traced constants: its hoisting belongs to one trace only."""
 
 
-def hoist(field: Field, n: int, p: int, dtype) -> Hoisted:
-    """`field` traced on `t ()`, `y (n,)`, `p (p,)` of `dtype`, its traced float constants lifted
-    into `c`; kept (not traced again) for a hashable field whose constants are concrete, as
-    `jax.jit` keeps a function's compilation. A traced integer constant (an index computed at
-    run time) raises `Unsupported`."""
+def hoist(field: Field, n: int, p: int, dtype, jump: Field | None = None) -> Hoisted:
+    """`field` (and the jump map `jump`, if any) traced on `t ()`, `y (n,)`, `p (p,)` of
+    `dtype`, their traced float constants lifted into `c`; kept (not traced again) for hashable
+    functions whose constants are concrete, as `jax.jit` keeps a function's compilation. A
+    traced integer constant (an index computed at run time) raises `Unsupported`."""
     name = jnp.dtype(dtype).name
     try:
-        hash(field)
+        hash((field, jump))
     except TypeError:
-        return _hoist(field, n, p, name)
+        return _hoist(field, jump, n, p, name)
     try:
-        return _hoist_concrete(field, n, p, name)
+        return _hoist_concrete(field, jump, n, p, name)
     except _Traced:
-        return _hoist(field, n, p, name)
+        return _hoist(field, jump, n, p, name)
 
 
 @functools.lru_cache(maxsize=64)
-def _hoist_concrete(field: Field, n: int, p: int, dtype: str) -> Hoisted:
-    hoisted = _hoist(field, n, p, dtype)
+def _hoist_concrete(field: Field, jump: Field | None, n: int, p: int, dtype: str) -> Hoisted:
+    hoisted = _hoist(field, jump, n, p, dtype)
     if not is_concrete(hoisted.c):
         raise _Traced
     return hoisted
 
 
-def _hoist(field: Field, n: int, p: int, dtype: str) -> Hoisted:
+def _hoist(field: Field, jump: Field | None, n: int, p: int, dtype: str) -> Hoisted:
     args = (
         jax.ShapeDtypeStruct((), dtype),
         jax.ShapeDtypeStruct((n,), dtype),
         jax.ShapeDtypeStruct((p,), dtype),
     )
-    closed = jax.make_jaxpr(field)(*args)
-    if len(closed.out_avals) != 1 or closed.out_avals[0].shape != (n,):  # pyright: ignore
-        raise ValueError(f"the model's field must return one array of shape ({n},)")
+
+    def both(t, y, p):
+        return (field(t, y, p),) if jump is None else (field(t, y, p), jump(t, y, p))
+
+    closed = jax.make_jaxpr(both)(*args)
+    if any(a.shape != (n,) for a in closed.out_avals):  # pyright: ignore
+        raise ValueError(f"the model's field and jump map must return arrays of shape ({n},)")
     consts = list(closed.consts)
     traced = [i for i, x in enumerate(consts) if not is_concrete(x)]
     floats = [i for i in traced if jnp.issubdtype(jnp.result_type(consts[i]), jnp.floating)]
@@ -149,14 +181,14 @@ def _hoist(field: Field, n: int, p: int, dtype: str) -> Hoisted:
     values = [jnp.asarray(consts[i]) for i in floats]
     c = jnp.concatenate([jnp.ravel(v).astype(dtype) for v in values] + [jnp.zeros((0,), dtype)])
 
-    def fn(t, y, p, c):
+    def fns(t, y, p, c):
         full, offset = list(consts), 0
         for i, v in zip(floats, values, strict=True):
             full[i] = c[offset : offset + v.size].reshape(v.shape).astype(v.dtype)
             offset += v.size
-        return jax.core.eval_jaxpr(closed.jaxpr, full, t, y, p)[0]
+        return jax.core.eval_jaxpr(closed.jaxpr, full, t, y, p)
 
-    return Hoisted(fn, c, n, p, dtype)
+    return Hoisted(fns, c, n, p, dtype, jump is not None)
 
 
 def _inputs(n: int, p: int, pc: int, *extra: str) -> list[np.ndarray]:
@@ -173,34 +205,56 @@ def _consts(closed) -> list[np.ndarray]:
     return [np.asarray(_const_array(x), dtype=object) for x in closed.consts]
 
 
-def model_source(hoisted: Hoisted, unit: Sequence[tuple[int, int]]) -> str:
-    """`struct Model` of `model.cc`: sizes, unit groups, `F` and `FT` as C++."""
-    forward, n, p, pc = hoisted.forward, hoisted.n, hoisted.p, hoisted.c.shape[0]
-    em = CEmitter("f")
-    (k,) = unroll(forward, em, _consts(forward), _inputs(n, p, pc))
-    backward = hoisted.backward
-    body_f = em.lines + [f"k[{i}] = {em.operand(x)};" for i, x in enumerate(k)]
-    eb = CEmitter("b")
-    tb, yb, pb, cb = unroll(backward, eb, _consts(backward), _inputs(n, p, pc, "v"))
-    body_b = list(eb.lines)
+def _program(jaxpr, out: str, prefix: str, n: int, p: int, pc: int) -> list[str]:
+    """C++ statements of a map `(t, y, p, c) -> (N,)` writing `out[i]`."""
+    em = CEmitter(prefix)
+    (k,) = unroll(jaxpr, em, _consts(jaxpr), _inputs(n, p, pc))
+    return em.lines + [f"{out}[{i}] = {em.operand(x)};" for i, x in enumerate(k)]
+
+
+def _cotangent_program(jaxpr, prefix: str, n: int, p: int, pc: int) -> list[str]:
+    """C++ statements of a cotangent map `(t, y, p, c, v) -> (t̄, ȳ, p̄, c̄)` adding into `tb`,
+    `yb[i]` and `pb[i]` (the parameters, then the lifted constants)."""
+    eb = CEmitter(prefix)
+    tb, yb, pb, cb = unroll(jaxpr, eb, _consts(jaxpr), _inputs(n, p, pc, "v"))
+    body = list(eb.lines)
     for target, values in (("tb", [tb.item()]), ("yb", yb), ("pb", [*pb, *cb])):
         for i, x in enumerate(values):
             lhs = "tb" if target == "tb" else f"{target}[{i}]"
             if not (_is_const(x) and x == 0):
-                body_b.append(f"{lhs} += {eb.operand(x)};")
+                body.append(f"{lhs} += {eb.operand(x)};")
+    return body
+
+
+def model_source(hoisted: Hoisted, unit: Sequence[tuple[int, int]]) -> str:
+    """`struct Model` of `model.cc`: sizes, unit groups, `F` and `FT` (and the jump map `J`
+    and `JT`, empty without one) as C++."""
+    n, p, pc = hoisted.n, hoisted.p, hoisted.c.shape[0]
+    body_f = _program(hoisted.forward, "k", "f", n, p, pc)
+    body_b = _cotangent_program(hoisted.backward, "b", n, p, pc)
+    jumps = hoisted.jumps
+    body_j = _program(hoisted.jump_forward, "u", "j", n, p, pc) if jumps else []
+    body_jb = _cotangent_program(hoisted.jump_backward, "jb", n, p, pc) if jumps else []
     units = ", ".join(f"{{{a}, {m}}}" for a, m in unit) or "{0, 0}"
     indent = "\n    "
+    forward_args = "(T t, const T* y, const T* p, T* {}) {{\n    "
+    backward_args = "(T t, const T* y, const T* p, const T* v, T* yb, T* pb, T& tb) {\n    "
     return (
         "struct Model {\n"
         f"  static constexpr int N = {n}, P = {p + pc}, NU = {len(unit)};\n"
+        f"  static constexpr bool kJump = {'true' if jumps else 'false'};\n"
         f"  static constexpr int unit[{max(len(unit), 1)}][2] = {{{units}}};\n"
-        "  template <typename T>\n"
-        "  static RJ_INLINE void F(T t, const T* y, const T* p, T* k) {\n    "
-        + indent.join(body_f)
-        + "\n  }\n"
-        "  template <typename T>\n"
-        "  static RJ_INLINE void FT(T t, const T* y, const T* p, const T* v, T* yb, T* pb, "
-        "T& tb) {\n    " + indent.join(body_b) + "\n  }\n};\n"
+        + "".join(
+            "  template <typename T>\n"
+            f"  static RJ_INLINE void {name}{args}" + indent.join(body) + "\n  }\n"
+            for name, args, body in (
+                ("F", forward_args.format("k"), body_f),
+                ("FT", backward_args, body_b),
+                ("J", forward_args.format("u"), body_j),
+                ("JT", backward_args, body_jb),
+            )
+        )
+        + "};\n"
     )
 
 
@@ -285,27 +339,30 @@ def run(
     n: Int[Array, " K"],
     h: Float[Array, " K"],
     t0: Float[Array, " K"],
+    jump: Int[Array, " K"] | None = None,
 ) -> Float[Array, "B T N"]:
     """States `(B, K + 1, N)` at the start and after each of K intervals of `n[k]` steps of
-    size `h[k]` from `t0[k]`; `p (P, B or 1)` holds the parameters and lifted constants.
-    Reverse mode by the kernel's discrete adjoint of the same steps (`jax.custom_vjp`)."""
+    size `h[k]` from `t0[k]`, each interval with `jump[k] ≠ 0` started by the jump map (none by
+    default); `p (P, B or 1)` holds the parameters and lifted constants. Reverse mode by the
+    kernel's discrete adjoint of the same steps (`jax.custom_vjp`)."""
+    jump = jnp.zeros(h.shape, jnp.int32) if jump is None else jump
 
-    def forward(y0, p, n, h, t0):
+    def forward(y0, p, n, h, t0, jump):
         B, K = y0.shape[0], h.shape[0]
-        return _call(kernel.forward, y0.dtype, [(B, K + 1, kernel.n)], y0, p, n, h, t0)[0]
+        return _call(kernel.forward, y0.dtype, [(B, K + 1, kernel.n)], y0, p, n, h, t0, jump)[0]
 
-    def run_fwd(y0, p, n, h, t0):
-        y = forward(y0, p, n, h, t0)
-        return y, (y, p, n, h, t0)
+    def run_fwd(y0, p, n, h, t0, jump):
+        y = forward(y0, p, n, h, t0, jump)
+        return y, (y, p, n, h, t0, jump)
 
     def run_bwd(residuals, g):
-        y, p, n, h, t0 = residuals
+        y, p, n, h, t0, jump = residuals
         B, K = y.shape[0], h.shape[0]
         shapes = [(B, kernel.n), (kernel.p, B), (K, B), (K, B)]
-        y0b, pb, hb, tb = _call(kernel.backward(), y.dtype, shapes, y, p, n, h, t0, g)
+        y0b, pb, hb, tb = _call(kernel.backward(), y.dtype, shapes, y, p, n, h, t0, jump, g)
         pb = jnp.sum(pb, axis=1, keepdims=True) if p.shape[1] == 1 else pb
-        return y0b, pb, None, jnp.sum(hb, axis=1), jnp.sum(tb, axis=1)
+        return y0b, pb, None, jnp.sum(hb, axis=1), jnp.sum(tb, axis=1), None
 
     solve = jax.custom_vjp(forward)
     solve.defvjp(run_fwd, run_bwd)
-    return solve(y0, p, n, h, t0)
+    return solve(y0, p, n, h, t0, jump)

@@ -1,9 +1,10 @@
 """Sampled-data control with a zero-order hold: the command `controller(t_k, Ω_k, q_k, params)`
 is computed at the samples `t_k = t0 + k T_c` and held until the next one, as flight software
 runs (Franklin, Powell & Workman, *Digital Control of Dynamic Systems*, 3rd ed., §4.3). The
-solve steps from grid point to grid point of `ts ∪ {t_k}` inside one `lax.scan`, so every step
-of a fixed-step method lies within one hold interval: the right-hand side is smooth in each
-step, and the method keeps its order."""
+solve steps from grid point to grid point of `ts ∪ {t_k}`, so every step of a fixed-step method
+lies within one hold interval: the right-hand side is smooth in each step, and the method keeps
+its order. The command is part of the state (zero derivative), set by a jump map at the
+samples, so that the whole loop is one model: one CPU kernel call for all steps and samples."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from collections.abc import Callable
 from typing import Any
 
 import diffrax
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -19,9 +21,9 @@ from jaxtyping import Array
 
 from .._checks import is_concrete
 from .._integrate import SolveOptions, raise_failure
+from ..models.solve import solve_tree
 
 Controller = Callable[[Array, Array, Array, Any], Array]
-Step = Callable[[Array, Any, Array, SolveOptions], tuple[Any, dict[str, Array], Any]]
 
 
 def sample_grid(ts: np.ndarray, period: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -50,19 +52,46 @@ def sample_grid(ts: np.ndarray, period: float) -> tuple[np.ndarray, np.ndarray, 
     return grid[order], sample[order], out
 
 
+class _Held(eqx.Module):
+    """The field on the state `(y, command)`: `vf(t, y, (*args, command))`, the command held
+    (zero derivative)."""
+
+    vf: Callable
+
+    def __call__(self, t, y, args):
+        state, cmd = y
+        return self.vf(t, state, (*args, cmd)), jnp.zeros_like(cmd)
+
+
+class _Sample(eqx.Module):
+    """The jump map at a sample: `(y, command) ← (y, command(t, y))`."""
+
+    command: Callable
+
+    def __call__(self, t, y, args):
+        state, _ = y
+        return state, self.command(t, state)
+
+
 def held_solve(
-    step: Step,
+    vf: Callable,
     command: Callable[[Array, Any], Array],
     y0: Any,
+    args: tuple,
     ts: Array,
     period: float,
     cmd0: Array,
     options: SolveOptions,
+    *,
+    unit: tuple[int, ...],
+    name: str,
 ) -> tuple[Any, dict[str, Array], diffrax.RESULTS, Array, Array]:
-    """Integrate with a held command: `step(t01 (2,), y, cmd, options) -> (ys, stats, result)`
-    one grid interval with the command `cmd` fixed; `command(t_k, y_k)` the new command at a
-    sample. Returns `(ys (T, ...), stats, result, control_ts (K,), commands (K, m))`, raising a
-    failure (`options.throw`) at the output interval where it happened."""
+    """Integrate `vf(t, y, (*args, cmd))` with the command `cmd = command(t_k, y_k)` sampled at
+    `ts[0] + k period` and held (`cmd0` before the first sample): one solve over the grid of
+    `sample_grid`, the command a state with zero derivative that a jump map sets at the samples
+    (`solve_tree` with `jump`: inside the CPU kernel, or a solve per grid interval on the
+    Diffrax path). Returns `(ys (T, ...), stats, result, control_ts (K,), commands (K, m))`,
+    raising a failure (`options.throw`) at the output interval where it happened."""
     if not (is_concrete(ts) and isinstance(period, int | float | np.floating)):
         raise ValueError(
             "with a controller, ts and control_period must be concrete (not traced under "
@@ -72,25 +101,13 @@ def held_solve(
     grid_np, sample_np, out = sample_grid(np.asarray(ts), float(period))
     grid = jnp.asarray(grid_np, ts.dtype)
     inner = dataclasses.replace(options, throw=False)
-    keys = ("num_steps", "num_accepted_steps", "num_rejected_steps")
-
-    def interval(carry, x):
-        y, cmd, result = carry
-        ta, tb, sample = x
-        cmd = jnp.where(sample, command(ta, y), cmd)
-        ys, stats, res = step(jnp.stack([ta, tb]), y, cmd, inner)
-        y1 = jax.tree_util.tree_map(lambda a: a[-1], ys)
-        result = diffrax.RESULTS.where(result == diffrax.RESULTS.successful, res, result)
-        counts = jnp.stack([stats[k] for k in keys])
-        return (y1, cmd, result), (y1, cmd, counts, result == diffrax.RESULTS.successful)
-
-    init = (y0, cmd0, diffrax.RESULTS.successful)
-    xs = (grid[:-1], grid[1:], jnp.asarray(sample_np[:-1]))
-    (_, _, result), (ys, cmds, counts, valid) = jax.lax.scan(interval, init, xs)
-    ys = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b])[out], y0, ys)
-    stats: dict[str, Array] = dict(zip(keys, jnp.sum(counts, axis=0), strict=True))
-    stats["num_valid"] = 1 + jnp.sum(valid[out[1:] - 1])
+    (ys, cmds), stats, result = solve_tree(
+        _Held(vf), grid, (y0, cmd0), args, inner, unit=unit, name=name, jump=_Sample(command),
+        jumps=sample_np[:-1],
+    )  # fmt: skip
+    stats = dict(stats, num_valid=jnp.sum(jnp.asarray(out) < stats["num_valid"]))
+    ys = jax.tree_util.tree_map(lambda a: a[out], ys)
     if options.throw:
         ys = raise_failure(result, stats["num_valid"], ts, ys, options.max_steps)
     at = np.flatnonzero(sample_np[:-1])
-    return ys, stats, result, grid[at], cmds[at]
+    return ys, stats, result, grid[at], cmds[at + 1]

@@ -187,12 +187,11 @@ def simulate_gyrostat(
 
     def one_body(w0, qq0, x0):
         y0 = (w0, qq0) + ((x0,) if n else (g.h,) if h_rate is not None else ())
-
-        def step(t01, y, cmd, opts):
-            return solve_tree(field, t01, y, (*params, cmd), opts, unit=(1,), name="gyrostat")
-
+        cmd0 = jnp.zeros(m, dtype)
         if controller is None:
-            ys, stats, result = step(ts, y0, jnp.zeros(m, dtype), options)
+            ys, stats, result = solve_tree(
+                field, ts, y0, (*params, cmd0), options, unit=(1,), name="gyrostat"
+            )
             return ys, stats, result, None, None
         law = controller
 
@@ -201,7 +200,10 @@ def simulate_gyrostat(
             return g.clip(jnp.asarray(u).astype(dtype)) if n else jnp.asarray(u).astype(dtype)
 
         assert control_period is not None
-        return held_solve(step, command, y0, ts, control_period, jnp.zeros(m, dtype), options)
+        return held_solve(
+            field, command, y0, params, ts, control_period, cmd0, options, unit=(1,),
+            name="gyrostat",
+        )  # fmt: skip
 
     B = int(np.prod(batch))
     flat = [

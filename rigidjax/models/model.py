@@ -28,6 +28,7 @@ class Model(eqx.Module):
     params: int = eqx.field(static=True)
     unit: tuple[tuple[int, int], ...] = eqx.field(static=True, default=())
     name: str = eqx.field(static=True, default="model")
+    jump: Field | None = None  # `y ← jump(t, y, p)` at flagged interval starts (a sample)
 
 
 class TreeModel(eqx.Module):
@@ -42,15 +43,16 @@ class TreeModel(eqx.Module):
     p_shapes: tuple[tuple[int, ...], ...] = eqx.field(static=True)
     unit: tuple[int, ...] = eqx.field(static=True)
     name: str = eqx.field(static=True)
+    jump_vf: Callable | None = None  # `jump(t, y, args) -> y` on the trees
 
     def model(self) -> Model:
         """The flat `Model` (one per tree model: see `tree_model`)."""
         sizes = [math.prod(s) for s in self.y_shapes]
         starts = np.cumsum([0, *sizes])
         unit = tuple((int(starts[i]), sizes[i]) for i in self.unit)
-        return Model(
-            self.field, int(starts[-1]), sum(math.prod(s) for s in self.p_shapes), unit, self.name
-        )
+        size, params = int(starts[-1]), sum(math.prod(s) for s in self.p_shapes)
+        jump = None if self.jump_vf is None else self.jump
+        return Model(self.field, size, params, unit, self.name, jump)
 
     def unravel(self, flat: Array, which: str) -> Any:
         """The tree of a flat state (`which="y"`, last axis) or parameters (`"p"`)."""
@@ -65,10 +67,15 @@ class TreeModel(eqx.Module):
         return jax.tree_util.tree_unflatten(tree_def, out)
 
     def field(self, t, y, p):
-        dy = self.vf(t, self.unravel(y, "y"), self.unravel(p, "p"))
-        return jnp.concatenate(
-            [jnp.ravel(a).astype(y.dtype) for a in jax.tree_util.tree_leaves(dy)]
-        )
+        return _joined(self.vf(t, self.unravel(y, "y"), self.unravel(p, "p")), y.dtype)
+
+    def jump(self, t, y, p):
+        assert self.jump_vf is not None
+        return _joined(self.jump_vf(t, self.unravel(y, "y"), self.unravel(p, "p")), y.dtype)
+
+
+def _joined(tree: Any, dtype) -> Array:
+    return jnp.concatenate([jnp.ravel(a).astype(dtype) for a in jax.tree_util.tree_leaves(tree)])
 
 
 def ravel(tree: Any, dtype) -> Array:
@@ -78,11 +85,17 @@ def ravel(tree: Any, dtype) -> Array:
 
 
 def tree_model(
-    vf: Callable, y0: Any, args: Any, unit: tuple[int, ...] = (), name: str = "model"
+    vf: Callable,
+    y0: Any,
+    args: Any,
+    unit: tuple[int, ...] = (),
+    name: str = "model",
+    jump: Callable | None = None,
 ) -> tuple[TreeModel, Model]:
-    """The tree model of `vf(t, y, args)` for the trees `y0` (one body's state) and `args` (its
-    parameters), with its flat `Model`, kept per field and tree structure (so that the field is
-    traced once, as `jax.jit` traces a function once)."""
+    """The tree model of `vf(t, y, args)` (and of the jump map `jump(t, y, args) -> y`, if any)
+    for the trees `y0` (one body's state) and `args` (its parameters), with its flat `Model`,
+    kept per field and tree structure (so that the field is traced once, as `jax.jit` traces a
+    function once)."""
     y_leaves, y_def = jax.tree_util.tree_flatten(y0)
     p_leaves, p_def = jax.tree_util.tree_flatten(args)
     tm = TreeModel(
@@ -93,6 +106,7 @@ def tree_model(
         tuple(tuple(jnp.shape(a)) for a in p_leaves),
         unit,
         name,
+        jump,
     )
     try:
         return tm, _flat(tm)

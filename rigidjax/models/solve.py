@@ -16,6 +16,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import jax.tree_util as jtu
+import numpy as np
 from jaxtyping import Array, Float
 
 from .._integrate import (
@@ -144,7 +145,7 @@ class _NormalizeUnits(eqx.Module):
 def _compile(model: Model, dtype):
     """The model's field hoisted (its float constants lifted), or the primitive it cannot take."""
     try:
-        return model_kernel.hoist(model.field, model.size, model.params, dtype), None
+        return model_kernel.hoist(model.field, model.size, model.params, dtype, model.jump), None
     except Unsupported as e:
         return None, e.primitive
 
@@ -157,9 +158,12 @@ def solve_model(
     options: SolveOptions,
     *,
     single: bool = False,
+    jumps: np.ndarray | None = None,
 ) -> tuple[Float[Array, "T B N"], dict[str, Array], diffrax.RESULTS]:
     """Integrate `model` for B bodies from `y0` with parameters `p` (per body, `Bp = B`, or
     shared, `Bp = 1`), saving at `ts`; returns `(ys (T, B, N), stats, result)` as `solve_saved`.
+    A model with a jump map applies it at the start of each interval `k` with `jumps[k]`
+    (`(T − 1,)` booleans, concrete: the samples of a held command).
 
     Fixed steps of an explicit Runge–Kutta method with a kernel (`kernel_options`) run on the
     CPU kernel of the model (built on first use); a field the kernel cannot take runs on the
@@ -167,7 +171,10 @@ def solve_model(
     state components as separate `(B,)` arrays (`single`: one body, as scalars, which
     `jax.vmap` turns into `(N,)` batches that XLA vectorises), evaluating the same scalar
     program as the kernel."""
-    ys, stats, result = _solve(model, ts, y0, p, dataclasses.replace(options, throw=False), single)
+    if (model.jump is None) != (jumps is None):
+        raise ValueError("a model with a jump map takes jumps (T − 1,), and only such a model")
+    quiet = dataclasses.replace(options, throw=False)
+    ys, stats, result = _solve(model, ts, y0, p, quiet, single, jumps)
     if options.throw:
 
         def probe(k: int) -> str | None:
@@ -183,7 +190,13 @@ def solve_model(
 
 
 def _solve(
-    model: Model, ts: Array, y0: Array, p: Array, options: SolveOptions, single: bool
+    model: Model,
+    ts: Array,
+    y0: Array,
+    p: Array,
+    options: SolveOptions,
+    single: bool,
+    jumps: np.ndarray | None,
 ) -> tuple[Array, dict[str, Array], diffrax.RESULTS]:
     """`solve_model` without raising failures: the CPU kernel, the GPU kernel, or Diffrax."""
     dtype = ts.dtype
@@ -193,14 +206,19 @@ def _solve(
         method = method_of(options)
         try:
             kernel = model_kernel.build(hoisted, model.unit, method)
-            gpu = kernel is None and model_pallas.serves(hoisted, model.unit, method)
+            gpu = (
+                kernel is None
+                and jumps is None
+                and model_pallas.serves(hoisted, model.unit, method)
+            )
         except Unsupported as e:
             kernel, gpu, hoisted, missing = None, False, None, e.primitive
         if kernel is not None:
             pk = _packed(p, c)
+            flags = None if jumps is None else jnp.asarray(jumps, jnp.int32)
 
             def run(n, taken, h, t0):
-                return model_kernel.run(kernel, y0, pk, taken, h, t0)
+                return model_kernel.run(kernel, y0, pk, taken, h, t0, flags)
 
             ys, stats, result = kernel_solve(run, ts, options)
             return jnp.moveaxis(ys, 1, 0), stats, result
@@ -215,7 +233,52 @@ def _solve(
             stacklevel=4,
         )
     c = jnp.zeros((0,), dtype) if hoisted is None else hoisted.c.astype(dtype)
+    if jumps is not None:
+        return _diffrax_jumps(model, hoisted, ts, y0, p, c, options, single, jumps)
     return _diffrax(model, hoisted, ts, y0, p, c, options, single)
+
+
+def _diffrax_jumps(
+    model: Model,
+    hoisted: model_kernel.Hoisted | None,
+    ts: Array,
+    y0: Array,
+    p: Array,
+    c: Array,
+    options: SolveOptions,
+    single: bool,
+    jumps: np.ndarray,
+) -> tuple[Array, dict[str, Array], diffrax.RESULTS]:
+    """The Diffrax path of a model with a jump map: one solve per interval of `ts` inside a
+    `lax.scan`, each started by the jump map where `jumps` flags it (the scalar program of
+    `hoisted`, or the model's own map)."""
+    jump = cast(Callable, model.jump)
+    pb = jnp.broadcast_to(p, (y0.shape[0], p.shape[1]))
+
+    def apply(t, y):
+        if hoisted is None:
+            return jax.vmap(jump, in_axes=(None, 0, 0))(t, y, pb)
+        out = hoisted.jump_components(t, tuple(y.T), tuple(pb.T), c)
+        return jnp.stack(out, axis=-1)
+
+    keys = ("num_steps", "num_accepted_steps", "num_rejected_steps")
+
+    def interval(carry, x):
+        y, result = carry
+        ta, tb, flag = x
+        y = jnp.where(flag, apply(ta, y), y)
+        ys, stats, res = _diffrax(model, hoisted, jnp.stack([ta, tb]), y, p, c, options, single)
+        y1 = ys[-1]
+        result = diffrax.RESULTS.where(result == diffrax.RESULTS.successful, res, result)
+        counts = jnp.stack([stats[k] for k in keys])
+        return (y1, result), (y1, counts, res == diffrax.RESULTS.successful)
+
+    init = (y0, diffrax.RESULTS.successful)
+    xs = (ts[:-1], ts[1:], jnp.asarray(jumps))
+    (_, result), (ys, counts, valid) = jax.lax.scan(interval, init, xs)
+    stats: dict[str, Array] = dict(zip(keys, jnp.sum(counts, axis=0), strict=True))
+    stats["num_valid"] = 1 + jnp.sum(jnp.cumprod(valid))
+    return jnp.concatenate([y0[None], ys]), stats, result
 
 
 def _packed(p: Array, c: Array) -> Array:
@@ -295,13 +358,17 @@ def solve_tree(
     *,
     unit: tuple[int, ...] = (),
     name: str = "model",
+    jump: Callable | None = None,
+    jumps: np.ndarray | None = None,
 ) -> tuple[Any, dict[str, Array], diffrax.RESULTS]:
     """`solve_model` for one body whose state `y0` and parameters `args` are PyTrees and whose
     field is `vf(t, y, args)` (`unit`: the indices of the state's leaves that are unit
-    quaternions); returns `(ys, stats, result)`, `ys` the state's tree with a leading time axis.
-    Under `jax.vmap` the mapped bodies join one kernel call."""
+    quaternions; `jump(t, y, args) -> y` applied where `jumps` flags an interval); returns
+    `(ys, stats, result)`, `ys` the state's tree with a leading time axis. Under `jax.vmap` the
+    mapped bodies join one kernel call."""
     dtype = ts.dtype
-    tm, model = tree_model(vf, y0, args, unit, name)
+    tm, model = tree_model(vf, y0, args, unit, name, jump)
     p = ravel(args, dtype)[None]
-    ys, stats, result = solve_model(model, ts, ravel(y0, dtype)[None], p, options, single=True)
+    y = ravel(y0, dtype)[None]
+    ys, stats, result = solve_model(model, ts, y, p, options, single=True, jumps=jumps)
     return tm.unravel(ys[:, 0], "y"), stats, result
