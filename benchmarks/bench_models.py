@@ -15,6 +15,9 @@ Problem
     sixdof            ``jax.vmap(simulate_6dof)`` with the force F = (0.1, 0, −9.81 m) (space)
                       at the body point a = (0.1, 0.2, 0): state (R, V, q, Ω)
     satellite         ``jax.vmap(satellite.simulate_satellite)``: orbit + gravity gradient
+    closed_loop       ``jax.vmap(simulate)`` of a ``Gyrostat`` with four wheels in a pyramid under
+                      the quaternion PD law sampled every 10 steps and held (motor torques
+                      bounded at 0.1 N m): a rest-to-rest slew towards 90° about z
     gyrostat          ``jax.vmap(simulate)`` of a ``Gyrostat`` with constant rotor momentum
                       h = (0.1, 0.2, 0.3) (Zhukovsky–Volterra), a batch of bodies each
 
@@ -71,6 +74,10 @@ GAIN = (0.3, 0.2, 0.1)
 MU, RADIUS = 398600.4418, 7000.0
 F_SPACE, POINT = (0.1, 0.0, -9.81), (0.1, 0.2, 0.0)
 H_ROTOR = (0.1, 0.2, 0.3)
+B3 = 1 / np.sqrt(3)
+WHEELS = ((B3, B3, B3), (-B3, B3, B3), (-B3, -B3, B3), (B3, -B3, B3))  # a pyramid (rows)
+J_WHEEL, U_MAX, KP, KD, EVERY = 0.05, 0.1, 0.6, 3.0, 10
+Q_TARGET = (np.cos(np.pi / 4), 0.0, 0.0, np.sin(np.pi / 4))  # 90° about z
 
 
 def inputs(B: int, seed: int = 0) -> dict:
@@ -93,6 +100,20 @@ def _cj(I: np.ndarray) -> np.ndarray:
 def _gamma(q: np.ndarray) -> np.ndarray:
     w, x, y, z = q.T
     return np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)
+
+
+def _closed_loop_params(I: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """The closed-loop reference's parameters (28, B) but the held torques: I, (I − A J Aᵀ)⁻¹,
+    A (row-major) and J."""
+    B = I.shape[0]
+    M = np.linalg.inv(np.einsum("bi,ij->bij", I, np.eye(3)) - (A * J_WHEEL) @ A.T)
+    return np.vstack([I.T, M.reshape(B, 9).T, np.outer(A.ravel(), np.ones(B)),
+                      np.full((4, B), J_WHEEL)])  # fmt: skip
+
+
+def closed_loop_constants(A: np.ndarray) -> np.ndarray:
+    """The law's constants of the reference: kp, kd, q_t, G = −A⁺ (row-major), umax."""
+    return np.concatenate([[KP, KD], Q_TARGET, (-np.linalg.pinv(A)).ravel(), [U_MAX]])
 
 
 def models(B: int, steps: int, solver=None):
@@ -162,6 +183,18 @@ def models(B: int, steps: int, solver=None):
         return jax.vmap(one)(I, w, q)
 
     h_rotor = jnp.array(H_ROTOR)
+    A_w = np.array(WHEELS).T / np.linalg.norm(np.array(WHEELS), axis=1)  # (3, 4) unit columns
+    law = rj.control.quaternion_pd(KP, KD, np.array(Q_TARGET), wheel_axes=A_w)
+
+    def closed(I, w, q):
+        def one(I, w, q):
+            sc = rj.Gyrostat(I, wheel_axes=A_w, wheel_inertia=jnp.full(4, J_WHEEL),
+                             wheel_torque_max=U_MAX)  # fmt: skip
+            tr = rj.simulate(sc, w, q, ts, controller=law, control_period=EVERY * dt, dt0=dt,
+                             **fixed)  # fmt: skip
+            return jnp.concatenate([tr.omega[-1], tr.quat[-1], tr.wheel_speed[-1]])
+
+        return jax.vmap(one)(I, w, q)
 
     def gyro(I, w, q):
         def one(I, w, q):
@@ -211,6 +244,13 @@ def models(B: int, steps: int, solver=None):
             np.vstack([_cj(I), I.T, MU * ones[None]]),
             dt_sat,
         ),
+        "closed_loop": (
+            closed,
+            (I, small_w, q),
+            np.concatenate([small_w.T, q.T, np.zeros((4, B))]),
+            np.vstack([_closed_loop_params(I, A_w), np.zeros((4, B))]),
+            dt,
+        ),
         "gyrostat": (
             gyro,
             (I, w, q),
@@ -237,20 +277,29 @@ def speed(B: int, steps: int, repeats: int, log) -> tuple[dict, dict]:
     rows = {}
     for name, (fn, args, state0, par, dt) in table.items():
         func = getattr(lib, f"{name}_rk4")
-        func.argtypes = [
-            ctypes.c_void_p,
-            ctypes.c_void_p,
-            ctypes.c_long,
-            ctypes.c_long,
-            ctypes.c_double,
-        ]
         par = np.ascontiguousarray(par, dtype=np.float64)
         state0 = np.array(state0, dtype=np.float64)  # a copy: the run works in place
         work = state0.copy()
+        pointers = [work.ctypes.data, par.ctypes.data]
+        if name == "closed_loop":  # the law's constants, and the steps between samples
+            ctl = closed_loop_constants(np.array(WHEELS).T)
+            pointers.append(ctl.ctypes.data)
+            tail = [ctypes.c_long(EVERY)]
+        else:
+            tail = []
+        func.argtypes = (
+            [ctypes.c_void_p] * len(pointers)
+            + [
+                ctypes.c_long,
+                ctypes.c_long,
+                ctypes.c_double,
+            ]
+            + [ctypes.c_long] * len(tail)
+        )
 
-        def c_run(work=work, state0=state0, func=func, par=par, dt=dt):
+        def c_run(work=work, state0=state0, func=func, pointers=pointers, tail=tail, dt=dt):
             work[...] = state0  # in place: reset (a copy of (N, B) doubles, ~1% of a call)
-            func(work.ctypes.data, par.ctypes.data, B, steps, dt)
+            func(*pointers, B, steps, dt, *tail)
             return work
 
         t_rj = measure(jax.jit(fn), *args, repeats=1)

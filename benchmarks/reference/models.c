@@ -79,3 +79,59 @@ RK4_MODEL(heavy_top, 10, 9, 6)
 RK4_MODEL(sixdof, 13, 13, 6)
 RK4_MODEL(satellite, 13, 10, 6)
 RK4_MODEL(gyrostat, 7, 9, 3)
+
+/* The closed loop (rhs_closed_loop, control_pd): `steps` RK4 steps of size h, the motor
+ * torques u sampled every `every` steps and held; par (32 × B: the model's parameters, u
+ * slots last) and the law's constants ctl (19, shared).
+ * void closed_loop_rk4(double *state, const double *par, const double *ctl, long B,
+ *                      long steps, double h, long every) */
+static void closed_loop_block(long m, double (*x)[BLOCK], double (*C)[BLOCK], const double *ctl,
+                              long steps, double h, long every)
+{
+    for (long s = 0; s < steps; s++) {
+        if (s % every == 0) {
+            for (long i = 0; i < m; i++) {
+                double y[11], u[4];
+                for (int j = 0; j < 11; j++) y[j] = x[j][i];
+                control_pd(y, ctl, u);
+                for (int j = 0; j < 4; j++) C[28 + j][i] = u[j];
+            }
+        }
+        _Pragma("GCC ivdep") for (long i = 0; i < m; i++)
+        {
+            double y[11], p[32], z[11], k1[11], k2[11], k3[11], k4[11];
+            /* unrolled completely, so that p and y stay scalars and the bodies vectorise
+             * (GCC unrolls at most 16 iterations by itself) */
+            _Pragma("GCC unroll 32") for (int j = 0; j < 11; j++) y[j] = x[j][i];
+            _Pragma("GCC unroll 32") for (int j = 0; j < 32; j++) p[j] = C[j][i];
+            rhs_closed_loop(y, p, k1);
+            for (int j = 0; j < 11; j++) z[j] = y[j] + 0.5 * h * k1[j];
+            rhs_closed_loop(z, p, k2);
+            for (int j = 0; j < 11; j++) z[j] = y[j] + 0.5 * h * k2[j];
+            rhs_closed_loop(z, p, k3);
+            for (int j = 0; j < 11; j++) z[j] = y[j] + h * k3[j];
+            rhs_closed_loop(z, p, k4);
+            for (int j = 0; j < 11; j++) y[j] += h * (k1[j] / 6 + k2[j] / 3 + k3[j] / 3 + k4[j] / 6);
+            const double r = 1.0 / sqrt(y[3] * y[3] + y[4] * y[4] + y[5] * y[5] + y[6] * y[6]);
+            for (int j = 3; j < 7; j++) y[j] *= r;
+            for (int j = 0; j < 11; j++) x[j][i] = y[j];
+        }
+    }
+}
+
+void closed_loop_rk4(double *state, const double *par, const double *ctl, long B, long steps,
+                     double h, long every)
+{
+    _Pragma("omp parallel for schedule(static)") for (long b0 = 0; b0 < B; b0 += BLOCK)
+    {
+        double x[11][BLOCK], C[32][BLOCK];
+        const long m = B - b0 < BLOCK ? B - b0 : BLOCK;
+        for (int j = 0; j < 11; j++)
+            for (long i = 0; i < m; i++) x[j][i] = state[j * B + b0 + i];
+        for (int j = 0; j < 32; j++)
+            for (long i = 0; i < m; i++) C[j][i] = par[j * B + b0 + i];
+        closed_loop_block(m, x, C, ctl, steps, h, every);
+        for (int j = 0; j < 11; j++)
+            for (long i = 0; i < m; i++) state[j * B + b0 + i] = x[j][i];
+    }
+}

@@ -107,3 +107,43 @@ RJ_DEVICE static inline void rhs_gyrostat(const double *y, const double *p, doub
     euler(y, p, K, k);
     quat_rates(y, y + 3, k + 3);
 }
+
+/* Closed loop: a gyrostat with four reaction wheels, y = (Ω, q, ω_w), principal moments I
+ * (p[0..2]), M⁻¹ = (I − A J Aᵀ)⁻¹ (p[3..11], row-major), spin axes A (p[12..23], 3 × 4
+ * row-major), wheel inertias J (p[24..27]), and the held motor torques u (p[28..31]):
+ *   Ω̇ = M⁻¹ (−A u − Ω × (I Ω + A J ω_w)),  q̇ = ½ q ∘ (0, Ω),  ω̇_w = u / J − Aᵀ Ω̇. */
+RJ_DEVICE static inline void rhs_closed_loop(const double *y, const double *p, double *k)
+{
+    const double *w = y, *ws = y + 7, *M = p + 3, *A = p + 12, *J = p + 24, *u = p + 28;
+    double L[3], r[3], c[3];
+    for (int i = 0; i < 3; i++) {
+        double h = 0, Au = 0;
+        for (int j = 0; j < 4; j++) h += A[4 * i + j] * J[j] * ws[j], Au += A[4 * i + j] * u[j];
+        L[i] = p[i] * w[i] + h;
+        r[i] = -Au;
+    }
+    cross(w, L, c);
+    for (int i = 0; i < 3; i++) r[i] -= c[i];
+    for (int i = 0; i < 3; i++) k[i] = M[3 * i] * r[0] + M[3 * i + 1] * r[1] + M[3 * i + 2] * r[2];
+    quat_rates(w, y + 3, k + 3);
+    for (int j = 0; j < 4; j++)
+        k[7 + j] = u[j] / J[j] - (A[j] * k[0] + A[4 + j] * k[1] + A[8 + j] * k[2]);
+}
+
+/* The sampled quaternion PD law: q_e = q_t⁻¹ ∘ q, τ = −kp sgn(q_e0) q_e,1:3 − kd Ω, motor torques
+ * u = G τ (G = −A⁺, 4 × 3 row-major) clipped to ±umax; c = (kp, kd, q_t (4), G (12), umax). */
+RJ_DEVICE static inline void control_pd(const double *y, const double *c, double *u)
+{
+    const double *q = y + 3, *t = c + 2;
+    const double e[4] = {t[0] * q[0] + t[1] * q[1] + t[2] * q[2] + t[3] * q[3],
+                         t[0] * q[1] - t[1] * q[0] - t[2] * q[3] + t[3] * q[2],
+                         t[0] * q[2] + t[1] * q[3] - t[2] * q[0] - t[3] * q[1],
+                         t[0] * q[3] - t[1] * q[2] + t[2] * q[1] - t[3] * q[0]};
+    const double sign = e[0] < 0 ? -1.0 : 1.0, umax = c[18];
+    double tau[3];
+    for (int i = 0; i < 3; i++) tau[i] = -c[0] * sign * e[1 + i] - c[1] * y[i];
+    for (int j = 0; j < 4; j++) {
+        const double v = c[6 + 3 * j] * tau[0] + c[7 + 3 * j] * tau[1] + c[8 + 3 * j] * tau[2];
+        u[j] = v > umax ? umax : (v < -umax ? -umax : v);
+    }
+}

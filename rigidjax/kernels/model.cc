@@ -144,6 +144,7 @@ struct Layout {
 // The jump map at time t on the m bodies of x (in place).
 template <typename T>
 void Jump(int64_t m, T (*__restrict x)[kBlock], const T (*__restrict C)[kBlock], T t) {
+#pragma GCC ivdep
   for (int64_t i = 0; i < m; ++i) {
     T y[N], p[P], u[N];
     RJ_UNROLL
@@ -161,6 +162,7 @@ void Jump(int64_t m, T (*__restrict x)[kBlock], const T (*__restrict C)[kBlock],
 template <typename T>
 void JumpBack(int64_t m, const T (*__restrict x0)[kBlock], const T (*__restrict C)[kBlock], T t,
               T (*__restrict lam)[kBlock], T (*__restrict pb)[kBlock], T* __restrict tb) {
+#pragma GCC ivdep
   for (int64_t i = 0; i < m; ++i) {
     T y[N], p[P], v[N], yb[N], pbar[P];
     RJ_UNROLL

@@ -19,7 +19,6 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from .._checks import is_concrete
 from .._integrate import SolveOptions, raise_failure
 from ..models.solve import solve_tree
 
@@ -79,6 +78,7 @@ def held_solve(
     y0: Any,
     args: tuple,
     ts: Array,
+    times: np.ndarray | None,
     period: float,
     cmd0: Array,
     options: SolveOptions,
@@ -87,18 +87,19 @@ def held_solve(
     name: str,
 ) -> tuple[Any, dict[str, Array], diffrax.RESULTS, Array, Array]:
     """Integrate `vf(t, y, (*args, cmd))` with the command `cmd = command(t_k, y_k)` sampled at
-    `ts[0] + k period` and held (`cmd0` before the first sample): one solve over the grid of
+    `ts[0] + k period` and held (`cmd0` before the first sample; `times`: the values of `ts`,
+    None where they are not known at trace time): one solve over the grid of
     `sample_grid`, the command a state with zero derivative that a jump map sets at the samples
     (`solve_tree` with `jump`: inside the CPU kernel, or a solve per grid interval on the
     Diffrax path). Returns `(ys (T, ...), stats, result, control_ts (K,), commands (K, m))`,
     raising a failure (`options.throw`) at the output interval where it happened."""
-    if not (is_concrete(ts) and isinstance(period, int | float | np.floating)):
+    if times is None or not isinstance(period, int | float | np.floating):
         raise ValueError(
             "with a controller, ts and control_period must be concrete (not traced under "
             "jit): the sample grid is built from them; close over them instead of passing "
             "them as traced arguments"
         )
-    grid_np, sample_np, out = sample_grid(np.asarray(ts), float(period))
+    grid_np, sample_np, out = sample_grid(times, float(period))
     grid = jnp.asarray(grid_np, ts.dtype)
     inner = dataclasses.replace(options, throw=False)
     (ys, cmds), stats, result = solve_tree(

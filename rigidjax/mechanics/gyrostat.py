@@ -36,6 +36,7 @@ from jaxtyping import Array, Float
 from .._checks import (
     broadcast_batch,
     check_finite,
+    concrete_value,
     vector,
 )
 from .._custom_types import Frame, RealLike
@@ -87,7 +88,7 @@ class _Field(eqx.Module):
         if self.wheels:
             I, M_inv, h0, A, J, u = args
             h = h0 + A @ (J * y[2])
-            dw = M_inv @ (K - A @ u - jnp.cross(w, I @ w + h))
+            dw = M_inv @ (K - A @ u - jnp.cross(w, _apply(I, w) + h))
             return dw, dq, u / J - A.T @ dw
         I, I_inv, h = args[0], args[1], args[2]
         if self.h_rate is None:
@@ -144,8 +145,10 @@ def simulate_gyrostat(
     run on the model's CPU kernel. Other `kinematics` than `"quat"` are taken for a constant `h`
     without controller (as the torque `−Ω × h` of `simulate`)."""
     options = SolveOptions.of(options, solve_kwargs)
+    given = ts
     ts, omega0, q0 = initial_rotation(ts, omega0, q0, check)
     dtype = ts.dtype
+    times = None if given is None else concrete_value(given)  # the sample grid needs them
     g = jax.tree_util.tree_map(lambda a: a.astype(dtype), gyrostat)
     n = g.wheels
     if h_rate is not None and n:
@@ -177,10 +180,11 @@ def simulate_gyrostat(
             (*one, controller_params), (m,),
         )  # fmt: skip
     field = _Field(torque, h_rate, torque_frame, bool(n))
-    I = g.body.inertia if n else g.body.operator()[0]
+    I = g.body.operator()[0]  # principal moments (3,) where the body is in principal axes
     if n:
         assert g.wheel_axes is not None and g.wheel_inertia is not None
-        M_inv = jnp.linalg.inv(I - (g.wheel_axes * g.wheel_inertia) @ g.wheel_axes.T)
+        full = g.body.inertia if g.body.inertia.ndim == 2 else jnp.diag(g.body.inertia)
+        M_inv = jnp.linalg.inv(full - (g.wheel_axes * g.wheel_inertia) @ g.wheel_axes.T)
         params = (I, M_inv, g.h, g.wheel_axes, g.wheel_inertia)
     else:
         params = (I, g.body.operator()[1]) + (() if h_rate is not None else (g.h,))
@@ -201,7 +205,8 @@ def simulate_gyrostat(
 
         assert control_period is not None
         return held_solve(
-            field, command, y0, params, ts, control_period, cmd0, options, unit=(1,),
+            field, command, y0, params, ts, None if times is None else times.astype(dtype),
+            control_period, cmd0, options, unit=(1,),
             name="gyrostat",
         )  # fmt: skip
 
