@@ -3,6 +3,7 @@ each is one clear error naming the argument and the fix."""
 
 import subprocess
 import sys
+import warnings
 
 import diffrax
 import jax
@@ -42,6 +43,17 @@ def test_closed_forms_check_the_moments(inertia, message):
     for call in calls:
         with pytest.raises(ValueError, match=message):
             call()
+
+
+def test_closed_forms_warn_of_moments_no_body_has():
+    """Moments against the triangle inequality: a warning that names them (the closed form of
+    Euler's equations is still returned: reference cases use such moments)."""
+    with pytest.warns(RuntimeWarning, match=r"inertia = \[3\., 5\., 9\.\] violates the triangle"):
+        w = analytic.free_rigid_body([9.0, 3.0, 5.0], W0, TS)
+    np.testing.assert_allclose(w[0], W0, atol=1e-15)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        analytic.free_rigid_body([1.0, 2.0, 3.0], W0, TS)  # equality: a flat body, no warning
 
 
 def test_closed_forms_check_the_moments_under_jit():

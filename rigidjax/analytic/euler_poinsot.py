@@ -16,6 +16,7 @@ direct integration in the tests.
 from __future__ import annotations
 
 import math
+import warnings
 from typing import NamedTuple
 
 import jax
@@ -23,7 +24,18 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from .._checks import Check, as_float, at, check_finite, first, floats, fmt, validate_all, vector
+from .._checks import (
+    Check,
+    as_float,
+    at,
+    check_finite,
+    concrete_value,
+    first,
+    floats,
+    fmt,
+    validate_all,
+    vector,
+)
 from .._custom_types import RealScalarLike, Scalar, TimesLike, Vec3, Vec3Like
 from .._numerics import safe_sqrt
 from .elliptic import _ellipf, _ellipj, _ellipk, _sech
@@ -237,9 +249,11 @@ def _omega(p: _Plan, t: Array, per: Array | None = None) -> Array:
 
 def check_moments(I: Array, name: str = "inertia") -> Array:
     """Principal moments `I (..., 3)` of a body, checked: finite and positive. One error naming
-    `name`, the offending moments and the fix (see `rigidjax._checks.validate_all`). The triangle
-    inequality is not required: Euler's equations and their closed form hold for any positive
-    moments (the reference case I = (3, 5, 9) of Principia's tests violates it)."""
+    `name`, the offending moments and the fix (see `rigidjax._checks.validate_all`). Moments
+    that violate the triangle inequality (the largest > the sum of the other two: no rigid body
+    has them) get a `RuntimeWarning` that names them, not an error: Euler's equations and their
+    closed form hold for any positive moments, and reference cases use such moments (I = (3, 5,
+    9) in Principia's tests)."""
 
     def bad_finite(xp, v):
         return ~xp.all(xp.isfinite(v), axis=-1)
@@ -255,6 +269,19 @@ def check_moments(I: Array, name: str = "inertia") -> Array:
         return show
 
     fix = "; give three principal moments > 0 (of a tensor I: RigidBody(I).principal_moments)"
+    values = concrete_value(I)
+    if values is not None and np.all(np.isfinite(values)) and np.all(values > 0):
+        flat = np.sort(np.asarray(values, float).reshape(-1, 3), axis=-1)
+        bad = flat[:, 2] > (flat[:, 0] + flat[:, 1]) * (1 + 1e-12)
+        if bad.any():
+            warnings.warn(
+                f"{name} = {fmt(flat[int(np.argmax(bad))])} violates the triangle inequality "
+                "(the largest principal moment exceeds the sum of the other two): no rigid body "
+                "has these moments. The closed form of Euler's equations is returned; for a "
+                "physical body give moments with each ≤ the sum of the other two",
+                RuntimeWarning,
+                stacklevel=3,
+            )
     return validate_all(
         I,
         [
