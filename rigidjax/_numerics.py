@@ -45,3 +45,12 @@ def safe_sqrt(x: Float[Array, "*shape"]) -> Float[Array, "*shape"]:
     """`√max(x, 0)` with a finite (zero) gradient at and below 0 (double-`where`)."""
     pos = x > 0
     return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, jnp.ones_like(x))), jnp.zeros_like(x))
+
+
+def inv3(M: Float[Array, "3 3"]) -> Float[Array, "3 3"]:
+    """Inverse of a 3×3 matrix by cofactors, `M⁻¹ = cof(M)ᵀ/det M` (rows of cof: cross products
+    of the rows of M); a small program to compile and to vectorise over a batch, unlike a
+    pivoted LU."""
+    r0, r1, r2 = M[0], M[1], M[2]
+    cof = jnp.stack([jnp.cross(r1, r2), jnp.cross(r2, r0), jnp.cross(r0, r1)])
+    return cof.T / jnp.dot(r0, cof[0])

@@ -16,9 +16,11 @@
 // Shapes (L: leading batch dimensions added by jax.vmap, flattened):
 //   y0 (L, B, N)  initial states;  p (L, P, Bc)  parameters, per body (Bc = B) or per row (1)
 //   n (L, K) int32  steps in output interval k;  h (L, K)  their size;  t0 (L, K)  its start
-//   jump (L, K) int32  whether interval k starts with the jump map J
-//   y (L, B, K + 1, N)  the state at every output time, [:, :, 0] = initial
-// Reverse mode: from y, p, n, h, t0, jump and gy (L, B, K + 1, N), the cotangents
+//   jump (L, K) int32  whether interval k starts with the jump map J: 0, or 1 + the slot of rec
+//                      where the components [R0, R0 + NR) it sets are recorded
+//   save (L, K + 1) int32  0, or 1 + the slot of y where the state at time k is written
+//   y (L, B, S, N)  the saved states;  rec (L, B, R, NR)  the recorded components
+// Reverse mode: from y (L, B, K + 1, N: every state saved), p, n, h, t0, jump, save and gy (L, B, K + 1, N), the cotangents
 //   y0b (L, B, N), pb (L, P, B), hb (L, K, B), t0b (L, K, B)
 #include <algorithm>
 #include <cmath>
@@ -131,10 +133,11 @@ inline void Place(int64_t first, int64_t start, int64_t m, int64_t B, int64_t* r
 }
 
 struct Layout {
-  int64_t B, K, Bc;
+  int64_t B, K, Bc, S, R;  // S saved states, R recorded jumps
   int64_t y0(int64_t l, int64_t b, int j) const { return (l * B + b) * N + j; }
-  int64_t y(int64_t l, int64_t b, int64_t k, int j) const {
-    return ((l * B + b) * (K + 1) + k) * N + j;
+  int64_t y(int64_t l, int64_t b, int64_t k, int j) const { return ((l * B + b) * S + k) * N + j; }
+  int64_t rec(int64_t l, int64_t b, int64_t r, int j) const {
+    return ((l * B + b) * R + r) * Model::NR + j;
   }
   int64_t p(int64_t l, int64_t b, int j) const {
     return (l * Model::P + j) * Bc + (Bc == 1 ? 0 : b);
@@ -183,7 +186,8 @@ void JumpBack(int64_t m, const T (*__restrict x0)[kBlock], const T (*__restrict 
 
 template <typename T>
 void Group(const T* y0, const T* pp, const int32_t* n, const T* h, const T* t0,
-           const int32_t* jump, T* y, int64_t first, int64_t count, const Layout& at) {
+           const int32_t* jump, const int32_t* save, T* y, T* rec, int64_t first, int64_t count,
+           const Layout& at) {
   const int64_t blocks = (count + kBlock - 1) / kBlock;
 #pragma omp parallel for schedule(static)
   for (int64_t blk = 0; blk < blocks; ++blk) {
@@ -201,13 +205,21 @@ void Group(const T* y0, const T* pp, const int32_t* n, const T* h, const T* t0,
     for (int64_t k = 0; k <= at.K; ++k) {
       if (k > 0) {
         if constexpr (Model::kJump) {
-          if (jump[k - 1]) Jump<T>(m, x, C, t0[k - 1]);
+          if (jump[k - 1]) {
+            Jump<T>(m, x, C, t0[k - 1]);
+            for (int64_t i = 0; i < m; ++i) {
+              RJ_UNROLL
+              for (int j = 0; j < Model::NR; ++j)
+                rec[at.rec(row[i], col[i], jump[k - 1] - 1, j)] = x[Model::R0 + j][i];
+            }
+          }
         }
         Steps<T>(m, x, C, 0, n[k - 1], t0[k - 1], h[k - 1]);
       }
+      if (save[k] == 0) continue;
       for (int64_t i = 0; i < m; ++i) {
         RJ_UNROLL
-        for (int j = 0; j < N; ++j) y[at.y(row[i], col[i], k, j)] = x[j][i];
+        for (int j = 0; j < N; ++j) y[at.y(row[i], col[i], save[k] - 1, j)] = x[j][i];
       }
     }
   }
@@ -403,11 +415,12 @@ void GroupBack(const T* y, const T* pp, const int32_t* n, const T* h, const T* t
 
 // Whether the L batch rows share their steps (n, h, t0): then they are one group of L·B bodies.
 template <typename T>
-bool Shared(const int32_t* n, const T* h, const T* t0, const int32_t* jump, int64_t L,
-            int64_t K) {
+bool Shared(const int32_t* n, const T* h, const T* t0, const int32_t* jump, const int32_t* save,
+            int64_t L, int64_t K) {
   for (int64_t l = 1; l < L; ++l) {
     if (std::memcmp(n, n + l * K, K * sizeof(int32_t)) != 0 ||
         std::memcmp(jump, jump + l * K, K * sizeof(int32_t)) != 0 ||
+        std::memcmp(save, save + l * (K + 1), (K + 1) * sizeof(int32_t)) != 0 ||
         std::memcmp(h, h + l * K, K * sizeof(T)) != 0 ||
         std::memcmp(t0, t0 + l * K, K * sizeof(T)) != 0)
       return false;
@@ -419,16 +432,16 @@ bool Shared(const int32_t* n, const T* h, const T* t0, const int32_t* jump, int6
 // the rows share them (a vmapped single body still fills the vector lanes), else row by row;
 // s is the offset of the group's steps in n, h and t0.
 template <typename T, class Run>
-void ForEachGroup(const int32_t* n, const T* h, const T* t0, const int32_t* jump, int64_t L,
-                  const Layout& at, Run run) {
-  const bool shared = Shared<T>(n, h, t0, jump, L, at.K);
+void ForEachGroup(const int32_t* n, const T* h, const T* t0, const int32_t* jump,
+                  const int32_t* save, int64_t L, const Layout& at, Run run) {
+  const bool shared = Shared<T>(n, h, t0, jump, save, L, at.K);
   for (int64_t l = 0; l < (shared ? 1 : L); ++l) {
-    run(l * at.K, shared ? 0 : l, shared ? L * at.B : at.B);
+    run(l * at.K, l * (at.K + 1), shared ? 0 : l, shared ? L * at.B : at.B);
   }
 }
 
 ffi::Error Shapes(size_t y0, const ffi::Span<const int64_t>& pdims, size_t n, size_t h,
-                  size_t t0, size_t jump, Layout* at, int64_t* L) {
+                  size_t t0, size_t jump, size_t save, Layout* at, int64_t* L) {
   if (pdims.size() < 2 || pdims[pdims.size() - 2] != Model::P) {
     return ffi::Error::InvalidArgument("model kernel: p must have shape (..., P, B or 1)");
   }
@@ -436,14 +449,15 @@ ffi::Error Shapes(size_t y0, const ffi::Span<const int64_t>& pdims, size_t n, si
   int64_t rows = 1;
   for (size_t i = 0; i + 2 < pdims.size(); ++i) rows *= pdims[i];
   if (rows == 0 || y0 % (N * rows) != 0 || n != h || n != t0 || n != jump ||
-      n % rows != 0) {
+      save != n + rows || n % rows != 0) {
     return ffi::Error::InvalidArgument("model kernel: inconsistent shapes");
   }
   const int64_t B = static_cast<int64_t>(y0) / (N * rows);
   if (Bc != 1 && Bc != B) {
     return ffi::Error::InvalidArgument("model kernel: p must have B or 1 columns");
   }
-  *at = Layout{B, static_cast<int64_t>(n) / rows, Bc};
+  const int64_t K = static_cast<int64_t>(n) / rows;
+  *at = Layout{B, K, Bc, K + 1, 0};
   *L = rows;
   return ffi::Error::Success();
 }
@@ -451,36 +465,42 @@ ffi::Error Shapes(size_t y0, const ffi::Span<const int64_t>& pdims, size_t n, si
 template <ffi::DataType DT>
 ffi::Error ModelSteps(ffi::Buffer<DT> y0, ffi::Buffer<DT> p, ffi::Buffer<ffi::S32> n,
                       ffi::Buffer<DT> h, ffi::Buffer<DT> t0, ffi::Buffer<ffi::S32> jump,
-                      ffi::ResultBuffer<DT> y) {
+                      ffi::Buffer<ffi::S32> save, ffi::ResultBuffer<DT> y,
+                      ffi::ResultBuffer<DT> rec) {
   using T = ffi::NativeType<DT>;
   Layout at;
   int64_t L;
   ffi::Error e = Shapes(y0.element_count(), p.dimensions(), n.element_count(), h.element_count(),
-                        t0.element_count(), jump.element_count(), &at, &L);
+                        t0.element_count(), jump.element_count(), save.element_count(), &at, &L);
   if (e.failure()) return e;
-  if (y->element_count() != static_cast<size_t>(L * at.B * (at.K + 1) * N)) {
-    return ffi::Error::InvalidArgument("model kernel: inconsistent output shape");
+  const size_t per = static_cast<size_t>(L * at.B);
+  at.S = static_cast<int64_t>(y->element_count() / (per * N));
+  at.R = Model::NR > 0 ? static_cast<int64_t>(rec->element_count() / (per * Model::NR)) : 0;
+  if (y->element_count() != per * at.S * N || rec->element_count() != per * at.R * Model::NR) {
+    return ffi::Error::InvalidArgument("model kernel: inconsistent output shapes");
   }
-  const int32_t *nn = n.typed_data(), *jj = jump.typed_data();
+  const int32_t *nn = n.typed_data(), *jj = jump.typed_data(), *ss = save.typed_data();
   const T *hh = h.typed_data(), *tt = t0.typed_data();
-  ForEachGroup(nn, hh, tt, jj, L, at, [&](int64_t s, int64_t first, int64_t count) {
-    Group<T>(y0.typed_data(), p.typed_data(), nn + s, hh + s, tt + s, jj + s, y->typed_data(),
-             first, count, at);
-  });
+  ForEachGroup(nn, hh, tt, jj, ss, L, at,
+               [&](int64_t s, int64_t s1, int64_t first, int64_t count) {
+                 Group<T>(y0.typed_data(), p.typed_data(), nn + s, hh + s, tt + s, jj + s,
+                          ss + s1, y->typed_data(), rec->typed_data(), first, count, at);
+               });
   return ffi::Error::Success();
 }
 
 template <ffi::DataType DT>
 ffi::Error ModelStepsBack(ffi::Buffer<DT> y, ffi::Buffer<DT> p, ffi::Buffer<ffi::S32> n,
                           ffi::Buffer<DT> h, ffi::Buffer<DT> t0, ffi::Buffer<ffi::S32> jump,
-                          ffi::Buffer<DT> gy,
+                          ffi::Buffer<ffi::S32> save, ffi::Buffer<DT> gy,
                           ffi::ResultBuffer<DT> y0b, ffi::ResultBuffer<DT> pb,
                           ffi::ResultBuffer<DT> hb, ffi::ResultBuffer<DT> tb) {
   using T = ffi::NativeType<DT>;
   Layout at;
   int64_t L;
-  ffi::Error e = Shapes(y0b->element_count(), p.dimensions(), n.element_count(),
-                        h.element_count(), t0.element_count(), jump.element_count(), &at, &L);
+  ffi::Error e =
+      Shapes(y0b->element_count(), p.dimensions(), n.element_count(), h.element_count(),
+             t0.element_count(), jump.element_count(), save.element_count(), &at, &L);
   if (e.failure()) return e;
   const size_t ys = static_cast<size_t>(L * at.B * (at.K + 1) * N);
   if (y.element_count() != ys || gy.element_count() != ys ||
@@ -489,9 +509,9 @@ ffi::Error ModelStepsBack(ffi::Buffer<DT> y, ffi::Buffer<DT> p, ffi::Buffer<ffi:
       tb->element_count() != static_cast<size_t>(L * at.K * at.B)) {
     return ffi::Error::InvalidArgument("model kernel (reverse): inconsistent shapes");
   }
-  const int32_t *nn = n.typed_data(), *jj = jump.typed_data();
+  const int32_t *nn = n.typed_data(), *jj = jump.typed_data(), *ss = save.typed_data();
   const T *hh = h.typed_data(), *tt = t0.typed_data();
-  ForEachGroup(nn, hh, tt, jj, L, at, [&](int64_t s, int64_t first, int64_t count) {
+  ForEachGroup(nn, hh, tt, jj, ss, L, at, [&](int64_t s, int64_t, int64_t first, int64_t count) {
     GroupBack<T>(y.typed_data(), p.typed_data(), nn + s, hh + s, tt + s, jj + s, gy.typed_data(),
                  y0b->typed_data(), pb->typed_data(), hb->typed_data(), tb->typed_data(), first,
                  count, at);
@@ -509,15 +529,17 @@ auto BindInputs() {
       .template Arg<ffi::Buffer<ffi::S32>>()
       .template Arg<ffi::Buffer<DT>>()
       .template Arg<ffi::Buffer<DT>>()
+      .template Arg<ffi::Buffer<ffi::S32>>()
       .template Arg<ffi::Buffer<ffi::S32>>();
 }
 
 // The one handler of this build, named by model.h: the forward steps (RJ_FORWARD), or their
 // reverse mode (RJ_BACKWARD), built separately on the first gradient, so that a first forward
 // call compiles only the forward templates.
-#define RJ_FORWARD(NAME, DT)                                 \
-  XLA_FFI_DEFINE_HANDLER_SYMBOL(NAME, (ModelSteps<ffi::DT>), \
-                                BindInputs<ffi::DT>().Ret<ffi::Buffer<ffi::DT>>());
+#define RJ_FORWARD(NAME, DT)                                                           \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(                                                       \
+      NAME, (ModelSteps<ffi::DT>),                                                     \
+      BindInputs<ffi::DT>().Ret<ffi::Buffer<ffi::DT>>().Ret<ffi::Buffer<ffi::DT>>());
 #define RJ_BACKWARD(NAME, DT)                                    \
   XLA_FFI_DEFINE_HANDLER_SYMBOL(NAME, (ModelStepsBack<ffi::DT>), \
                                 BindInputs<ffi::DT>()            \

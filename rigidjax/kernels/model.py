@@ -125,11 +125,13 @@ class Hoisted:
 
         return fn
 
-    def source(self, unit: tuple[tuple[int, int], ...]) -> str:
-        """`struct Model` of `model.cc` (`model_source`), written once per unit groups."""
-        if unit not in self._sources:
-            self._sources[unit] = model_source(self, unit)
-        return self._sources[unit]
+    def source(self, unit: tuple[tuple[int, int], ...], record: tuple[int, int] = (0, 0)) -> str:
+        """`struct Model` of `model.cc` (`model_source`), written once per unit groups and
+        recorded components."""
+        key = (unit, record)
+        if key not in self._sources:
+            self._sources[key] = model_source(self, unit, record)
+        return self._sources[key]
 
 
 class _Traced(Exception):
@@ -226,9 +228,12 @@ def _cotangent_program(jaxpr, prefix: str, n: int, p: int, pc: int) -> list[str]
     return body
 
 
-def model_source(hoisted: Hoisted, unit: Sequence[tuple[int, int]]) -> str:
-    """`struct Model` of `model.cc`: sizes, unit groups, `F` and `FT` (and the jump map `J`
-    and `JT`, empty without one) as C++."""
+def model_source(
+    hoisted: Hoisted, unit: Sequence[tuple[int, int]], record: tuple[int, int] = (0, 0)
+) -> str:
+    """`struct Model` of `model.cc`: sizes, unit groups, the components `[R0, R0 + NR)` that
+    each jump records (`record`), `F` and `FT` (and the jump map `J` and `JT`, empty without
+    one) as C++."""
     n, p, pc = hoisted.n, hoisted.p, hoisted.c.shape[0]
     body_f = _program(hoisted.forward, "k", "f", n, p, pc)
     body_b = _cotangent_program(hoisted.backward, "b", n, p, pc)
@@ -243,6 +248,7 @@ def model_source(hoisted: Hoisted, unit: Sequence[tuple[int, int]]) -> str:
         "struct Model {\n"
         f"  static constexpr int N = {n}, P = {p + pc}, NU = {len(unit)};\n"
         f"  static constexpr bool kJump = {'true' if jumps else 'false'};\n"
+        f"  static constexpr int R0 = {record[0]}, NR = {record[1]};\n"
         f"  static constexpr int unit[{max(len(unit), 1)}][2] = {{{units}}};\n"
         + "".join(
             "  template <typename T>\n"
@@ -280,12 +286,14 @@ def _header(method: type[diffrax.AbstractERK], dtype, model: str, part: str) -> 
 
 class Kernel(NamedTuple):
     """A built model kernel: its forward handler's name, its reverse mode (`backward()`: built
-    and registered on first use), and sizes (P counts the lifted constants)."""
+    and registered on first use), sizes (P counts the lifted constants) and the components
+    `(R0, NR)` that each jump records."""
 
     forward: str
     backward_header: tuple[str, str]
     n: int
     p: int
+    record: tuple[int, int]
 
     def backward(self) -> str:
         """The reverse-mode handler's name, built and registered on the first call."""
@@ -300,7 +308,10 @@ class Kernel(NamedTuple):
 
 
 def build(
-    hoisted: Hoisted, unit: tuple[tuple[int, int], ...], solver: diffrax.AbstractSolver
+    hoisted: Hoisted,
+    unit: tuple[tuple[int, int], ...],
+    solver: diffrax.AbstractSolver,
+    record: tuple[int, int] = (0, 0),
 ) -> Kernel | None:
     """The kernel of `hoisted` for `solver` (one of `tableau.METHODS`) in its dtype, its
     forward part built and registered on first use (its reverse mode on the first gradient);
@@ -314,15 +325,15 @@ def build(
     ):
         return None
     method = cast(type[diffrax.AbstractERK], type(solver))  # one of METHODS
-    source = hoisted.source(unit)
+    source = hoisted.source(unit, record)
     text, name = _header(method, dtype, source, "forward")
     if load(_NAME, (name,), (("model.h", text),)) is None:
         return None
     backward = _header(method, dtype, source, "backward")
-    return Kernel(name, backward, hoisted.n, hoisted.p + hoisted.c.shape[0])
+    return Kernel(name, backward, hoisted.n, hoisted.p + hoisted.c.shape[0], record)
 
 
-def _call(target: str, dtype, shapes: list[tuple[int, ...]], *args: Array) -> list:
+def _call(target: str, dtype, shapes: list[tuple[int, ...]], *args: Array | np.ndarray) -> list:
     call = jax.ffi.ffi_call(
         target,
         [jax.ShapeDtypeStruct((1, *shape), dtype) for shape in shapes],
@@ -339,30 +350,52 @@ def run(
     n: Int[Array, " K"],
     h: Float[Array, " K"],
     t0: Float[Array, " K"],
-    jump: Int[Array, " K"] | None = None,
-) -> Float[Array, "B T N"]:
-    """States `(B, K + 1, N)` at the start and after each of K intervals of `n[k]` steps of
-    size `h[k]` from `t0[k]`, each interval with `jump[k] ≠ 0` started by the jump map (none by
-    default); `p (P, B or 1)` holds the parameters and lifted constants. Reverse mode by the
-    kernel's discrete adjoint of the same steps (`jax.custom_vjp`)."""
-    jump = jnp.zeros(h.shape, jnp.int32) if jump is None else jump
+    jump: np.ndarray | None = None,
+    keep: np.ndarray | None = None,
+) -> tuple[Float[Array, "B S N"], Float[Array, "B R NR"]]:
+    """The states `(B, S, N)` at the start and after each of K intervals of `n[k]` steps of
+    size `h[k]` from `t0[k]` where `keep (K + 1,)` (booleans; all by default), each interval
+    with `jump[k]` (booleans `(K,)`; none by default) started by the jump map, and the
+    components `kernel.record` after each jump `(B, R, NR)`; `p (P, B or 1)` holds the
+    parameters and lifted constants. Reverse mode by the kernel's discrete adjoint of the same
+    steps (`jax.custom_vjp`; its forward run keeps every state)."""
+    K, B, dtype = h.shape[0], y0.shape[0], y0.dtype
+    jumps = np.zeros(K, bool) if jump is None else np.asarray(jump, bool)
+    kept = np.arange(K + 1) if keep is None else np.flatnonzero(np.asarray(keep, bool))
+    R0, NR = kernel.record
+    at = np.flatnonzero(jumps) if NR else np.zeros(0, int)  # the recorded jumps' intervals
+    slots = np.zeros(K, np.int32)
+    slots[at] = np.arange(1, at.size + 1)
+    # NumPy constants (a JAX array made here would be a tracer under `jax.jit`, which the
+    # custom VJP's rules must not close over)
+    jmp = np.where(jumps, np.maximum(slots, 1), 0).astype(np.int32)
+    every = np.arange(1, K + 2, dtype=np.int32)
+    save = np.zeros(K + 1, np.int32)
+    save[kept] = np.arange(1, kept.size + 1)
 
-    def forward(y0, p, n, h, t0, jump):
-        B, K = y0.shape[0], h.shape[0]
-        return _call(kernel.forward, y0.dtype, [(B, K + 1, kernel.n)], y0, p, n, h, t0, jump)[0]
+    def call(y0, p, n, h, t0, save, S):
+        shapes = [(B, S, kernel.n), (B, at.size, NR)]
+        return _call(kernel.forward, dtype, shapes, y0, p, n, h, t0, jmp, save)
 
-    def run_fwd(y0, p, n, h, t0, jump):
-        y = forward(y0, p, n, h, t0, jump)
-        return y, (y, p, n, h, t0, jump)
+    def forward(y0, p, n, h, t0):
+        return tuple(call(y0, p, n, h, t0, save, kept.size))
+
+    def run_fwd(y0, p, n, h, t0):
+        y, rec = call(y0, p, n, h, t0, every, K + 1)
+        return (y[:, kept], rec), (y, p, n, h, t0)
 
     def run_bwd(residuals, g):
-        y, p, n, h, t0, jump = residuals
-        B, K = y.shape[0], h.shape[0]
+        y, p, n, h, t0 = residuals
+        gy_kept, g_rec = g
+        gy = jnp.zeros_like(y).at[:, kept].add(gy_kept)
+        gy = gy.at[:, at + 1, R0 : R0 + NR].add(g_rec)  # held after the jump to the next time
         shapes = [(B, kernel.n), (kernel.p, B), (K, B), (K, B)]
-        y0b, pb, hb, tb = _call(kernel.backward(), y.dtype, shapes, y, p, n, h, t0, jump, g)
+        args = (y, p, n, h, t0, jmp, every, gy)
+        y0b, pb, hb, tb = _call(kernel.backward(), dtype, shapes, *args)
         pb = jnp.sum(pb, axis=1, keepdims=True) if p.shape[1] == 1 else pb
-        return y0b, pb, None, jnp.sum(hb, axis=1), jnp.sum(tb, axis=1), None
+        return y0b, pb, None, jnp.sum(hb, axis=1), jnp.sum(tb, axis=1)
 
     solve = jax.custom_vjp(forward)
     solve.defvjp(run_fwd, run_bwd)
-    return solve(y0, p, n, h, t0, jump)
+    y, rec = solve(y0, p, n, h, t0)
+    return y, rec

@@ -65,7 +65,7 @@ class Gyrostat(eqx.Module):
         J = check_positive(_exact(wheel_inertia, (n,), "wheel_inertia", dtype), "wheel_inertia")
         self.wheel_inertia = validate(
             self.body.inertia - (A * J) @ A.T,
-            lambda xp, M: xp.linalg.eigvalsh(M)[..., :1] <= 0,
+            _not_positive_definite,
             "wheel_inertia too large: I − A diag(J) Aᵀ (the inertia with the wheels free) must "
             "be positive definite; give the inertia of the whole system, wheels included",
             on=J,
@@ -104,3 +104,12 @@ def _exact(x: RealLike, shape: tuple[int, ...], name: str, dtype) -> Array:
     if x.shape != shape:
         raise ValueError(f"{name} must have shape {shape}, got {x.shape}")
     return x
+
+
+def _not_positive_definite(xp, M):
+    """Whether the symmetric 3×3 `M` is not positive definite, by Sylvester's criterion (its
+    leading principal minors positive): closed form, unlike an eigensolver per matrix."""
+    m1 = M[..., 0, 0]
+    m2 = m1 * M[..., 1, 1] - M[..., 0, 1] * M[..., 1, 0]
+    m3 = xp.sum(M[..., 0, :] * xp.cross(M[..., 1, :], M[..., 2, :]), axis=-1)
+    return ~((m1 > 0) & (m2 > 0) & (m3 > 0))[..., None]

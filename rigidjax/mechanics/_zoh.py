@@ -102,13 +102,13 @@ def held_solve(
     grid_np, sample_np, out = sample_grid(times, float(period))
     grid = jnp.asarray(grid_np, ts.dtype)
     inner = dataclasses.replace(options, throw=False)
-    (ys, cmds), stats, result = solve_tree(
+    keep = np.zeros(grid_np.shape[0], bool)
+    keep[out] = True
+    (ys, _), stats, result = solve_tree(
         _Held(vf), grid, (y0, cmd0), args, inner, unit=unit, name=name, jump=_Sample(command),
-        jumps=sample_np[:-1],
+        jumps=sample_np[:-1], keep=keep, record=len(jax.tree_util.tree_leaves(y0)),
     )  # fmt: skip
-    stats = dict(stats, num_valid=jnp.sum(jnp.asarray(out) < stats["num_valid"]))
-    ys = jax.tree_util.tree_map(lambda a: a[out], ys)
+    commands = stats.pop("recorded")
     if options.throw:
         ys = raise_failure(result, stats["num_valid"], ts, ys, options.max_steps)
-    at = np.flatnonzero(sample_np[:-1])
-    return ys, stats, result, grid[at], cmds[at + 1]
+    return ys, stats, result, grid[np.flatnonzero(sample_np[:-1])], commands

@@ -41,6 +41,7 @@ from .._checks import (
 )
 from .._custom_types import Frame, RealLike
 from .._integrate import SolveKwargs, SolveOptions
+from .._numerics import inv3
 from ..kinematics.formulations import Quaternion
 from ..models.solve import solve_tree
 from ..rotations import quat
@@ -184,7 +185,7 @@ def simulate_gyrostat(
     if n:
         assert g.wheel_axes is not None and g.wheel_inertia is not None
         full = g.body.inertia if g.body.inertia.ndim == 2 else jnp.diag(g.body.inertia)
-        M_inv = jnp.linalg.inv(full - (g.wheel_axes * g.wheel_inertia) @ g.wheel_axes.T)
+        M_inv = inv3(full - (g.wheel_axes * g.wheel_inertia) @ g.wheel_axes.T)
         params = (I, M_inv, g.h, g.wheel_axes, g.wheel_inertia)
     else:
         params = (I, g.body.operator()[1]) + (() if h_rate is not None else (g.h,))

@@ -29,6 +29,7 @@ class Model(eqx.Module):
     unit: tuple[tuple[int, int], ...] = eqx.field(static=True, default=())
     name: str = eqx.field(static=True, default="model")
     jump: Field | None = None  # `y ← jump(t, y, p)` at flagged interval starts (a sample)
+    record: tuple[int, int] = eqx.field(static=True, default=(0, 0))  # recorded after a jump
 
 
 class TreeModel(eqx.Module):
@@ -44,6 +45,7 @@ class TreeModel(eqx.Module):
     unit: tuple[int, ...] = eqx.field(static=True)
     name: str = eqx.field(static=True)
     jump_vf: Callable | None = None  # `jump(t, y, args) -> y` on the trees
+    record: int | None = eqx.field(static=True, default=None)  # the leaf recorded after jumps
 
     def model(self) -> Model:
         """The flat `Model` (one per tree model: see `tree_model`)."""
@@ -52,7 +54,8 @@ class TreeModel(eqx.Module):
         unit = tuple((int(starts[i]), sizes[i]) for i in self.unit)
         size, params = int(starts[-1]), sum(math.prod(s) for s in self.p_shapes)
         jump = None if self.jump_vf is None else self.jump
-        return Model(self.field, size, params, unit, self.name, jump)
+        record = (0, 0) if self.record is None else (int(starts[self.record]), sizes[self.record])
+        return Model(self.field, size, params, unit, self.name, jump, record)
 
     def unravel(self, flat: Array, which: str) -> Any:
         """The tree of a flat state (`which="y"`, last axis) or parameters (`"p"`)."""
@@ -91,8 +94,10 @@ def tree_model(
     unit: tuple[int, ...] = (),
     name: str = "model",
     jump: Callable | None = None,
+    record: int | None = None,
 ) -> tuple[TreeModel, Model]:
-    """The tree model of `vf(t, y, args)` (and of the jump map `jump(t, y, args) -> y`, if any)
+    """The tree model of `vf(t, y, args)` (and of the jump map `jump(t, y, args) -> y`, if any,
+    recording the state's leaf `record` after each jump)
     for the trees `y0` (one body's state) and `args` (its parameters), with its flat `Model`,
     kept per field and tree structure (so that the field is traced once, as `jax.jit` traces a
     function once)."""
@@ -107,6 +112,7 @@ def tree_model(
         unit,
         name,
         jump,
+        record,
     )
     try:
         return tm, _flat(tm)

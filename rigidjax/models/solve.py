@@ -72,13 +72,15 @@ Run = Callable[[Array, Array, Array, Array], Array]
 
 
 def kernel_solve(
-    run: Run, ts: Array, options: SolveOptions
+    run: Run, ts: Array, options: SolveOptions, keep: np.ndarray | None = None
 ) -> tuple[Array, dict[str, Array], diffrax.RESULTS]:
     """A kernel's solve with the steps of `solve_saved` (`n` equal steps of at most `dt0` per
     output interval) and its failures: more steps than `max_steps` (where Diffrax stops), or a
     non-finite state; returns `(states (B, T, N), stats, result)` (the caller raises a
     failure: `raise_failure`). Forward mode is a clear
-    error that names `adjoint=diffrax.ForwardMode()` (which takes the Diffrax path)."""
+    error that names `adjoint=diffrax.ForwardMode()` (which takes the Diffrax path). `keep`
+    (booleans `(T,)`, the first and last true): the times whose states `run` returns; failures
+    are then placed in the intervals between kept times."""
     width = ts[1:] - ts[:-1]
     n = fixed_step_count(width, jnp.asarray(options.dt0, ts.dtype))
     taken = jnp.minimum(n, options.max_steps).astype(jnp.int32)
@@ -87,12 +89,15 @@ def kernel_solve(
     except TypeError as e:
         raise_forward_mode(e)
     finite = jnp.all(jnp.isfinite(ys), axis=(0, 2))
-    fails = (n > options.max_steps) | ~finite[1:]
+    kept = np.arange(ts.shape[0]) if keep is None else np.flatnonzero(keep)
+    over = jnp.concatenate([jnp.zeros(1, jnp.int32), jnp.cumsum(n > options.max_steps)])
+    too_many = over[kept[1:]] > over[kept[:-1]]  # per kept interval
+    fails = too_many | ~finite[1:]
     first = jnp.argmax(fails)
     result = diffrax.RESULTS.where(
         jnp.any(fails),
         diffrax.RESULTS.where(
-            n[first] > options.max_steps,
+            too_many[first],
             cast(diffrax.RESULTS, diffrax.RESULTS.max_steps_reached),
             cast(diffrax.RESULTS, diffrax.RESULTS.nonfinite),
         ),
@@ -103,7 +108,7 @@ def kernel_solve(
         num_steps=num_steps,
         num_accepted_steps=num_steps,
         num_rejected_steps=0 * num_steps,
-        num_valid=1 + jnp.where(jnp.any(fails), first, n.shape[0]),
+        num_valid=1 + jnp.where(jnp.any(fails), first, kept.size - 1),
     )
     return ys, stats, result
 
@@ -159,11 +164,15 @@ def solve_model(
     *,
     single: bool = False,
     jumps: np.ndarray | None = None,
-) -> tuple[Float[Array, "T B N"], dict[str, Array], diffrax.RESULTS]:
+    keep: np.ndarray | None = None,
+) -> tuple[Float[Array, "S B N"], dict[str, Array], diffrax.RESULTS]:
     """Integrate `model` for B bodies from `y0` with parameters `p` (per body, `Bp = B`, or
     shared, `Bp = 1`), saving at `ts`; returns `(ys (T, B, N), stats, result)` as `solve_saved`.
     A model with a jump map applies it at the start of each interval `k` with `jumps[k]`
-    (`(T − 1,)` booleans, concrete: the samples of a held command).
+    (`(T − 1,)` booleans, concrete: the samples of a held command); with `model.record`, the
+    components it sets after each jump are `stats["recorded"] (J, B, NR)`. `keep` (booleans
+    `(T,)`, concrete, the first and last true; all by default): the times whose states are
+    returned, and between which failures are placed.
 
     Fixed steps of an explicit Runge–Kutta method with a kernel (`kernel_options`) run on the
     CPU kernel of the model (built on first use); a field the kernel cannot take runs on the
@@ -174,7 +183,9 @@ def solve_model(
     if (model.jump is None) != (jumps is None):
         raise ValueError("a model with a jump map takes jumps (T − 1,), and only such a model")
     quiet = dataclasses.replace(options, throw=False)
-    ys, stats, result = _solve(model, ts, y0, p, quiet, single, jumps)
+    keep = np.ones(ts.shape[0], bool) if keep is None else np.asarray(keep, bool)
+    ys, stats, result = _solve(model, ts, y0, p, quiet, single, jumps, keep)
+    ts = ts[np.flatnonzero(keep)]
     if options.throw:
 
         def probe(k: int) -> str | None:
@@ -197,6 +208,7 @@ def _solve(
     options: SolveOptions,
     single: bool,
     jumps: np.ndarray | None,
+    keep: np.ndarray,
 ) -> tuple[Array, dict[str, Array], diffrax.RESULTS]:
     """`solve_model` without raising failures: the CPU kernel, the GPU kernel, or Diffrax."""
     dtype = ts.dtype
@@ -205,7 +217,7 @@ def _solve(
         c = hoisted.c.astype(dtype)
         method = method_of(options)
         try:
-            kernel = model_kernel.build(hoisted, model.unit, method)
+            kernel = model_kernel.build(hoisted, model.unit, method, model.record)
             gpu = (
                 kernel is None
                 and jumps is None
@@ -215,14 +227,18 @@ def _solve(
             kernel, gpu, hoisted, missing = None, False, None, e.primitive
         if kernel is not None:
             pk = _packed(p, c)
-            flags = None if jumps is None else jnp.asarray(jumps, jnp.int32)
+            recorded = []
 
             def run(n, taken, h, t0):
-                return model_kernel.run(kernel, y0, pk, taken, h, t0, flags)
+                ys, rec = model_kernel.run(kernel, y0, pk, taken, h, t0, jumps, keep)
+                recorded.append(rec)
+                return ys
 
-            ys, stats, result = kernel_solve(run, ts, options)
+            ys, stats, result = kernel_solve(run, ts, options, keep)
+            if model.record[1]:
+                stats["recorded"] = jnp.moveaxis(recorded[0], 1, 0)
             return jnp.moveaxis(ys, 1, 0), stats, result
-        if gpu and hoisted is not None:
+        if gpu and hoisted is not None and keep.all():
             return _gpu(model, hoisted, ts, y0, p, c, options)
     if missing is not None and kernel_options(options):
         warnings.warn(
@@ -234,8 +250,15 @@ def _solve(
         )
     c = jnp.zeros((0,), dtype) if hoisted is None else hoisted.c.astype(dtype)
     if jumps is not None:
-        return _diffrax_jumps(model, hoisted, ts, y0, p, c, options, single, jumps)
-    return _diffrax(model, hoisted, ts, y0, p, c, options, single)
+        ys, stats, result = _diffrax_jumps(model, hoisted, ts, y0, p, c, options, single, jumps)
+    else:
+        ys, stats, result = _diffrax(model, hoisted, ts, y0, p, c, options, single)
+    kept = np.flatnonzero(keep)
+    if model.record[1] and jumps is not None:
+        R0, NR = model.record
+        stats["recorded"] = ys[np.flatnonzero(jumps) + 1, :, R0 : R0 + NR]
+    stats["num_valid"] = jnp.sum(jnp.asarray(kept) < stats["num_valid"])
+    return ys[kept], stats, result
 
 
 def _diffrax_jumps(
@@ -360,15 +383,20 @@ def solve_tree(
     name: str = "model",
     jump: Callable | None = None,
     jumps: np.ndarray | None = None,
+    keep: np.ndarray | None = None,
+    record: int | None = None,
 ) -> tuple[Any, dict[str, Array], diffrax.RESULTS]:
     """`solve_model` for one body whose state `y0` and parameters `args` are PyTrees and whose
     field is `vf(t, y, args)` (`unit`: the indices of the state's leaves that are unit
-    quaternions; `jump(t, y, args) -> y` applied where `jumps` flags an interval); returns
-    `(ys, stats, result)`, `ys` the state's tree with a leading time axis. Under `jax.vmap` the
-    mapped bodies join one kernel call."""
+    quaternions; `jump(t, y, args) -> y` applied where `jumps` flags an interval, recording
+    the state's leaf `record` after each jump in `stats["recorded"] (J, ...)`; `keep`: the
+    times whose states are returned); returns `(ys, stats, result)`, `ys` the state's tree with
+    a leading time axis. Under `jax.vmap` the mapped bodies join one kernel call."""
     dtype = ts.dtype
-    tm, model = tree_model(vf, y0, args, unit, name, jump)
+    tm, model = tree_model(vf, y0, args, unit, name, jump, record)
     p = ravel(args, dtype)[None]
     y = ravel(y0, dtype)[None]
-    ys, stats, result = solve_model(model, ts, y, p, options, single=True, jumps=jumps)
+    ys, stats, result = solve_model(model, ts, y, p, options, single=True, jumps=jumps, keep=keep)
+    if "recorded" in stats:
+        stats["recorded"] = stats["recorded"][:, 0]
     return tm.unravel(ys[:, 0], "y"), stats, result

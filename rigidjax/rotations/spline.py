@@ -33,7 +33,7 @@ from jaxtyping import Array, Float
 
 from .._checks import as_float
 from .._custom_types import Mat33, QuatLike, RealLike, Vec3
-from .._numerics import poly
+from .._numerics import inv3, poly
 from . import _series
 from . import _validation as _v
 from .quat import _from_rotvec, _to_rotvec, conj, mul
@@ -105,14 +105,6 @@ def _mv(A: Mat33, v: Vec3) -> Vec3:
     return jnp.einsum("...ij,...j->...i", A, v)
 
 
-def _inv3(M: Float[Array, "3 3"]) -> Float[Array, "3 3"]:
-    """Inverse of a 3×3 matrix by cofactors, `M⁻¹ = cof(M)ᵀ/det M` (rows of cof: cross products
-    of the rows of M); a small program to compile, unlike a pivoted LU."""
-    r0, r1, r2 = M[0], M[1], M[2]
-    cof = jnp.stack([jnp.cross(r1, r2), jnp.cross(r2, r0), jnp.cross(r0, r1)])
-    return cof.T / jnp.dot(r0, cof[0])
-
-
 def _block_thomas(L: Array, D: Array, U: Array, r: Array) -> Array:
     """Solve the block-tridiagonal system `L_i x_{i−1} + D_i x_i + U_i x_{i+1} = r_i` (blocks
     3×3, `L_0`, `U_{m−1}` unused) by block Gaussian elimination without pivoting (the system is
@@ -121,7 +113,7 @@ def _block_thomas(L: Array, D: Array, U: Array, r: Array) -> Array:
     def forward(carry, blocks):
         c_prev, d_prev = carry
         Li, Di, Ui, ri = blocks
-        M_inv = _inv3(Di - Li @ c_prev)
+        M_inv = inv3(Di - Li @ c_prev)
         c = M_inv @ Ui
         d = M_inv @ (ri - Li @ d_prev)
         return (c, d), (c, d)
