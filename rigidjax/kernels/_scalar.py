@@ -479,17 +479,11 @@ def unroll(
 
 
 def objects(x) -> np.ndarray:
-    """`x` (an object array, a scalar, or a nested list of them) as an object array whose
-    elements are `x`'s scalars themselves: never `np.asarray(x, dtype=object)`, which NumPy
-    2.5 answers by asking a JAX tracer for its value (`__array__`)."""
+    """`x` (an object array or one scalar) as an object array holding `x`'s scalars themselves:
+    never `np.asarray(x, dtype=object)`, which NumPy 2.5 answers by asking a JAX tracer for
+    its value (`__array__`)."""
     if isinstance(x, np.ndarray):
         return x if x.dtype == object else x.astype(object)
-    if isinstance(x, list | tuple):
-        parts = [objects(e) for e in x]
-        out = np.empty((len(parts), *(parts[0].shape if parts else ())), dtype=object)
-        for i, part in enumerate(parts):
-            out[i, ...] = part
-        return out
     out = np.empty((), dtype=object)
     out[()] = x
     return out
