@@ -250,7 +250,7 @@ def _solve(
         )
     c = jnp.zeros((0,), dtype) if hoisted is None else hoisted.c.astype(dtype)
     if jumps is not None:
-        ys, stats, result = _diffrax_jumps(model, hoisted, ts, y0, p, c, options, single, jumps)
+        ys, stats, result = _diffrax_jumps((model, hoisted, ts, y0, p, c, options, single), jumps)
     else:
         ys, stats, result = _diffrax(model, hoisted, ts, y0, p, c, options, single)
     kept = np.flatnonzero(keep)
@@ -262,19 +262,12 @@ def _solve(
 
 
 def _diffrax_jumps(
-    model: Model,
-    hoisted: model_kernel.Hoisted | None,
-    ts: Array,
-    y0: Array,
-    p: Array,
-    c: Array,
-    options: SolveOptions,
-    single: bool,
-    jumps: np.ndarray,
+    problem: tuple, jumps: np.ndarray
 ) -> tuple[Array, dict[str, Array], diffrax.RESULTS]:
-    """The Diffrax path of a model with a jump map: one solve per interval of `ts` inside a
-    `lax.scan`, each started by the jump map where `jumps` flags it (the scalar program of
-    `hoisted`, or the model's own map)."""
+    """The Diffrax path of a model with a jump map (`problem`: `_diffrax`'s arguments): one
+    solve per interval of `ts` inside a `lax.scan`, each started by the jump map where `jumps`
+    flags it (the scalar program of `hoisted`, or the model's own map)."""
+    model, hoisted, ts, y0, p, c, options, single = problem
     jump = cast(Callable, model.jump)
     pb = jnp.broadcast_to(p, (y0.shape[0], p.shape[1]))
 
