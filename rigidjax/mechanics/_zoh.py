@@ -109,6 +109,20 @@ def held_solve(
         jumps=sample_np[:-1], keep=keep, record=len(jax.tree_util.tree_leaves(y0)),
     )  # fmt: skip
     commands = stats.pop("recorded")
+    control_ts = grid[np.flatnonzero(sample_np[:-1])]
     if options.throw:
-        ys = raise_failure(result, stats["num_valid"], ts, ys, options.max_steps)
-    return ys, stats, result, grid[np.flatnonzero(sample_np[:-1])], commands
+
+        def probe(k: int) -> str | None:
+            """The controller, if it returned a non-finite command in `[ts[k-1], ts[k])`."""
+            inside = (control_ts >= ts[k - 1]) & (control_ts < ts[k])
+            bad = inside & ~jnp.all(jnp.isfinite(commands), axis=-1)
+            if not bool(jnp.any(bad)):
+                return None
+            t = float(control_ts[int(jnp.argmax(bad))])
+            return (
+                f"the controller returned a non-finite command (NaN or inf) at the sample "
+                f"t = {t:.6g}: make controller(t_k, omega_k, q_k, params) finite there"
+            )
+
+        ys = raise_failure(result, stats["num_valid"], ts, ys, options.max_steps, probe)
+    return ys, stats, result, control_ts, commands

@@ -36,14 +36,16 @@ def pd_np(kp, kd, q, w):
     return -kp * np.sign(qe[0]) * qe[1:] - kd * w
 
 
-def held_reference(rhs, y0, command, period, ts):
-    """SciPy DOP853 integrated sample by sample: `command(t_k, y_k)` held over each interval,
-    the states at `ts` from each interval's dense output."""
+def held_reference(rhs, y0, command, period, ts, commands=None):
+    """SciPy DOP853 integrated sample by sample: `command(t_k, y_k)` held over each interval
+    (appended to `commands`, if given), the states at `ts` from each interval's dense output."""
     out, y, t_k = np.empty((len(ts), len(y0))), np.asarray(y0, float), ts[0]
     out[0] = y
     while t_k < ts[-1] - 1e-12:
         t_next = min(t_k + period, ts[-1])
         u = command(t_k, y)
+        if commands is not None:
+            commands.append(u)
         sol = solve_ivp(
             lambda t, x, u=u: rhs(t, x, u), (t_k, t_next), y, dense_output=True, **DOP853_TIGHT
         )
@@ -109,10 +111,14 @@ def test_pd_loop_vs_scipy_and_fast_path():
     def wheel_command(t, y):
         return np.clip(-np.linalg.pinv(A_UNIT) @ pd_np(2.0, 3.0, y[3:7], y[:3]), -umax, umax)
 
-    ref = held_reference(wheel_rhs, np.r_[W0, q0, ws0], wheel_command, 0.1, TS)
+    commands = []
+    ref = held_reference(wheel_rhs, np.r_[W0, q0, ws0], wheel_command, 0.1, TS, commands)
     np.testing.assert_allclose(tr.omega, ref[:, :3], atol=1e-9)
     np.testing.assert_allclose(tr.wheel_speed, ref[:, 7:], atol=1e-7)
     assert np.any(np.abs(tr.command) == umax)  # the bound was reached
+    # the commands the kernel records at the samples: the Diffrax path's, and SciPy's loop's
+    np.testing.assert_allclose(tr.command, slow.command, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(tr.command, np.array(commands), rtol=0, atol=1e-8)
 
 
 @pytest.mark.parametrize("wheel", [False, True])
@@ -163,6 +169,48 @@ def test_gain_gradient():
     eps = 1e-5
     fd = [(cost(x + eps * e) - cost(x - eps * e)) / (2 * eps) for e in jnp.eye(2)]
     np.testing.assert_allclose(grad, fd, rtol=1e-6)
+
+
+def test_command_effort_gradient():
+    """`jax.grad` of the control effort `Σ_k |u_k|²` (the recorded commands) and of the final
+    state w.r.t. the gains on the wheels: the kernel's adjoint (the commands' cotangents enter
+    at their samples) equals the Diffrax path's and central differences."""
+    gw = rj.Gyrostat(np.diag(I), wheel_axes=AXES, wheel_inertia=J_W, wheel_torque_max=0.05)
+    law = rj.control.quaternion_pd(1.0, 1.0, Q_T, wheel_axes=AXES)
+    ts = np.array([0.0, 0.5, 1.0])
+
+    def cost(gains, solver):
+        tr = rj.simulate(gw, W0, None, ts, controller=law, control_period=0.1, solver=solver,
+                         controller_params={"kp": gains[0], "kd": gains[1]}, **FIXED)  # fmt: skip
+        return jnp.sum(tr.command**2) + jnp.sum(tr.omega[-1] ** 2)
+
+    x = jnp.array([0.05, 0.08])  # small gains: the bound is not reached (differentiable)
+    grad = jax.grad(cost)(x, rj.RK4())
+    np.testing.assert_allclose(grad, jax.grad(cost)(x, rj.ExplicitRK(rj.RK4())), rtol=1e-11)
+    eps = 1e-6
+    fd = [
+        (cost(x + eps * e, rj.RK4()) - cost(x - eps * e, rj.RK4())) / (2 * eps) for e in jnp.eye(2)
+    ]
+    np.testing.assert_allclose(grad, fd, rtol=1e-6)
+
+
+@pytest.mark.parametrize("solver", [rj.RK4(), rj.ExplicitRK(rj.RK4())], ids=["kernel", "diffrax"])
+def test_closed_loop_failures_are_named(solver):
+    """On both paths: more steps in an output interval than `max_steps` is the max_steps
+    error, and a controller that returns NaN is reported, not returned as numbers."""
+    g = rj.Gyrostat(I, h=H)
+    law = rj.control.quaternion_pd(2.0, 3.0, Q_T)
+    kw = dict(controller=law, control_period=0.1, solver=solver, **FIXED)
+    with pytest.raises(rj.IntegrationError, match="max_steps"):
+        rj.simulate(g, W0, None, TS, max_steps=3, **kw)
+
+    def broken(t, w, q, params):
+        return jnp.where(t > 1.0, jnp.nan, 0.0) * jnp.ones(3)
+
+    with pytest.raises(
+        rj.IntegrationError, match=r"controller returned a non-finite command .* t = 1\.1"
+    ):
+        rj.simulate(g, W0, None, TS, controller=broken, control_period=0.1, solver=solver, **FIXED)
 
 
 def test_bdot():
