@@ -37,21 +37,10 @@
         for (long s = 0; s < steps; s++) {                                                     \
             _Pragma("GCC ivdep") for (long i = 0; i < m; i++)                                   \
             {                                                                                  \
-                double y[N], p[P], z[N], k1[N], k2[N], k3[N], k4[N];                           \
+                double y[N], p[P];                                                             \
                 for (int j = 0; j < N; j++) y[j] = x[j][i];                                    \
                 for (int j = 0; j < P; j++) p[j] = C[j][i];                                    \
-                rhs_##NAME(y, p, k1);                                                          \
-                for (int j = 0; j < N; j++) z[j] = y[j] + 0.5 * h * k1[j];                     \
-                rhs_##NAME(z, p, k2);                                                          \
-                for (int j = 0; j < N; j++) z[j] = y[j] + 0.5 * h * k2[j];                     \
-                rhs_##NAME(z, p, k3);                                                          \
-                for (int j = 0; j < N; j++) z[j] = y[j] + h * k3[j];                           \
-                rhs_##NAME(z, p, k4);                                                          \
-                for (int j = 0; j < N; j++)                                                    \
-                    y[j] += h * (k1[j] / 6 + k2[j] / 3 + k3[j] / 3 + k4[j] / 6);               \
-                const double r = 1.0 / sqrt(y[QO] * y[QO] + y[QO + 1] * y[QO + 1] +            \
-                                            y[QO + 2] * y[QO + 2] + y[QO + 3] * y[QO + 3]);    \
-                for (int j = QO; j < QO + 4; j++) y[j] *= r;                                   \
+                RK4_STEP(NAME, N, QO, y, p, h);                                                \
                 for (int j = 0; j < N; j++) x[j][i] = y[j];                                    \
             }                                                                                  \
         }                                                                                      \
@@ -99,21 +88,12 @@ static void closed_loop_block(long m, double (*x)[BLOCK], double (*C)[BLOCK], co
         }
         _Pragma("GCC ivdep") for (long i = 0; i < m; i++)
         {
-            double y[11], p[32], z[11], k1[11], k2[11], k3[11], k4[11];
+            double y[11], p[32];
             /* unrolled completely, so that p and y stay scalars and the bodies vectorise
              * (GCC unrolls at most 16 iterations by itself) */
             _Pragma("GCC unroll 32") for (int j = 0; j < 11; j++) y[j] = x[j][i];
             _Pragma("GCC unroll 32") for (int j = 0; j < 32; j++) p[j] = C[j][i];
-            rhs_closed_loop(y, p, k1);
-            for (int j = 0; j < 11; j++) z[j] = y[j] + 0.5 * h * k1[j];
-            rhs_closed_loop(z, p, k2);
-            for (int j = 0; j < 11; j++) z[j] = y[j] + 0.5 * h * k2[j];
-            rhs_closed_loop(z, p, k3);
-            for (int j = 0; j < 11; j++) z[j] = y[j] + h * k3[j];
-            rhs_closed_loop(z, p, k4);
-            for (int j = 0; j < 11; j++) y[j] += h * (k1[j] / 6 + k2[j] / 3 + k3[j] / 3 + k4[j] / 6);
-            const double r = 1.0 / sqrt(y[3] * y[3] + y[4] * y[4] + y[5] * y[5] + y[6] * y[6]);
-            for (int j = 3; j < 7; j++) y[j] *= r;
+            RK4_STEP(closed_loop, 11, 3, y, p, h);
             for (int j = 0; j < 11; j++) x[j][i] = y[j];
         }
     }

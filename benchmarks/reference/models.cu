@@ -14,23 +14,10 @@
     {                                                                                          \
         const long i = blockIdx.x * (long)blockDim.x + threadIdx.x;                            \
         if (i >= B) return;                                                                    \
-        double y[N], p[P], z[N], k1[N], k2[N], k3[N], k4[N];                                   \
+        double y[N], p[P];                                                                     \
         for (int j = 0; j < N; j++) y[j] = state[j * B + i];                                   \
         for (int j = 0; j < P; j++) p[j] = par[j * B + i];                                     \
-        for (long s = 0; s < steps; s++) {                                                     \
-            rhs_##NAME(y, p, k1);                                                              \
-            for (int j = 0; j < N; j++) z[j] = y[j] + 0.5 * h * k1[j];                         \
-            rhs_##NAME(z, p, k2);                                                              \
-            for (int j = 0; j < N; j++) z[j] = y[j] + 0.5 * h * k2[j];                         \
-            rhs_##NAME(z, p, k3);                                                              \
-            for (int j = 0; j < N; j++) z[j] = y[j] + h * k3[j];                               \
-            rhs_##NAME(z, p, k4);                                                              \
-            for (int j = 0; j < N; j++)                                                        \
-                y[j] += h * (k1[j] / 6 + k2[j] / 3 + k3[j] / 3 + k4[j] / 6);                   \
-            const double r = 1.0 / sqrt(y[QO] * y[QO] + y[QO + 1] * y[QO + 1] +                \
-                                        y[QO + 2] * y[QO + 2] + y[QO + 3] * y[QO + 3]);        \
-            for (int j = QO; j < QO + 4; j++) y[j] *= r;                                       \
-        }                                                                                      \
+        for (long s = 0; s < steps; s++) RK4_STEP(NAME, N, QO, y, p, h);                       \
         for (int j = 0; j < N; j++) state[j * B + i] = y[j];                                   \
     }
 

@@ -5,6 +5,26 @@
 #define RJ_DEVICE
 #endif
 
+/* One classical RK4 step of size h of the model NAME (N states, the unit quaternion at QO) on
+ * the state y (in place) with parameters p, the quaternion renormalised after it: the step of
+ * every reference (models.c, models.cu). */
+#define RK4_STEP(NAME, N, QO, y, p, h)                                                          \
+    do {                                                                                        \
+        double z_[N], k1_[N], k2_[N], k3_[N], k4_[N];                                           \
+        rhs_##NAME(y, p, k1_);                                                                  \
+        for (int j_ = 0; j_ < N; j_++) z_[j_] = y[j_] + 0.5 * (h) * k1_[j_];                    \
+        rhs_##NAME(z_, p, k2_);                                                                 \
+        for (int j_ = 0; j_ < N; j_++) z_[j_] = y[j_] + 0.5 * (h) * k2_[j_];                    \
+        rhs_##NAME(z_, p, k3_);                                                                 \
+        for (int j_ = 0; j_ < N; j_++) z_[j_] = y[j_] + (h) * k3_[j_];                          \
+        rhs_##NAME(z_, p, k4_);                                                                 \
+        for (int j_ = 0; j_ < N; j_++)                                                          \
+            y[j_] += (h) * (k1_[j_] / 6 + k2_[j_] / 3 + k3_[j_] / 3 + k4_[j_] / 6);             \
+        const double r_ = 1.0 / sqrt(y[QO] * y[QO] + y[QO + 1] * y[QO + 1] +                    \
+                                     y[QO + 2] * y[QO + 2] + y[QO + 3] * y[QO + 3]);            \
+        for (int j_ = QO; j_ < QO + 4; j_++) y[j_] *= r_;                                       \
+    } while (0)
+
 RJ_DEVICE static inline void quat_rates(const double *w, const double *q, double *dq)
 {
     dq[0] = 0.5 * (-q[1] * w[0] - q[2] * w[1] - q[3] * w[2]);
