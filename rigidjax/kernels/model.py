@@ -18,7 +18,7 @@ from __future__ import annotations
 import functools
 import hashlib
 from collections.abc import Callable, Sequence
-from typing import NamedTuple, cast
+from typing import Any, NamedTuple, cast
 
 import diffrax
 import jax
@@ -49,6 +49,7 @@ class Hoisted:
         self.fns, self.c, self.n, self.p, self.dtype = fns, c, n, p, jnp.dtype(dtype)
         self.jumps = jumps
         self._sources: dict[tuple, str] = {}
+        self._jaxprs: dict[tuple, Any] = {}
 
     def fn(self, t, y, p, c):
         return self.fns(t, y, p, c)[0]
@@ -68,29 +69,29 @@ class Hoisted:
     @functools.cached_property
     def forward(self):
         """The jaxpr of the field `fn(t, y, p, c)`."""
-        return jax.make_jaxpr(self.fn)(*self._avals())
+        return self.jaxpr(self.fn)
 
     @functools.cached_property
     def backward(self):
         """The jaxpr of its cotangent map `(t, y, p, c, v) -> (t̄, ȳ, p̄, c̄)`."""
-        return self._cotangents(self.fn)
+        return self.jaxpr(self.fn, cotangent=True)
 
-    @functools.cached_property
-    def jump_forward(self):
-        """The jaxpr of the jump map `jump_fn(t, y, p, c)`."""
-        return jax.make_jaxpr(self.jump_fn)(*self._avals())
+    def jaxpr(self, fn: Callable, cotangent: bool = False):
+        """The jaxpr of `fn(t, y, p, c)` (`fn`: the field or the jump map), or of its cotangent
+        map `(t, y, p, c, v) -> vjp(fn)(v)`; traced once each (kept with this object)."""
+        key = (fn, cotangent)
+        if key not in self._jaxprs:
 
-    @functools.cached_property
-    def jump_backward(self):
-        """The jaxpr of the jump map's cotangent map."""
-        return self._cotangents(self.jump_fn)
+            def cotangents(t, y, p, c, v):
+                return jax.vjp(fn, t, y, p, c)[1](v)
 
-    def _cotangents(self, fn: Callable):
-        def cotangents(t, y, p, c, v):
-            return jax.vjp(fn, t, y, p, c)[1](v)
-
-        avals = self._avals()
-        return jax.make_jaxpr(cotangents)(*avals, avals[1])
+            avals = self._avals()
+            self._jaxprs[key] = (
+                jax.make_jaxpr(cotangents)(*avals, avals[1])
+                if cotangent
+                else jax.make_jaxpr(fn)(*avals)
+            )
+        return self._jaxprs[key]
 
     @functools.cached_property
     def components(self) -> Callable:
@@ -102,7 +103,7 @@ class Hoisted:
     @functools.cached_property
     def jump_components(self) -> Callable:
         """The jump map on component arrays (as `components`), the kernel's `J`."""
-        return self._on_components(self.jump_forward)
+        return self._on_components(self.jaxpr(self.jump_fn))
 
     def _on_components(self, forward) -> Callable:
         n, p = self.n, self.p
@@ -238,8 +239,9 @@ def model_source(
     body_f = _program(hoisted.forward, "k", "f", n, p, pc)
     body_b = _cotangent_program(hoisted.backward, "b", n, p, pc)
     jumps = hoisted.jumps
-    body_j = _program(hoisted.jump_forward, "u", "j", n, p, pc) if jumps else []
-    body_jb = _cotangent_program(hoisted.jump_backward, "jb", n, p, pc) if jumps else []
+    jump = hoisted.jump_fn
+    body_j = _program(hoisted.jaxpr(jump), "u", "j", n, p, pc) if jumps else []
+    body_jb = _cotangent_program(hoisted.jaxpr(jump, True), "jb", n, p, pc) if jumps else []
     units = ", ".join(f"{{{a}, {m}}}" for a, m in unit) or "{0, 0}"
     indent = "\n    "
     forward_args = "(T t, const T* y, const T* p, T* {}) {{\n    "
