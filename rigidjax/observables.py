@@ -125,8 +125,9 @@ def momentum_drift(body: RigidBody, traj: Trajectory) -> Scalar:
 def pointing_error(traj: Trajectory, q_target: QuatLike) -> Float[Array, "*batch T"]:
     """Angle (radians, in `[0, π]`) between the attitude and the target attitude `q_target`
     (unit, body → space) at each sample: the rotation angle of the error quaternion
-    `q_e = q_target⁻¹ ∘ q`, `2 atan2(|q_e,1:3|, |q_e0|)` (the shorter way round; accurate near
-    0 and π). Finite gradients at 0 (the double-`where` trick on the norm)."""
+    `q_e = q_target⁻¹ ∘ q` (Wie, *Space Vehicle Dynamics and Control*, §7.3),
+    `2 atan2(|q_e,1:3|, |q_e0|)` (the shorter way round; accurate near 0 and π). Finite
+    gradients at 0 (the double-`where` trick on the norm)."""
     qe = quat.mul(quat.conj(jnp.asarray(q_target, traj.quat.dtype)), traj.quat)
     return 2 * jnp.arctan2(_safe_norm(qe[..., 1:]), jnp.abs(qe[..., 0]))
 
