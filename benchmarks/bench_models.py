@@ -27,7 +27,8 @@ Parts (one run)
               compiler, called through ctypes on its packed state; packing not timed), timed in
               interleaved rounds (best of --repeats) after checking that their final states
               agree (RK4 on the same steps; the references compute P(q) of a unit q, rigidjax
-              of q/|q|: rounding-level differences). Recorded: rates, ratio (≥ 0.8 wanted).
+              of q/|q|: rounding-level differences; the 6-DOF load sees the normalised q in
+              both, as ``simulate_6dof`` defines it). Recorded: rates, ratio (≥ 0.8 wanted).
     diffrax   damping and gravity_gradient on the Diffrax path on the same steps
               (``solver=ExplicitRK(RK4())``), which adaptive and implicit solvers use: its rate
               and its ratio to the fast path.

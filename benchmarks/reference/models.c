@@ -16,6 +16,7 @@
  *   gravity gradient   y = (Ω, q)        p = (c, J, I, s)     K = s c × (I c), c = Pᵀ e_Z
  *   heavy top          y = (Ω, γ, q)     p = (c, J, μ)        K = γ × μ,  γ̇ = γ × Ω
  *   6-DOF body         y = (R, V, q, Ω)  p = (c, J, 1/m, F, a)  Ṙ = V, V̇ = F/m, K = a × PᵀF
+ *                                      (P of q/|q|: simulate_6dof's load sees a unit q)
  *   satellite          y = (R, V, q, Ω)  p = (c, J, I, μ)     V̇ = −μR/r³, K = 3μ/r³ n × (I n),
  *                                                             n = PᵀR/r
  *   gyrostat           y = (Ω, q)        p = (c, J, h)        K = −Ω × h (constant rotor momentum)

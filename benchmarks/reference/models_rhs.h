@@ -96,12 +96,15 @@ RJ_DEVICE static inline void rhs_heavy_top(const double *y, const double *p, dou
 
 RJ_DEVICE static inline void rhs_sixdof(const double *y, const double *p, double *k)
 {
-    const double *F = p + 7, *a = p + 10, *q = y + 6, *w = y + 10;
+    const double *F = p + 7, *a = p + 10, *w = y + 10;
+    /* the load sees the unit quaternion, as simulate_6dof's does */
+    const double r = 1.0 / sqrt(y[6] * y[6] + y[7] * y[7] + y[8] * y[8] + y[9] * y[9]);
+    const double q[4] = {y[6] * r, y[7] * r, y[8] * r, y[9] * r};
     double Fb[3], K[3];
     to_body(q, F, Fb);
     cross(a, Fb, K);
     for (int i = 0; i < 3; i++) k[i] = y[3 + i], k[3 + i] = p[6] * F[i];
-    quat_rates(w, q, k + 6);
+    quat_rates(w, y + 6, k + 6);
     euler(w, p, K, k + 10);
 }
 

@@ -13,20 +13,23 @@
 // field are inlined into the loop over a block of bodies, which GCC vectorises. Bodies go in
 // blocks of kBlock that stay in L1 over all steps; OpenMP spreads blocks over the cores.
 //
-// Shapes (L: leading batch dimensions added by jax.vmap, flattened):
-//   y0 (L, B, N)  initial states;  p (L, P, Bc)  parameters, per body (Bc = B) or per row (1)
-//   n (L, K) int32  steps in output interval k;  h (L, K)  their size;  t0 (L, K)  its start
-//   jump (L, K) int32  whether interval k starts with the jump map J: 0, or 1 + the slot of rec
+// Shapes (leading…: the dimensions jax.vmap added, each the output's or 1 where an operand is
+// not mapped; flattened, they number the rows l):
+//   y0 (…, B, N)  initial states;  blocks (…, Bc, Pj)  the parameters in blocks (the trailing
+//                 operands), per body (Bc = B) or shared by a row's bodies (1); Σ Pj = P
+//   n (…, K) int32  steps in output interval k;  h (…, K)  their size;  t0 (…, K)  its start
+//   jump (…, K) int32  whether interval k starts with the jump map J: 0, or 1 + the slot of rec
 //                      where the components [R0, R0 + NR) it sets are recorded
-//   save (L, K + 1) int32  0, or 1 + the slot of y where the state at time k is written
-//   y (L, B, S, N)  the saved states;  rec (L, B, R, NR)  the recorded components
-// Reverse mode: from y (L, B, K + 1, N: every state saved), p, n, h, t0, jump, save and gy (L, B, K + 1, N), the cotangents
-//   y0b (L, B, N), pb (L, P, B), hb (L, K, B), t0b (L, K, B)
+//   save (…, K + 1) int32  0, or 1 + the slot of y where the state at time k is written
+//   y (L…, B, S, N)  the saved states;  rec (L…, B, R, NR)  the recorded components
+// Reverse mode: from y (…, B, K + 1, N: every state saved), n, h, t0, jump, save, gy (…, B,
+// K + 1, N) and the blocks, the cotangents y0b (L…, B, N), pb (L…, B, P), hb and tb (L…, B, K).
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
 #include <limits>
+#include <string>
 #include <vector>
 
 #define RJ_INLINE inline __attribute__((always_inline))
@@ -132,17 +135,90 @@ inline void Place(int64_t first, int64_t start, int64_t m, int64_t B, int64_t* r
   }
 }
 
+// jax.vmap adds leading dimensions to every operand ("expand_dims": of size 1 where the
+// operand is not mapped, so that shared parameters and steps are never copied per row); the
+// output's leading dimensions, flattened, number the rows l.
+constexpr int kMaxLead = 8;
+
+struct Rows {
+  int nd = 0;
+  int64_t dims[kMaxLead] = {};
+  int64_t count() const {
+    int64_t L = 1;
+    for (int d = 0; d < nd; ++d) L *= dims[d];
+    return L;
+  }
+};
+
+// An operand's element strides over the leading dimensions (0 where it has size 1).
+struct Lead {
+  int64_t s[kMaxLead] = {};
+  int64_t at(const Rows& r, int64_t l) const {
+    int64_t off = 0;
+    for (int d = r.nd - 1; d >= 0; --d) {
+      off += (l % r.dims[d]) * s[d];
+      l /= r.dims[d];
+    }
+    return off;
+  }
+  bool shared(const Rows& r) const {
+    for (int d = 0; d < r.nd; ++d)
+      if (s[d] != 0) return false;
+    return true;
+  }
+};
+
+// The strides of an operand of shape (leading…, base…) with `base` trailing dimensions; false
+// where its leading dimensions are neither the output's nor 1.
+bool Strides(const Rows& r, ffi::Span<const int64_t> dims, size_t base, Lead* lead) {
+  if (dims.size() != static_cast<size_t>(r.nd) + base) return false;
+  int64_t inner = 1;
+  for (size_t i = r.nd; i < dims.size(); ++i) inner *= dims[i];
+  for (int d = r.nd - 1; d >= 0; --d) {
+    if (dims[d] != r.dims[d] && dims[d] != 1) return false;
+    lead->s[d] = dims[d] == 1 ? 0 : inner;
+    inner *= dims[d];
+  }
+  return true;
+}
+
+// One parameter component: where it starts in its block (shape (leading…, Bc, Pj)), the block's
+// row strides, and its stride over the bodies (0 for a block shared by a row's bodies).
+template <typename T>
+struct Param {
+  const T* data;
+  Lead lead;
+  int64_t body;
+};
+
 struct Layout {
-  int64_t B, K, Bc, S, R;  // S saved states, R recorded jumps
-  int64_t y0(int64_t l, int64_t b, int j) const { return (l * B + b) * N + j; }
-  int64_t y(int64_t l, int64_t b, int64_t k, int j) const { return ((l * B + b) * S + k) * N + j; }
+  int64_t B, K, S, R;  // bodies per row, intervals, saved states, recorded jumps
+  Rows rows;
+  Lead y0, y, gy, steps, jump, save;  // steps: n, h, t0; y, gy: reverse mode's states, cotangents
+  int64_t x0(int64_t l, int64_t b, int j) const { return y0.at(rows, l) + b * N + j; }
+  int64_t saved(int64_t l, int64_t b, int64_t k, int j) const {
+    return y.at(rows, l) + (b * (K + 1) + k) * N + j;
+  }
+  int64_t cot(int64_t l, int64_t b, int64_t k, int j) const {
+    return gy.at(rows, l) + (b * (K + 1) + k) * N + j;
+  }
+  int64_t out(int64_t l, int64_t b, int64_t k, int j) const {
+    return ((l * B + b) * S + k) * N + j;
+  }
   int64_t rec(int64_t l, int64_t b, int64_t r, int j) const {
     return ((l * B + b) * R + r) * Model::NR + j;
   }
-  int64_t p(int64_t l, int64_t b, int j) const {
-    return (l * Model::P + j) * Bc + (Bc == 1 ? 0 : b);
-  }
 };
+
+// The parameters of the m bodies at (row, col) into C (P rows of kBlock).
+template <typename T>
+void Fill(int64_t m, const int64_t* row, const int64_t* col, const Param<T>* prm,
+          const Rows& rows, T (*__restrict C)[kBlock]) {
+  for (int j = 0; j < Model::P; ++j) {
+    for (int64_t i = 0; i < m; ++i)
+      C[j][i] = prm[j].data[prm[j].lead.at(rows, row[i]) + col[i] * prm[j].body];
+  }
+}
 
 // The jump map at time t on the m bodies of x (in place).
 template <typename T>
@@ -185,7 +261,7 @@ void JumpBack(int64_t m, const T (*__restrict x0)[kBlock], const T (*__restrict 
 }
 
 template <typename T>
-void Group(const T* y0, const T* pp, const int32_t* n, const T* h, const T* t0,
+void Group(const T* y0, const Param<T>* prm, const int32_t* n, const T* h, const T* t0,
            const int32_t* jump, const int32_t* save, T* y, T* rec, int64_t first, int64_t count,
            const Layout& at) {
   const int64_t blocks = (count + kBlock - 1) / kBlock;
@@ -198,10 +274,9 @@ void Group(const T* y0, const T* pp, const int32_t* n, const T* h, const T* t0,
     Place(first, start, m, at.B, row, col);
     for (int64_t i = 0; i < m; ++i) {
       RJ_UNROLL
-      for (int j = 0; j < N; ++j) x[j][i] = y0[at.y0(row[i], col[i], j)];
-      RJ_UNROLL
-      for (int j = 0; j < Model::P; ++j) C[j][i] = pp[at.p(row[i], col[i], j)];
+      for (int j = 0; j < N; ++j) x[j][i] = y0[at.x0(row[i], col[i], j)];
     }
+    Fill<T>(m, row, col, prm, at.rows, C);
     for (int64_t k = 0; k <= at.K; ++k) {
       if (k > 0) {
         if constexpr (Model::kJump) {
@@ -219,7 +294,7 @@ void Group(const T* y0, const T* pp, const int32_t* n, const T* h, const T* t0,
       if (save[k] == 0) continue;
       for (int64_t i = 0; i < m; ++i) {
         RJ_UNROLL
-        for (int j = 0; j < N; ++j) y[at.y(row[i], col[i], save[k] - 1, j)] = x[j][i];
+        for (int j = 0; j < N; ++j) y[at.out(row[i], col[i], save[k] - 1, j)] = x[j][i];
       }
     }
   }
@@ -326,7 +401,7 @@ void StepBack(int64_t m, const T (*__restrict x)[kBlock], const T (*__restrict C
 constexpr int64_t kStoreAll = 2048;
 
 template <typename T>
-void GroupBack(const T* y, const T* pp, const int32_t* n, const T* h, const T* t0,
+void GroupBack(const T* y, const Param<T>* prm, const int32_t* n, const T* h, const T* t0,
                const int32_t* jump, const T* gy, T* y0b, T* pbo, T* hbo, T* tbo, int64_t first,
                int64_t count, const Layout& at) {
   const int64_t blocks = (count + kBlock - 1) / kBlock;
@@ -349,12 +424,11 @@ void GroupBack(const T* y, const T* pp, const int32_t* n, const T* h, const T* t
       auto add_cotangent = [&](int64_t k) {
         for (int64_t i = 0; i < m; ++i) {
           RJ_UNROLL
-          for (int j = 0; j < N; ++j) lam[j][i] += gy[at.y(row[i], col[i], k, j)];
+          for (int j = 0; j < N; ++j) lam[j][i] += gy[at.cot(row[i], col[i], k, j)];
         }
       };
+      Fill<T>(m, row, col, prm, at.rows, C);
       for (int64_t i = 0; i < m; ++i) {
-        RJ_UNROLL
-        for (int j = 0; j < Model::P; ++j) C[j][i] = pp[at.p(row[i], col[i], j)];
         RJ_UNROLL
         for (int j = 0; j < P; ++j) pb[j][i] = T(0);
         RJ_UNROLL
@@ -373,7 +447,7 @@ void GroupBack(const T* y, const T* pp, const int32_t* n, const T* h, const T* t
         T(*states)[N][kBlock] = ckpt + segments;
         for (int64_t i = 0; i < m; ++i) {
           RJ_UNROLL
-          for (int j = 0; j < N; ++j) x[j][i] = y[at.y(row[i], col[i], k, j)];
+          for (int j = 0; j < N; ++j) x[j][i] = y[at.saved(row[i], col[i], k, j)];
         }
         const bool jumped = Model::kJump && jump[k];
         if (jumped) {
@@ -397,156 +471,196 @@ void GroupBack(const T* y, const T* pp, const int32_t* n, const T* h, const T* t
         }
         if (jumped) JumpBack<T>(m, x0, C, t0[k], lam, pb, tsum);
         for (int64_t i = 0; i < m; ++i) {
-          hbo[(row[i] * K + k) * at.B + col[i]] = hsum[i];
-          tbo[(row[i] * K + k) * at.B + col[i]] = tsum[i];
+          hbo[(row[i] * at.B + col[i]) * K + k] = hsum[i];
+          tbo[(row[i] * at.B + col[i]) * K + k] = tsum[i];
         }
         add_cotangent(k);
       }
       for (int64_t i = 0; i < m; ++i) {
         const int64_t l = row[i], b = col[i];
         RJ_UNROLL
-        for (int j = 0; j < N; ++j) y0b[at.y0(l, b, j)] = lam[j][i];
+        for (int j = 0; j < N; ++j) y0b[(l * at.B + b) * N + j] = lam[j][i];
         RJ_UNROLL
-        for (int j = 0; j < Model::P; ++j) pbo[(l * Model::P + j) * at.B + b] = pb[j][i];
+        for (int j = 0; j < Model::P; ++j) pbo[(l * at.B + b) * Model::P + j] = pb[j][i];
       }
     }
   }
 }
 
-// Whether the L batch rows share their steps (n, h, t0): then they are one group of L·B bodies.
+// Whether the rows share their steps (n, h, t0, jump, save): then they are one group of L·B
+// bodies (a vmapped single body still fills the vector lanes).
 template <typename T>
 bool Shared(const int32_t* n, const T* h, const T* t0, const int32_t* jump, const int32_t* save,
-            int64_t L, int64_t K) {
-  for (int64_t l = 1; l < L; ++l) {
-    if (std::memcmp(n, n + l * K, K * sizeof(int32_t)) != 0 ||
-        std::memcmp(jump, jump + l * K, K * sizeof(int32_t)) != 0 ||
-        std::memcmp(save, save + l * (K + 1), (K + 1) * sizeof(int32_t)) != 0 ||
-        std::memcmp(h, h + l * K, K * sizeof(T)) != 0 ||
-        std::memcmp(t0, t0 + l * K, K * sizeof(T)) != 0)
+            const Layout& at) {
+  const Rows& r = at.rows;
+  if (at.steps.shared(r) && at.jump.shared(r) && at.save.shared(r)) return true;
+  const int64_t K = at.K, s0 = at.steps.at(r, 0), j0 = at.jump.at(r, 0), v0 = at.save.at(r, 0);
+  for (int64_t l = 1; l < r.count(); ++l) {
+    const int64_t s = at.steps.at(r, l), j = at.jump.at(r, l), v = at.save.at(r, l);
+    if (std::memcmp(n + s0, n + s, K * sizeof(int32_t)) != 0 ||
+        std::memcmp(jump + j0, jump + j, K * sizeof(int32_t)) != 0 ||
+        std::memcmp(save + v0, save + v, (K + 1) * sizeof(int32_t)) != 0 ||
+        std::memcmp(h + s0, h + s, K * sizeof(T)) != 0 ||
+        std::memcmp(t0 + s0, t0 + s, K * sizeof(T)) != 0)
       return false;
   }
   return true;
 }
 
-// run(s, first, count) for each group of bodies that share their steps: all L·B bodies when
-// the rows share them (a vmapped single body still fills the vector lanes), else row by row;
-// s is the offset of the group's steps in n, h and t0.
+// run(steps, jump, save, first, count) for each group of bodies that share their steps: all
+// L·B bodies when the rows share them, else row by row; steps, jump and save are the group's
+// offsets in (n, h, t0), jump and save.
 template <typename T, class Run>
 void ForEachGroup(const int32_t* n, const T* h, const T* t0, const int32_t* jump,
-                  const int32_t* save, int64_t L, const Layout& at, Run run) {
-  const bool shared = Shared<T>(n, h, t0, jump, save, L, at.K);
-  for (int64_t l = 0; l < (shared ? 1 : L); ++l) {
-    run(l * at.K, l * (at.K + 1), shared ? 0 : l, shared ? L * at.B : at.B);
+                  const int32_t* save, const Layout& at, Run run) {
+  const Rows& r = at.rows;
+  const int64_t L = r.count();
+  if (Shared<T>(n, h, t0, jump, save, at)) {
+    run(at.steps.at(r, 0), at.jump.at(r, 0), at.save.at(r, 0), 0, L * at.B);
+    return;
   }
+  for (int64_t l = 0; l < L; ++l) run(at.steps.at(r, l), at.jump.at(r, l), at.save.at(r, l), l, at.B);
 }
 
-ffi::Error Shapes(size_t y0, const ffi::Span<const int64_t>& pdims, size_t n, size_t h,
-                  size_t t0, size_t jump, size_t save, Layout* at, int64_t* L) {
-  if (pdims.size() < 2 || pdims[pdims.size() - 2] != Model::P) {
-    return ffi::Error::InvalidArgument("model kernel: p must have shape (..., P, B or 1)");
+// The layout from the operands' shapes (`lead`: an output with `base` trailing dimensions
+// (B, …), whose leading ones are the rows), and the parameter components from the blocks.
+template <ffi::DataType DT>
+ffi::Error Shapes(ffi::Span<const int64_t> lead, size_t base, ffi::Span<const int64_t> x0,
+                  size_t x0_base, ffi::Span<const int64_t> n, ffi::Span<const int64_t> h,
+                  ffi::Span<const int64_t> t0, ffi::Span<const int64_t> jump,
+                  ffi::Span<const int64_t> save, const ffi::RemainingArgs& blocks, Layout* at,
+                  Param<ffi::NativeType<DT>>* prm) {
+  const auto bad = [](const char* what) {
+    return ffi::Error::InvalidArgument(std::string("model kernel: ") + what);
+  };
+  if (lead.size() < base || lead.size() - base > static_cast<size_t>(kMaxLead)) {
+    return bad("too many mapped dimensions");
   }
-  const int64_t Bc = pdims[pdims.size() - 1];
-  int64_t rows = 1;
-  for (size_t i = 0; i + 2 < pdims.size(); ++i) rows *= pdims[i];
-  if (rows == 0 || y0 % (N * rows) != 0 || n != h || n != t0 || n != jump ||
-      save != n + rows || n % rows != 0) {
-    return ffi::Error::InvalidArgument("model kernel: inconsistent shapes");
+  Rows& r = at->rows;
+  r.nd = static_cast<int>(lead.size() - base);
+  for (int d = 0; d < r.nd; ++d) r.dims[d] = lead[d];
+  at->B = lead[r.nd];
+  at->K = n.size() == 0 ? 0 : n.back();
+  if (x0.size() != r.nd + x0_base || x0[r.nd] != at->B || x0.back() != N ||
+      !Strides(r, x0, x0_base, x0_base == 2 ? &at->y0 : &at->y) ||
+      !Strides(r, n, 1, &at->steps) || !(n == h) || !(n == t0) ||
+      !Strides(r, jump, 1, &at->jump) || jump.back() != at->K ||
+      !Strides(r, save, 1, &at->save) || save.back() != at->K + 1) {
+    return bad("inconsistent shapes of y0, n, h, t0, jump and save");
   }
-  const int64_t B = static_cast<int64_t>(y0) / (N * rows);
-  if (Bc != 1 && Bc != B) {
-    return ffi::Error::InvalidArgument("model kernel: p must have B or 1 columns");
+  int j = 0;
+  for (size_t i = 0; i < blocks.size(); ++i) {
+    auto block = blocks.get<ffi::Buffer<DT>>(i);
+    if (block.has_error()) return block.error();
+    const auto dims = block->dimensions();
+    Lead rows;
+    if (!Strides(r, dims, 2, &rows) || (dims[r.nd] != 1 && dims[r.nd] != at->B) ||
+        j + dims[r.nd + 1] > Model::P) {
+      return bad("parameter blocks must have shape (B or 1, Pj), Σ Pj = P");
+    }
+    for (int64_t c = 0; c < dims[r.nd + 1]; ++c, ++j) {
+      prm[j] = {block->typed_data() + c, rows, dims[r.nd] == 1 ? 0 : dims[r.nd + 1]};
+    }
   }
-  const int64_t K = static_cast<int64_t>(n) / rows;
-  *at = Layout{B, K, Bc, K + 1, 0};
-  *L = rows;
+  if (j != Model::P) return bad("parameter blocks must have shape (B or 1, Pj), Σ Pj = P");
   return ffi::Error::Success();
 }
 
 template <ffi::DataType DT>
-ffi::Error ModelSteps(ffi::Buffer<DT> y0, ffi::Buffer<DT> p, ffi::Buffer<ffi::S32> n,
-                      ffi::Buffer<DT> h, ffi::Buffer<DT> t0, ffi::Buffer<ffi::S32> jump,
-                      ffi::Buffer<ffi::S32> save, ffi::ResultBuffer<DT> y,
+ffi::Error ModelSteps(ffi::Buffer<DT> y0, ffi::Buffer<ffi::S32> n, ffi::Buffer<DT> h,
+                      ffi::Buffer<DT> t0, ffi::Buffer<ffi::S32> jump, ffi::Buffer<ffi::S32> save,
+                      ffi::RemainingArgs blocks, ffi::ResultBuffer<DT> y,
                       ffi::ResultBuffer<DT> rec) {
   using T = ffi::NativeType<DT>;
   Layout at;
-  int64_t L;
-  ffi::Error e = Shapes(y0.element_count(), p.dimensions(), n.element_count(), h.element_count(),
-                        t0.element_count(), jump.element_count(), save.element_count(), &at, &L);
+  Param<T> prm[P];
+  ffi::Error e = Shapes<DT>(y->dimensions(), 3, y0.dimensions(), 2, n.dimensions(),
+                            h.dimensions(), t0.dimensions(), jump.dimensions(), save.dimensions(),
+                            blocks, &at, prm);
   if (e.failure()) return e;
-  const size_t per = static_cast<size_t>(L * at.B);
-  at.S = static_cast<int64_t>(y->element_count() / (per * N));
-  at.R = Model::NR > 0 ? static_cast<int64_t>(rec->element_count() / (per * Model::NR)) : 0;
-  if (y->element_count() != per * at.S * N || rec->element_count() != per * at.R * Model::NR) {
+  const auto yd = y->dimensions(), rd = rec->dimensions();
+  const int nd = at.rows.nd;
+  at.S = yd[nd + 1];
+  at.R = rd.size() == yd.size() ? rd[nd + 1] : -1;
+  if (yd[nd + 2] != N || at.R < 0 || rd[nd] != at.B || rd[nd + 2] != Model::NR) {
     return ffi::Error::InvalidArgument("model kernel: inconsistent output shapes");
   }
   const int32_t *nn = n.typed_data(), *jj = jump.typed_data(), *ss = save.typed_data();
   const T *hh = h.typed_data(), *tt = t0.typed_data();
-  ForEachGroup(nn, hh, tt, jj, ss, L, at,
-               [&](int64_t s, int64_t s1, int64_t first, int64_t count) {
-                 Group<T>(y0.typed_data(), p.typed_data(), nn + s, hh + s, tt + s, jj + s,
-                          ss + s1, y->typed_data(), rec->typed_data(), first, count, at);
+  ForEachGroup(nn, hh, tt, jj, ss, at,
+               [&](int64_t s, int64_t sj, int64_t sv, int64_t first, int64_t count) {
+                 Group<T>(y0.typed_data(), prm, nn + s, hh + s, tt + s, jj + sj, ss + sv,
+                          y->typed_data(), rec->typed_data(), first, count, at);
                });
   return ffi::Error::Success();
 }
 
 template <ffi::DataType DT>
-ffi::Error ModelStepsBack(ffi::Buffer<DT> y, ffi::Buffer<DT> p, ffi::Buffer<ffi::S32> n,
-                          ffi::Buffer<DT> h, ffi::Buffer<DT> t0, ffi::Buffer<ffi::S32> jump,
+ffi::Error ModelStepsBack(ffi::Buffer<DT> y, ffi::Buffer<ffi::S32> n, ffi::Buffer<DT> h,
+                          ffi::Buffer<DT> t0, ffi::Buffer<ffi::S32> jump,
                           ffi::Buffer<ffi::S32> save, ffi::Buffer<DT> gy,
-                          ffi::ResultBuffer<DT> y0b, ffi::ResultBuffer<DT> pb,
-                          ffi::ResultBuffer<DT> hb, ffi::ResultBuffer<DT> tb) {
+                          ffi::RemainingArgs blocks, ffi::ResultBuffer<DT> y0b,
+                          ffi::ResultBuffer<DT> pb, ffi::ResultBuffer<DT> hb,
+                          ffi::ResultBuffer<DT> tb) {
   using T = ffi::NativeType<DT>;
   Layout at;
-  int64_t L;
-  ffi::Error e =
-      Shapes(y0b->element_count(), p.dimensions(), n.element_count(), h.element_count(),
-             t0.element_count(), jump.element_count(), save.element_count(), &at, &L);
+  Param<T> prm[P];
+  ffi::Error e = Shapes<DT>(y0b->dimensions(), 2, y.dimensions(), 3, n.dimensions(),
+                            h.dimensions(), t0.dimensions(), jump.dimensions(), save.dimensions(),
+                            blocks, &at, prm);
   if (e.failure()) return e;
-  const size_t ys = static_cast<size_t>(L * at.B * (at.K + 1) * N);
-  if (y.element_count() != ys || gy.element_count() != ys ||
-      pb->element_count() != static_cast<size_t>(L * Model::P * at.B) ||
-      hb->element_count() != static_cast<size_t>(L * at.K * at.B) ||
-      tb->element_count() != static_cast<size_t>(L * at.K * at.B)) {
+  at.S = at.K + 1;
+  at.R = 0;
+  const size_t rows = static_cast<size_t>(at.rows.count() * at.B);
+  if (y.dimensions()[at.rows.nd + 1] != at.K + 1 || !Strides(at.rows, gy.dimensions(), 3, &at.gy) ||
+      !std::equal(y.dimensions().begin() + at.rows.nd, y.dimensions().end(),
+                  gy.dimensions().begin() + at.rows.nd, gy.dimensions().end()) ||
+      pb->element_count() != rows * Model::P || hb->element_count() != rows * at.K ||
+      tb->element_count() != rows * at.K) {
     return ffi::Error::InvalidArgument("model kernel (reverse): inconsistent shapes");
   }
   const int32_t *nn = n.typed_data(), *jj = jump.typed_data(), *ss = save.typed_data();
   const T *hh = h.typed_data(), *tt = t0.typed_data();
-  ForEachGroup(nn, hh, tt, jj, ss, L, at, [&](int64_t s, int64_t, int64_t first, int64_t count) {
-    GroupBack<T>(y.typed_data(), p.typed_data(), nn + s, hh + s, tt + s, jj + s, gy.typed_data(),
-                 y0b->typed_data(), pb->typed_data(), hb->typed_data(), tb->typed_data(), first,
-                 count, at);
-  });
+  ForEachGroup(nn, hh, tt, jj, ss, at,
+               [&](int64_t s, int64_t sj, int64_t, int64_t first, int64_t count) {
+                 GroupBack<T>(y.typed_data(), prm, nn + s, hh + s, tt + s, jj + sj,
+                              gy.typed_data(), y0b->typed_data(), pb->typed_data(),
+                              hb->typed_data(), tb->typed_data(), first, count, at);
+               });
   return ffi::Error::Success();
 }
 
 }  // namespace
 
-template <ffi::DataType DT>
-auto BindInputs() {
-  return ffi::Ffi::Bind()
-      .template Arg<ffi::Buffer<DT>>()
-      .template Arg<ffi::Buffer<DT>>()
-      .template Arg<ffi::Buffer<ffi::S32>>()
-      .template Arg<ffi::Buffer<DT>>()
-      .template Arg<ffi::Buffer<DT>>()
-      .template Arg<ffi::Buffer<ffi::S32>>()
-      .template Arg<ffi::Buffer<ffi::S32>>();
-}
-
 // The one handler of this build, named by model.h: the forward steps (RJ_FORWARD), or their
 // reverse mode (RJ_BACKWARD), built separately on the first gradient, so that a first forward
 // call compiles only the forward templates.
-#define RJ_FORWARD(NAME, DT)                                                           \
-  XLA_FFI_DEFINE_HANDLER_SYMBOL(                                                       \
-      NAME, (ModelSteps<ffi::DT>),                                                     \
-      BindInputs<ffi::DT>().Ret<ffi::Buffer<ffi::DT>>().Ret<ffi::Buffer<ffi::DT>>());
-#define RJ_BACKWARD(NAME, DT)                                    \
-  XLA_FFI_DEFINE_HANDLER_SYMBOL(NAME, (ModelStepsBack<ffi::DT>), \
-                                BindInputs<ffi::DT>()            \
-                                    .Arg<ffi::Buffer<ffi::DT>>() \
-                                    .Ret<ffi::Buffer<ffi::DT>>() \
-                                    .Ret<ffi::Buffer<ffi::DT>>() \
-                                    .Ret<ffi::Buffer<ffi::DT>>() \
+#define RJ_FORWARD(NAME, DT)                                                                 \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(NAME, (ModelSteps<ffi::DT>),                                 \
+                                ffi::Ffi::Bind()                                             \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                             \
+                                    .Arg<ffi::Buffer<ffi::S32>>()                            \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                             \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                             \
+                                    .Arg<ffi::Buffer<ffi::S32>>()                            \
+                                    .Arg<ffi::Buffer<ffi::S32>>()                            \
+                                    .RemainingArgs()                                         \
+                                    .Ret<ffi::Buffer<ffi::DT>>()                             \
+                                    .Ret<ffi::Buffer<ffi::DT>>());
+#define RJ_BACKWARD(NAME, DT)                                                                \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(NAME, (ModelStepsBack<ffi::DT>),                             \
+                                ffi::Ffi::Bind()                                             \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                             \
+                                    .Arg<ffi::Buffer<ffi::S32>>()                            \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                             \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                             \
+                                    .Arg<ffi::Buffer<ffi::S32>>()                            \
+                                    .Arg<ffi::Buffer<ffi::S32>>()                            \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                             \
+                                    .RemainingArgs()                                         \
+                                    .Ret<ffi::Buffer<ffi::DT>>()                             \
+                                    .Ret<ffi::Buffer<ffi::DT>>()                             \
+                                    .Ret<ffi::Buffer<ffi::DT>>()                             \
                                     .Ret<ffi::Buffer<ffi::DT>>());
 
 RJ_KERNEL

@@ -336,19 +336,20 @@ def build(
 
 
 def _call(target: str, dtype, shapes: list[tuple[int, ...]], *args: Array | np.ndarray) -> list:
+    """The kernel `target` on `args`; under `jax.vmap` an operand that is not mapped keeps a
+    leading dimension of 1 (`"expand_dims"`), which the kernel reads for every row: shared
+    parameters and steps are never copied per row."""
     call = jax.ffi.ffi_call(
-        target,
-        [jax.ShapeDtypeStruct((1, *shape), dtype) for shape in shapes],
-        vmap_method="broadcast_all",
+        target, [jax.ShapeDtypeStruct(shape, dtype) for shape in shapes], vmap_method="expand_dims"
     )
     cast = [a.astype(jnp.int32 if jnp.issubdtype(a.dtype, jnp.integer) else dtype) for a in args]
-    return [out[0] for out in call(*(a[None] for a in cast))]
+    return list(call(*cast))
 
 
 def run(
     kernel: Kernel,
     y0: Float[Array, "B N"],
-    p: Float[Array, "P Bc"],
+    blocks: Sequence[Float[Array, "#B _"]],
     n: Int[Array, " K"],
     h: Float[Array, " K"],
     t0: Float[Array, " K"],
@@ -358,9 +359,10 @@ def run(
     """The states `(B, S, N)` at the start and after each of K intervals of `n[k]` steps of
     size `h[k]` from `t0[k]` where `keep (K + 1,)` (booleans; all by default), each interval
     with `jump[k]` (booleans `(K,)`; none by default) started by the jump map, and the
-    components `kernel.record` after each jump `(B, R, NR)`; `p (P, B or 1)` holds the
-    parameters and lifted constants. Reverse mode by the kernel's discrete adjoint of the same
-    steps (`jax.custom_vjp`; its forward run keeps every state)."""
+    components `kernel.record` after each jump `(B, R, NR)`; the parameters and lifted
+    constants come in `blocks`, each `(B or 1, Pj)` (per body or shared), `Σ Pj = P`. Reverse
+    mode by the kernel's discrete adjoint of the same steps (`jax.custom_vjp`; its forward run
+    keeps every state)."""
     K, B, dtype = h.shape[0], y0.shape[0], y0.dtype
     jumps = np.zeros(K, bool) if jump is None else np.asarray(jump, bool)
     kept = np.arange(K + 1) if keep is None else np.flatnonzero(np.asarray(keep, bool))
@@ -374,30 +376,34 @@ def run(
     every = np.arange(1, K + 2, dtype=np.int32)
     save = np.zeros(K + 1, np.int32)
     save[kept] = np.arange(1, kept.size + 1)
+    widths = np.cumsum([0, *(b.shape[1] for b in blocks)])
 
-    def call(y0, p, n, h, t0, save, S):
+    def call(y0, blocks, n, h, t0, save, S):
         shapes = [(B, S, kernel.n), (B, at.size, NR)]
-        return _call(kernel.forward, dtype, shapes, y0, p, n, h, t0, jmp, save)
+        return _call(kernel.forward, dtype, shapes, y0, n, h, t0, jmp, save, *blocks)
 
-    def forward(y0, p, n, h, t0):
-        return tuple(call(y0, p, n, h, t0, save, kept.size))
+    def forward(y0, blocks, n, h, t0):
+        return tuple(call(y0, blocks, n, h, t0, save, kept.size))
 
-    def run_fwd(y0, p, n, h, t0):
-        y, rec = call(y0, p, n, h, t0, every, K + 1)
-        return (y[:, kept], rec), (y, p, n, h, t0)
+    def run_fwd(y0, blocks, n, h, t0):
+        y, rec = call(y0, blocks, n, h, t0, every, K + 1)
+        return (y[:, kept], rec), (y, blocks, n, h, t0)
 
     def run_bwd(residuals, g):
-        y, p, n, h, t0 = residuals
+        y, blocks, n, h, t0 = residuals
         gy_kept, g_rec = g
         gy = jnp.zeros_like(y).at[:, kept].add(gy_kept)
         gy = gy.at[:, at + 1, R0 : R0 + NR].add(g_rec)  # held after the jump to the next time
-        shapes = [(B, kernel.n), (kernel.p, B), (K, B), (K, B)]
-        args = (y, p, n, h, t0, jmp, every, gy)
+        shapes = [(B, kernel.n), (B, kernel.p), (B, K), (B, K)]
+        args = (y, n, h, t0, jmp, every, gy, *blocks)
         y0b, pb, hb, tb = _call(kernel.backward(), dtype, shapes, *args)
-        pb = jnp.sum(pb, axis=1, keepdims=True) if p.shape[1] == 1 else pb
-        return y0b, pb, None, jnp.sum(hb, axis=1), jnp.sum(tb, axis=1)
+        gb = [
+            pb[:, a:b].sum(axis=0, keepdims=True) if block.shape[0] == 1 else pb[:, a:b]
+            for block, a, b in zip(blocks, widths[:-1], widths[1:], strict=True)
+        ]
+        return y0b, tuple(gb), None, jnp.sum(hb, axis=0), jnp.sum(tb, axis=0)
 
     solve = jax.custom_vjp(forward)
     solve.defvjp(run_fwd, run_bwd)
-    y, rec = solve(y0, p, n, h, t0)
+    y, rec = solve(y0, tuple(blocks), n, h, t0)
     return y, rec

@@ -8,7 +8,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, cast
 
 import diffrax
@@ -159,7 +159,7 @@ def solve_model(
     model: Model,
     ts: Float[Array, " T"],
     y0: Float[Array, "B N"],
-    p: Float[Array, "Bp P"],
+    p: Float[Array, "Bp P"] | Sequence[Float[Array, "#Bp _"]],
     options: SolveOptions,
     *,
     single: bool = False,
@@ -167,7 +167,7 @@ def solve_model(
     keep: np.ndarray | None = None,
 ) -> tuple[Float[Array, "S B N"], dict[str, Array], diffrax.RESULTS]:
     """Integrate `model` for B bodies from `y0` with parameters `p` (per body, `Bp = B`, or
-    shared, `Bp = 1`), saving at `ts`; returns `(ys (T, B, N), stats, result)` as `solve_saved`.
+    shared, `Bp = 1`; or in blocks of columns, each per body or shared), saving at `ts`; returns `(ys (T, B, N), stats, result)` as `solve_saved`.
     A model with a jump map applies it at the start of each interval `k` with `jumps[k]`
     (`(T − 1,)` booleans, concrete: the samples of a held command); with `model.record`, the
     components it sets after each jump are `stats["recorded"] (J, B, NR)`. `keep` (booleans
@@ -184,7 +184,9 @@ def solve_model(
         raise ValueError("a model with a jump map takes jumps (T − 1,), and only such a model")
     quiet = dataclasses.replace(options, throw=False)
     keep = np.ones(ts.shape[0], bool) if keep is None else np.asarray(keep, bool)
-    ys, stats, result = _solve(model, ts, y0, p, quiet, single, jumps, keep)
+    blocks = [p] if isinstance(p, jax.Array | np.ndarray) else list(p)
+    p = _joined(blocks, ts.dtype)
+    ys, stats, result = _solve(model, ts, y0, blocks, quiet, single, jumps, keep)
     ts = ts[np.flatnonzero(keep)]
     if options.throw:
 
@@ -204,14 +206,16 @@ def _solve(
     model: Model,
     ts: Array,
     y0: Array,
-    p: Array,
+    blocks: list[Array],
     options: SolveOptions,
     single: bool,
     jumps: np.ndarray | None,
     keep: np.ndarray,
 ) -> tuple[Array, dict[str, Array], diffrax.RESULTS]:
-    """`solve_model` without raising failures: the CPU kernel, the GPU kernel, or Diffrax."""
+    """`solve_model` without raising failures: the CPU kernel (each block of parameters its
+    own operand: a shared block is never copied per body), the GPU kernel, or Diffrax."""
     dtype = ts.dtype
+    p = _joined(blocks, dtype)
     hoisted, missing = _compile(model, dtype)
     if hoisted is not None and kernel_options(options):
         c = hoisted.c.astype(dtype)
@@ -226,7 +230,7 @@ def _solve(
         except Unsupported as e:
             kernel, gpu, hoisted, missing = None, False, None, e.primitive
         if kernel is not None:
-            pk = _packed(p, c)
+            pk = [b.astype(dtype) for b in blocks] + ([c[None]] if c.shape[0] else [])
             recorded = []
 
             def run(n, taken, h, t0):
@@ -295,6 +299,13 @@ def _diffrax_jumps(
     stats: dict[str, Array] = dict(zip(keys, jnp.sum(counts, axis=0), strict=True))
     stats["num_valid"] = 1 + jnp.sum(jnp.cumprod(valid))
     return jnp.concatenate([y0[None], ys]), stats, result
+
+
+def _joined(blocks: list[Array], dtype) -> Array:
+    """The parameters `(Bp, P)` from their blocks of columns `(Bp or 1, Pj)`."""
+    rows = max((b.shape[0] for b in blocks), default=1)
+    parts = [jnp.broadcast_to(b, (rows, b.shape[1])).astype(dtype) for b in blocks]
+    return jnp.concatenate([*parts, jnp.zeros((rows, 0), dtype)], axis=1)
 
 
 def _packed(p: Array, c: Array) -> Array:
@@ -387,7 +398,7 @@ def solve_tree(
     a leading time axis. Under `jax.vmap` the mapped bodies join one kernel call."""
     dtype = ts.dtype
     tm, model = tree_model(vf, y0, args, unit, name, jump, record)
-    p = ravel(args, dtype)[None]
+    p = [jnp.ravel(jnp.asarray(a)).astype(dtype)[None] for a in jtu.tree_leaves(args)]
     y = ravel(y0, dtype)[None]
     ys, stats, result = solve_model(model, ts, y, p, options, single=True, jumps=jumps, keep=keep)
     if "recorded" in stats:
