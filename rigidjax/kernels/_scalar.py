@@ -209,7 +209,7 @@ class _Unroller:
         for v, x in zip(jaxpr.invars, args, strict=True):
             env[v] = x
         for eqn in _live(jaxpr):
-            used = eqn.invars[: len(eqn.invars) - 2] if _is_error_if(eqn) else eqn.invars
+            used = eqn.invars[: len(eqn.invars) - _checked(eqn)]
             ins = [read(v) for v in used]
             outs = self.eqn(eqn, ins)
             for v, x in zip(eqn.outvars, outs, strict=True):
@@ -223,7 +223,7 @@ class _Unroller:
             return [self.elementwise(name, p, ins, dtype)]
         if name in _IDENTITY:
             return ins
-        if _is_error_if(eqn):
+        if _checked(eqn):
             leaves = iter(ins)  # x's leaves (its predicate and index were dropped)
             inner = p["jaxpr"].jaxpr
             return [
@@ -259,13 +259,17 @@ class _Unroller:
         return [structural(self, p, ins, eqn)]
 
 
-def _is_error_if(eqn) -> bool:
-    """An `equinox.error_if` check `(x..., pred, index) -> x...` (after differentiation its
-    tangent part is a plain identity call, unrolled as any call)."""
+def _checked(eqn) -> int:
+    """How many trailing operands of `eqn` only feed an `equinox.error_if` check
+    `(x..., pred[, index]) -> x...` (its predicate, and its message index unless that is a
+    constant); 0 for any other equation (after differentiation a check's tangent part is a
+    plain identity call, unrolled as any call)."""
     if not (eqn.primitive.name == "jit" and eqn.params.get("name") == "branched_error_if_impl"):
-        return False
+        return 0
     kinds = [np.dtype(v.aval.dtype) for v in eqn.invars[-2:]]
-    return len(kinds) == 2 and kinds[0] == np.bool_ and np.issubdtype(kinds[1], np.integer)
+    if len(kinds) == 2 and kinds[0] == np.bool_ and np.issubdtype(kinds[1], np.integer):
+        return 2
+    return 1 if kinds and kinds[-1] == np.bool_ else 0
 
 
 def _live(jaxpr) -> list:
@@ -277,7 +281,7 @@ def _live(jaxpr) -> list:
         if not any(v in live for v in eqn.outvars):
             continue
         keep.append(eqn)
-        ins = eqn.invars[: len(eqn.invars) - 2] if _is_error_if(eqn) else eqn.invars
+        ins = eqn.invars[: len(eqn.invars) - _checked(eqn)]
         live.update(v for v in ins if not isinstance(v, jex_core.Literal))
     return keep[::-1]
 

@@ -15,9 +15,10 @@ from jaxtyping import Array, ArrayLike, Float
 from .._checks import as_float, check_finite, check_times, matrix, norm_tolerance, validate
 from .._custom_types import Frame, RealLike
 from .._integrate import SolveKwargs, SolveOptions, solve_saved
+from ..models.solve import solve_tree
 from ..rotations import so3
 from ..solvers.rkmk import LieTerm
-from .formulations import AbstractKinematics, check_omega, lookup
+from .formulations import AbstractKinematics, PoissonMatrix, Quaternion, check_omega, lookup
 
 OmegaLike = Callable[[Array], Array] | diffrax.AbstractPath | tuple[ArrayLike, ArrayLike]
 
@@ -149,6 +150,15 @@ def darboux(
         term = diffrax.ODETerm(_KinematicsField(kin, w))
         y0 = kin.from_matrix(P0)
         to_matrix = jax.vmap(kin.to_matrix)
+        if type(kin) in (Quaternion, PoissonMatrix) and source is w:
+            # a model (`solve_tree`): fixed explicit steps run on the CPU kernel written from
+            # the field, ω(t) included; the quaternion is renormalised after every step
+            ys, _, _ = solve_tree(
+                _KinematicsField(kin, w), ts, y0, (), options,
+                unit=(0,) if type(kin) is Quaternion else (), name="Darboux kinematics",
+            )  # fmt: skip
+            P = to_matrix(ys)
+            return (P, ys) if return_state else P
 
     ys, _, _ = solve_saved(
         term,

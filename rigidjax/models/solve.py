@@ -167,7 +167,8 @@ def solve_model(
     keep: np.ndarray | None = None,
 ) -> tuple[Float[Array, "S B N"], dict[str, Array], diffrax.RESULTS]:
     """Integrate `model` for B bodies from `y0` with parameters `p` (per body, `Bp = B`, or
-    shared, `Bp = 1`; or in blocks of columns, each per body or shared), saving at `ts`; returns `(ys (T, B, N), stats, result)` as `solve_saved`.
+    shared, `Bp = 1`; or in blocks of columns, each per body or shared), saving at `ts`;
+    returns `(ys (T, B, N), stats, result)` as `solve_saved`.
     A model with a jump map applies it at the start of each interval `k` with `jumps[k]`
     (`(T − 1,)` booleans, concrete: the samples of a held command); with `model.record`, the
     components it sets after each jump are `stats["recorded"] (J, B, NR)`. `keep` (booleans
