@@ -95,20 +95,25 @@ RJ_INLINE T InverseNorm(const T* u, int g) {
   return T(1) / std::sqrt(s);
 }
 
+constexpr int NU = Model::NU > 0 ? Model::NU : 1;
+
+// Each unit group g of u divided by its norm; r[g] = 1 / the norm.
 template <typename T>
-RJ_INLINE void Normalize(T* u) {
+RJ_INLINE void Normalize(T* u, T* r) {
   RJ_UNROLL
   for (int g = 0; g < Model::NU; ++g) {
-    const T r = InverseNorm(u, g);
+    r[g] = InverseNorm(u, g);
     RJ_UNROLL
-    for (int j = Model::unit[g][0]; j < Model::unit[g][0] + Model::unit[g][1]; ++j) u[j] *= r;
+    for (int j = Model::unit[g][0]; j < Model::unit[g][0] + Model::unit[g][1]; ++j) u[j] *= r[g];
   }
 }
 
-// `steps` steps of size h from time t0 on the m ≤ kBlock bodies of x (N rows of kBlock).
-template <typename T>
+// `steps` steps of size h from time t0 on the m ≤ kBlock bodies of x (N rows of kBlock); with
+// Keep, the inverse norms of each step's unit groups into inv (the reverse sweep's, which
+// then need not recompute them).
+template <typename T, bool Keep = false>
 void Steps(int64_t m, T (*__restrict x)[kBlock], const T (*__restrict C)[kBlock], int64_t first,
-           int64_t steps, T t0, T h) {
+           int64_t steps, T t0, T h, T (*__restrict inv)[NU][kBlock] = nullptr) {
   for (int64_t s = first; s < first + steps; ++s) {
     const T t = t0 + T(s) * h;
 #pragma GCC ivdep
@@ -119,7 +124,12 @@ void Steps(int64_t m, T (*__restrict x)[kBlock], const T (*__restrict C)[kBlock]
       RJ_UNROLL
       for (int j = 0; j < Model::P; ++j) p[j] = C[j][i];
       Stages(y, p, t, h, k, z, u);
-      Normalize(u);
+      T r[NU];
+      Normalize(u, r);
+      if constexpr (Keep) {
+        RJ_UNROLL
+        for (int g = 0; g < Model::NU; ++g) inv[s - first][g][i] = r[g];
+      }
       RJ_UNROLL
       for (int j = 0; j < N; ++j) x[j][i] = u[j];
     }
@@ -337,12 +347,14 @@ RJ_INLINE void StagesBack(const T* p, T t, T h, const T (*k)[N], const T (*z)[N]
   }
 }
 
-// Reverse step s (at time t0 + s h) from the states x it started from: lam, the cotangent of
-// its end state, becomes that of its start; pb, hb and tb collect the cotangents of the
-// parameters, the step size and the interval's start time.
+// Reverse step s (at time t0 + s h) from the states x it started from and the inverse norms inv
+// of its end's unit groups: lam, the cotangent of its end state, becomes that of its start;
+// pb, hb and tb collect the cotangents of the parameters, the step size and the interval's
+// start time.
 template <typename T>
-void StepBack(int64_t m, const T (*__restrict x)[kBlock], const T (*__restrict C)[kBlock],
-              int64_t s, T t0, T h, T (*__restrict lam)[kBlock], T (*__restrict pb)[kBlock],
+void StepBack(int64_t m, const T (*__restrict x)[kBlock], const T (*__restrict inv)[kBlock],
+              const T (*__restrict C)[kBlock], int64_t s, T t0, T h, T (*__restrict lam)[kBlock],
+              T (*__restrict pb)[kBlock],
               T* __restrict hb, T* __restrict tb) {
   constexpr int S = Tab::S;
   const T t = t0 + T(s) * h;
@@ -361,7 +373,7 @@ void StepBack(int64_t m, const T (*__restrict x)[kBlock], const T (*__restrict C
     RJ_UNROLL
     for (int g = 0; g < Model::NU; ++g) {
       const int a = Model::unit[g][0], len = Model::unit[g][1];
-      const T r = InverseNorm(u, g);
+      const T r = inv[g][i];
       T dot = T(0);
       RJ_UNROLL
       for (int j = a; j < a + len; ++j) dot += u[j] * r * lam[j][i];
@@ -441,10 +453,11 @@ void GroupBack(const T* y, const Param<T>* prm, const int32_t* n, const T* h, co
                               ? std::max<int64_t>(steps, 1)
                               : static_cast<int64_t>(std::ceil(std::sqrt(double(steps))));
         const int64_t segments = (steps + S - 1) / S;
-        const size_t need = static_cast<size_t>((segments + S) * N * kBlock);
+        const size_t need = static_cast<size_t>(((segments + S) * N + S * NU) * kBlock);
         if (saved.size() < need) saved.resize(need);
         T(*ckpt)[N][kBlock] = reinterpret_cast<T(*)[N][kBlock]>(saved.data());
         T(*states)[N][kBlock] = ckpt + segments;
+        T(*norms)[NU][kBlock] = reinterpret_cast<T(*)[NU][kBlock]>(states + S);
         for (int64_t i = 0; i < m; ++i) {
           RJ_UNROLL
           for (int j = 0; j < N; ++j) x[j][i] = y[at.saved(row[i], col[i], k, j)];
@@ -462,12 +475,12 @@ void GroupBack(const T* y, const Param<T>* prm, const int32_t* n, const T* h, co
         for (int64_t s = segments - 1; s >= 0; --s) {
           const int64_t len = std::min(S, steps - s * S);
           std::memcpy(x, ckpt[s], sizeof(x));
-          for (int64_t j = 0; j < len; ++j) {
+          for (int64_t j = 0; j < len; ++j) {  // each step's start and inverse norms
             std::memcpy(states[j], x, sizeof(x));
-            if (j + 1 < len) Steps<T>(m, x, C, s * S + j, 1, t0[k], h[k]);
+            Steps<T, true>(m, x, C, s * S + j, 1, t0[k], h[k], norms + j);
           }
           for (int64_t j = len - 1; j >= 0; --j)
-            StepBack<T>(m, states[j], C, s * S + j, t0[k], h[k], lam, pb, hsum, tsum);
+            StepBack<T>(m, states[j], norms[j], C, s * S + j, t0[k], h[k], lam, pb, hsum, tsum);
         }
         if (jumped) JumpBack<T>(m, x0, C, t0[k], lam, pb, tsum);
         for (int64_t i = 0; i < m; ++i) {

@@ -385,15 +385,18 @@ def run(
     def forward(y0, blocks, n, h, t0):
         return tuple(call(y0, blocks, n, h, t0, save, kept.size))
 
+    every_kept = kept.size == K + 1  # (no gather or scatter of the states then)
+
     def run_fwd(y0, blocks, n, h, t0):
         y, rec = call(y0, blocks, n, h, t0, every, K + 1)
-        return (y[:, kept], rec), (y, blocks, n, h, t0)
+        return (y if every_kept else y[:, kept], rec), (y, blocks, n, h, t0)
 
     def run_bwd(residuals, g):
         y, blocks, n, h, t0 = residuals
         gy_kept, g_rec = g
-        gy = jnp.zeros_like(y).at[:, kept].add(gy_kept)
-        gy = gy.at[:, at + 1, R0 : R0 + NR].add(g_rec)  # held after the jump to the next time
+        gy = gy_kept if every_kept else jnp.zeros_like(y).at[:, kept].add(gy_kept)
+        if at.size:  # a command is held after its jump to the next time
+            gy = gy.at[:, at + 1, R0 : R0 + NR].add(g_rec)
         shapes = [(B, kernel.n), (B, kernel.p), (B, K), (B, K)]
         args = (y, n, h, t0, jmp, every, gy, *blocks)
         y0b, pb, hb, tb = _call(kernel.backward(), dtype, shapes, *args)
