@@ -648,32 +648,30 @@ ffi::Error ModelStepsBack(ffi::Buffer<DT> y, ffi::Buffer<ffi::S32> n, ffi::Buffe
 // The one handler of this build, named by model.h: the forward steps (RJ_FORWARD), or their
 // reverse mode (RJ_BACKWARD), built separately on the first gradient, so that a first forward
 // call compiles only the forward templates.
-#define RJ_FORWARD(NAME, DT)                                                                 \
-  XLA_FFI_DEFINE_HANDLER_SYMBOL(NAME, (ModelSteps<ffi::DT>),                                 \
-                                ffi::Ffi::Bind()                                             \
-                                    .Arg<ffi::Buffer<ffi::DT>>()                             \
-                                    .Arg<ffi::Buffer<ffi::S32>>()                            \
-                                    .Arg<ffi::Buffer<ffi::DT>>()                             \
-                                    .Arg<ffi::Buffer<ffi::DT>>()                             \
-                                    .Arg<ffi::Buffer<ffi::S32>>()                            \
-                                    .Arg<ffi::Buffer<ffi::S32>>()                            \
-                                    .RemainingArgs()                                         \
-                                    .Ret<ffi::Buffer<ffi::DT>>()                             \
-                                    .Ret<ffi::Buffer<ffi::DT>>());
-#define RJ_BACKWARD(NAME, DT)                                                                \
-  XLA_FFI_DEFINE_HANDLER_SYMBOL(NAME, (ModelStepsBack<ffi::DT>),                             \
-                                ffi::Ffi::Bind()                                             \
-                                    .Arg<ffi::Buffer<ffi::DT>>()                             \
-                                    .Arg<ffi::Buffer<ffi::S32>>()                            \
-                                    .Arg<ffi::Buffer<ffi::DT>>()                             \
-                                    .Arg<ffi::Buffer<ffi::DT>>()                             \
-                                    .Arg<ffi::Buffer<ffi::S32>>()                            \
-                                    .Arg<ffi::Buffer<ffi::S32>>()                            \
-                                    .Arg<ffi::Buffer<ffi::DT>>()                             \
-                                    .RemainingArgs()                                         \
-                                    .Ret<ffi::Buffer<ffi::DT>>()                             \
-                                    .Ret<ffi::Buffer<ffi::DT>>()                             \
-                                    .Ret<ffi::Buffer<ffi::DT>>()                             \
+// Both handlers' leading operands: y0 (forward) or y (reverse mode), n, h, t0, jump, save.
+template <ffi::DataType DT>
+auto BindSteps() {
+  return ffi::Ffi::Bind()
+      .template Arg<ffi::Buffer<DT>>()
+      .template Arg<ffi::Buffer<ffi::S32>>()
+      .template Arg<ffi::Buffer<DT>>()
+      .template Arg<ffi::Buffer<DT>>()
+      .template Arg<ffi::Buffer<ffi::S32>>()
+      .template Arg<ffi::Buffer<ffi::S32>>();
+}
+
+#define RJ_FORWARD(NAME, DT)                                                                    \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(                                                                \
+      NAME, (ModelSteps<ffi::DT>),                                                              \
+      BindSteps<ffi::DT>().RemainingArgs().Ret<ffi::Buffer<ffi::DT>>().Ret<ffi::Buffer<ffi::DT>>());
+#define RJ_BACKWARD(NAME, DT)                                               \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(NAME, (ModelStepsBack<ffi::DT>),            \
+                                BindSteps<ffi::DT>()                        \
+                                    .Arg<ffi::Buffer<ffi::DT>>()            \
+                                    .RemainingArgs()                        \
+                                    .Ret<ffi::Buffer<ffi::DT>>()            \
+                                    .Ret<ffi::Buffer<ffi::DT>>()            \
+                                    .Ret<ffi::Buffer<ffi::DT>>()            \
                                     .Ret<ffi::Buffer<ffi::DT>>());
 
 RJ_KERNEL
