@@ -4,6 +4,8 @@
 //   the model (model.h, written from the JAX field's jaxpr)  ẏ = f(t, y, p), y ∈ R^N, p ∈ R^P
 //   one step  z_i = y + h Σ_{l<i} a_il k_l,  k_i = f(t + c_i h, z_i),  u = y + h Σ_l b_l k_l
 //   after every step  each unit group of u (a quaternion) ← itself / its norm
+//   a component whose rate is the constant 0 (Model::still: a held command) is copied by the
+//   stages (y + h·0 = y for any finite h)
 //   at the start of each interval k with jump[k] ≠ 0 (a sample of a held command)
 //                     y ← J(t0[k], y, p)   (Model::J; its transposed Jacobian Model::JT)
 //
@@ -69,7 +71,7 @@ template <int I, typename T>
 RJ_INLINE void StagesFrom(const T* y, const T* p, T t, T h, T (*k)[N], T (*z)[N]) {
   if constexpr (I < Tab::S) {
     RJ_UNROLL
-    for (int j = 0; j < N; ++j) z[I][j] = y[j] + h * Row<I, 0, true>(k, j, T(0));
+    for (int j = 0; j < N; ++j) z[I][j] = Model::still[j] ? y[j] : y[j] + h * Row<I, 0, true>(k, j, T(0));
     Model::F(t + T(Tab::ct[I]) * h, z[I], p, k[I]);
     StagesFrom<I + 1>(y, p, t, h, k, z);
   }
@@ -83,7 +85,7 @@ RJ_INLINE void Stages(const T* y, const T* p, T t, T h, T (*k)[N], T (*z)[N], T*
   Model::F(t + T(Tab::ct[0]) * h, y, p, k[0]);
   StagesFrom<1>(y, p, t, h, k, z);
   RJ_UNROLL
-  for (int j = 0; j < N; ++j) u[j] = y[j] + h * Row<Tab::S, 0, true>(k, j, T(0));
+  for (int j = 0; j < N; ++j) u[j] = Model::still[j] ? y[j] : y[j] + h * Row<Tab::S, 0, true>(k, j, T(0));
 }
 
 // 1 / |u| of unit group g.
@@ -164,6 +166,7 @@ struct Rows {
 struct Lead {
   int64_t s[kMaxLead] = {};
   int64_t at(const Rows& r, int64_t l) const {
+    if (r.nd == 1) return l * s[0];  // (one jax.vmap: l is the row)
     int64_t off = 0;
     for (int d = r.nd - 1; d >= 0; --d) {
       off += (l % r.dims[d]) * s[d];
@@ -192,14 +195,18 @@ bool Strides(const Rows& r, ffi::Span<const int64_t> dims, size_t base, Lead* le
   return true;
 }
 
-// One parameter component: where it starts in its block (shape (leading…, Bc, Pj)), the block's
-// row strides, and its stride over the bodies (0 for a block shared by a row's bodies).
+// A block of parameters (shape (leading…, Bc, Pj)): its data, row strides, stride over the
+// bodies (0 for a block shared by a row's bodies), and its components [first, first + width).
 template <typename T>
 struct Param {
   const T* data;
   Lead lead;
   int64_t body;
+  int first, width;
 };
+
+// At most one block per parameter component (an empty block has none).
+constexpr int kBlocks = P;
 
 struct Layout {
   int64_t B, K, S, R;  // bodies per row, intervals, saved states, recorded jumps
@@ -224,9 +231,12 @@ struct Layout {
 template <typename T>
 void Fill(int64_t m, const int64_t* row, const int64_t* col, const Param<T>* prm,
           const Rows& rows, T (*__restrict C)[kBlock]) {
-  for (int j = 0; j < Model::P; ++j) {
-    for (int64_t i = 0; i < m; ++i)
-      C[j][i] = prm[j].data[prm[j].lead.at(rows, row[i]) + col[i] * prm[j].body];
+  for (int b = 0; b < kBlocks && prm[b].width > 0; ++b) {
+    const Param<T>& q = prm[b];
+    for (int64_t i = 0; i < m; ++i) {
+      const T* x = q.data + q.lead.at(rows, row[i]) + col[i] * q.body;
+      for (int c = 0; c < q.width; ++c) C[q.first + c][i] = x[c];
+    }
   }
 }
 
@@ -340,7 +350,7 @@ RJ_INLINE void StagesBack(const T* p, T t, T h, const T (*k)[N], const T (*z)[N]
     RJ_UNROLL
     for (int j = 0; j < N; ++j) {
       yb[j] += zb[j];
-      hbar += zb[j] * Row<I, 0, true>(k, j, T(0));
+      if (!Model::still[j]) hbar += zb[j] * Row<I, 0, true>(k, j, T(0));
     }
     Scatter<I, 0>(h, zb, kb);
     StagesBack<I - 1>(p, t, h, k, z, kb, yb, pbar, hbar, tbar);
@@ -387,7 +397,7 @@ void StepBack(int64_t m, const T (*__restrict x)[kBlock], const T (*__restrict i
     RJ_UNROLL
     for (int j = 0; j < N; ++j) {
       yb[j] = ub[j];
-      hbar += ub[j] * Row<S, 0, true>(k, j, T(0));
+      if (!Model::still[j]) hbar += ub[j] * Row<S, 0, true>(k, j, T(0));
     }
     RJ_UNROLL
     for (int l = 0; l < S; ++l) {
@@ -561,7 +571,7 @@ ffi::Error Shapes(ffi::Span<const int64_t> lead, size_t base, ffi::Span<const in
       !Strides(r, save, 1, &at->save) || save.back() != at->K + 1) {
     return bad("inconsistent shapes of y0, n, h, t0, jump and save");
   }
-  int j = 0;
+  int j = 0, used = 0;
   for (size_t i = 0; i < blocks.size(); ++i) {
     auto block = blocks.get<ffi::Buffer<DT>>(i);
     if (block.has_error()) return block.error();
@@ -571,10 +581,12 @@ ffi::Error Shapes(ffi::Span<const int64_t> lead, size_t base, ffi::Span<const in
         j + dims[r.nd + 1] > Model::P) {
       return bad("parameter blocks must have shape (B or 1, Pj), Σ Pj = P");
     }
-    for (int64_t c = 0; c < dims[r.nd + 1]; ++c, ++j) {
-      prm[j] = {block->typed_data() + c, rows, dims[r.nd] == 1 ? 0 : dims[r.nd + 1]};
-    }
+    const int width = static_cast<int>(dims[r.nd + 1]);
+    if (width == 0) continue;
+    prm[used++] = {block->typed_data(), rows, dims[r.nd] == 1 ? 0 : width, j, width};
+    j += width;
   }
+  if (used < kBlocks) prm[used].width = 0;  // the end of the list
   if (j != Model::P) return bad("parameter blocks must have shape (B or 1, Pj), Σ Pj = P");
   return ffi::Error::Success();
 }
@@ -586,7 +598,7 @@ ffi::Error ModelSteps(ffi::Buffer<DT> y0, ffi::Buffer<ffi::S32> n, ffi::Buffer<D
                       ffi::ResultBuffer<DT> rec) {
   using T = ffi::NativeType<DT>;
   Layout at;
-  Param<T> prm[P];
+  Param<T> prm[kBlocks];
   ffi::Error e = Shapes<DT>(y->dimensions(), 3, y0.dimensions(), 2, n.dimensions(),
                             h.dimensions(), t0.dimensions(), jump.dimensions(), save.dimensions(),
                             blocks, &at, prm);
@@ -617,7 +629,7 @@ ffi::Error ModelStepsBack(ffi::Buffer<DT> y, ffi::Buffer<ffi::S32> n, ffi::Buffe
                           ffi::ResultBuffer<DT> tb) {
   using T = ffi::NativeType<DT>;
   Layout at;
-  Param<T> prm[P];
+  Param<T> prm[kBlocks];
   ffi::Error e = Shapes<DT>(y0b->dimensions(), 2, y.dimensions(), 3, n.dimensions(),
                             h.dimensions(), t0.dimensions(), jump.dimensions(), save.dimensions(),
                             blocks, &at, prm);

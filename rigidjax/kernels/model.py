@@ -208,11 +208,11 @@ def _consts(closed) -> list[np.ndarray]:
     return [np.asarray(_const_array(x), dtype=object) for x in closed.consts]
 
 
-def _program(jaxpr, out: str, prefix: str, n: int, p: int, pc: int) -> list[str]:
-    """C++ statements of a map `(t, y, p, c) -> (N,)` writing `out[i]`."""
+def _program(jaxpr, out: str, prefix: str, n: int, p: int, pc: int) -> tuple[list[str], list]:
+    """C++ statements of a map `(t, y, p, c) -> (N,)` writing `out[i]`, and its outputs."""
     em = CEmitter(prefix)
     (k,) = unroll(jaxpr, em, _consts(jaxpr), _inputs(n, p, pc))
-    return em.lines + [f"{out}[{i}] = {em.operand(x)};" for i, x in enumerate(k)]
+    return em.lines + [f"{out}[{i}] = {em.operand(x)};" for i, x in enumerate(k)], list(k)
 
 
 def _cotangent_program(jaxpr, prefix: str, n: int, p: int, pc: int) -> list[str]:
@@ -236,11 +236,13 @@ def model_source(
     each jump records (`record`), `F` and `FT` (and the jump map `J` and `JT`, empty without
     one) as C++."""
     n, p, pc = hoisted.n, hoisted.p, hoisted.c.shape[0]
-    body_f = _program(hoisted.forward, "k", "f", n, p, pc)
+    body_f, rates = _program(hoisted.forward, "k", "f", n, p, pc)
+    # components whose rate is the constant 0 (a held command): the stages copy them
+    still = ", ".join("true" if _is_const(x) and x == 0 else "false" for x in rates)
     body_b = _cotangent_program(hoisted.backward, "b", n, p, pc)
     jumps = hoisted.jumps
     jump = hoisted.jump_fn
-    body_j = _program(hoisted.jaxpr(jump), "u", "j", n, p, pc) if jumps else []
+    body_j = _program(hoisted.jaxpr(jump), "u", "j", n, p, pc)[0] if jumps else []
     body_jb = _cotangent_program(hoisted.jaxpr(jump, True), "jb", n, p, pc) if jumps else []
     units = ", ".join(f"{{{a}, {m}}}" for a, m in unit) or "{0, 0}"
     indent = "\n    "
@@ -252,6 +254,7 @@ def model_source(
         f"  static constexpr bool kJump = {'true' if jumps else 'false'};\n"
         f"  static constexpr int R0 = {record[0]}, NR = {record[1]};\n"
         f"  static constexpr int unit[{max(len(unit), 1)}][2] = {{{units}}};\n"
+        f"  static constexpr bool still[{n}] = {{{still}}};\n"
         + "".join(
             "  template <typename T>\n"
             f"  static RJ_INLINE void {name}{args}" + indent.join(body) + "\n  }\n"
