@@ -335,7 +335,8 @@ RJ_INLINE void Scatter(T h, const T* zb, T (*kb)[N]) {
 }
 
 // Stages I, I−1, …, 1 reversed: from the stage cotangents kb, those of y, p, the step size
-// (hbar) and the step's start time (tbar); a stage at t + c_i h adds c_i tb_i to hbar.
+// (hbar) and the step's start time (tbar; both only with kTimes, model.h: the reverse mode
+// built where the output times are differentiated); a stage at t + c_i h adds c_i tb_i to hbar.
 template <int I, typename T>
 RJ_INLINE void StagesBack(const T* p, T t, T h, const T (*k)[N], const T (*z)[N], T (*kb)[N],
                           T* yb, T* pbar, T& hbar, T& tbar) {
@@ -345,12 +346,14 @@ RJ_INLINE void StagesBack(const T* p, T t, T h, const T (*k)[N], const T (*z)[N]
     for (int j = 0; j < N; ++j) zb[j] = T(0);
     T tb = T(0);
     Model::FT(t + T(Tab::ct[I]) * h, z[I], p, kb[I], zb, pbar, tb);
-    tbar += tb;
-    hbar += T(Tab::ct[I]) * tb;
+    if constexpr (kTimes) {
+      tbar += tb;
+      hbar += T(Tab::ct[I]) * tb;
+    }
     RJ_UNROLL
     for (int j = 0; j < N; ++j) {
       yb[j] += zb[j];
-      if (!Model::still[j]) hbar += zb[j] * Row<I, 0, true>(k, j, T(0));
+      if (kTimes && !Model::still[j]) hbar += zb[j] * Row<I, 0, true>(k, j, T(0));
     }
     Scatter<I, 0>(h, zb, kb);
     StagesBack<I - 1>(p, t, h, k, z, kb, yb, pbar, hbar, tbar);
@@ -397,7 +400,7 @@ void StepBack(int64_t m, const T (*__restrict x)[kBlock], const T (*__restrict i
     RJ_UNROLL
     for (int j = 0; j < N; ++j) {
       yb[j] = ub[j];
-      if (!Model::still[j]) hbar += ub[j] * Row<S, 0, true>(k, j, T(0));
+      if (kTimes && !Model::still[j]) hbar += ub[j] * Row<S, 0, true>(k, j, T(0));
     }
     RJ_UNROLL
     for (int l = 0; l < S; ++l) {
@@ -407,8 +410,10 @@ void StepBack(int64_t m, const T (*__restrict x)[kBlock], const T (*__restrict i
     StagesBack<S - 1>(p, t, h, k, z, kb, yb, pbar, hbar, tbar);
     T tb0 = T(0);
     Model::FT(t + T(Tab::ct[0]) * h, y, p, kb[0], yb, pbar, tb0);
-    tbar += tb0;
-    hbar += T(Tab::ct[0]) * tb0;
+    if constexpr (kTimes) {
+      tbar += tb0;
+      hbar += T(Tab::ct[0]) * tb0;
+    }
     RJ_UNROLL
     for (int j = 0; j < N; ++j) lam[j][i] = yb[j];
     RJ_UNROLL
