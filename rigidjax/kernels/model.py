@@ -407,8 +407,10 @@ def run(
 
     def run_bwd(residuals, g):
         y, blocks, n, h, t0, times = residuals
+        shapes = [(B, kept.size, kernel.n), (B, at.size, NR)]
         gy_kept, g_rec = (
-            jnp.zeros(x.aval.shape, x.aval.dtype) if isinstance(x, SymbolicZero) else x for x in g
+            jnp.zeros(shape, dtype) if isinstance(x, SymbolicZero) else x
+            for x, shape in zip(g, shapes, strict=True)
         )
         gy = gy_kept if every_kept else jnp.zeros_like(y).at[:, kept].add(gy_kept)
         if at.size:  # a command is held after its jump to the next time
