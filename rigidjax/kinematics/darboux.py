@@ -120,7 +120,9 @@ def darboux(
     RKMK-Dopri5 for `"geometric"`) with a PID controller at `rtol = atol = 1e-10` (1e-6 in
     float32). Steps end at every output time and the values at `ts` are step-end states
     (`solve_saved`). `return_state=True` also returns the native states at `ts` (normalised
-    quaternions, shadowed rotation vectors, ...).
+    quaternions, shadowed rotation vectors, ...). With a callable `omega`, `"quat"` and
+    `"matrix"` are a model (`rigidjax.models`): at fixed steps of an explicit Runge–Kutta
+    method they run on the CPU kernel written from the field, ω(t) included.
     """
     options = SolveOptions.of(options, solve_kwargs)
     ts = check_times(as_float(ts, "ts"))
