@@ -17,6 +17,7 @@ Same steps and arithmetic as the CPU kernel and the Diffrax path (`ExplicitRK(me
 from __future__ import annotations
 
 import functools
+import math
 import warnings
 
 import diffrax
@@ -151,6 +152,178 @@ def _blocks(
     return jnp.moveaxis(out[:, :, :B], 2, 0)  # (B, T, N)
 
 
+def run_back(
+    hoisted: Hoisted,
+    unit: Unit,
+    method: type[diffrax.AbstractERK],
+    ys: Float[Array, "B T N"],
+    g: Float[Array, "B T N"],
+    p: Float[Array, "P Bc"],
+    n: Int[Array, " K"],
+    h: Float[Array, " K"],
+    t0: Float[Array, " K"],
+    *,
+    longest: int,
+    interpret: bool = False,
+) -> tuple[Float[Array, "B N"], Float[Array, "P B"]]:
+    """The reverse mode of `run`: from its states `ys (B, K + 1, N)` and their cotangents `g`,
+    the cotangents of `y0 (B, N)` and of the parameters and lifted constants `(P + Pc, B)`, per
+    body (the steps' sizes and start times get none: their cotangents go through Diffrax).
+    `longest`: a bound on the steps of an interval (its states are recomputed from
+    checkpoints √longest steps apart). Under `jax.vmap` the mapped bodies join one call."""
+    L = max(1, math.isqrt(max(longest, 1) - 1) + 1)
+    call = functools.partial(
+        _back_blocks, hoisted, unit, method, L, -(-max(longest, 1) // L), interpret=interpret
+    )
+    batched = jax.custom_batching.custom_vmap(call)
+
+    @batched.def_vmap
+    def _(size: int, mapped: list[bool], ys, g, p, n, h, t0):
+        if any(mapped[3:]):  # steps of their own per member: one kernel call each
+            axes = tuple(0 if m else None for m in mapped)
+            return jax.vmap(call, in_axes=axes)(ys, g, p, n, h, t0), (True, True)
+        ys, g = (
+            a if m else jnp.broadcast_to(a, (size, *a.shape))
+            for a, m in zip((ys, g), mapped[:2], strict=True)
+        )
+        V, B = ys.shape[:2]
+        pv = p if mapped[2] else jnp.broadcast_to(p, (size, *p.shape))
+        pv = jnp.moveaxis(jnp.broadcast_to(pv, (V, p.shape[-2], B)), 0, 1).reshape(-1, V * B)
+        yb, pb = batched(
+            ys.reshape(V * B, *ys.shape[2:]), g.reshape(V * B, *g.shape[2:]), pv, n, h, t0
+        )
+        return (yb.reshape(V, B, -1), jnp.moveaxis(pb.reshape(-1, V, B), 1, 0)), (True, True)
+
+    return batched(ys, g, p, n, h, t0)
+
+
+def _back_blocks(
+    hoisted: Hoisted,
+    unit: Unit,
+    method: type[diffrax.AbstractERK],
+    L: int,
+    C: int,
+    *arrays: Array,
+    interpret: bool,
+) -> tuple[Array, Array]:
+    """`run_back` of one batch (`arrays`: its `ys, g, p, n, h, t0`): the `pallas_call` over its
+    blocks, with C checkpoints and L states of scratch per body."""
+    ys, g, p, n, h, t0 = arrays
+    B, T, N = ys.shape
+    K, dtype, P = T - 1, ys.dtype, p.shape[0]
+    Bp = -(-B // BLOCK) * BLOCK
+
+    def padded(a):  # bodies last, padded to whole blocks with copies of the first body
+        a = jnp.moveaxis(a, 0, -1)
+        return jnp.concatenate([a, jnp.broadcast_to(a[..., :1], (*a.shape[:-1], Bp - B))], -1)
+
+    pp = padded(jnp.moveaxis(jnp.broadcast_to(p.astype(dtype), (P, B)), 1, 0))
+    kernel = _back_kernel(
+        hoisted.components, _stages.tableau_of(method()), unit, K, N, P, P - hoisted.p, L
+    )
+    y0b, pb, _, _ = pl.pallas_call(
+        kernel,
+        out_shape=(
+            jax.ShapeDtypeStruct((N, Bp), dtype),
+            jax.ShapeDtypeStruct((P, Bp), dtype),
+            jax.ShapeDtypeStruct((C, N, Bp), dtype),  # scratch: checkpoints
+            jax.ShapeDtypeStruct((L, N, Bp), dtype),  # scratch: a segment's states
+        ),
+        grid=(Bp // BLOCK,),
+        in_specs=[
+            pl.BlockSpec((K,), lambda i: (0,)),
+            pl.BlockSpec((K,), lambda i: (0,)),
+            pl.BlockSpec((K,), lambda i: (0,)),
+            pl.BlockSpec((T, N, BLOCK), lambda i: (0, 0, i)),
+            pl.BlockSpec((T, N, BLOCK), lambda i: (0, 0, i)),
+            pl.BlockSpec((P, BLOCK), lambda i: (0, i)),
+        ],
+        out_specs=(
+            pl.BlockSpec((N, BLOCK), lambda i: (0, i)),
+            pl.BlockSpec((P, BLOCK), lambda i: (0, i)),
+            pl.BlockSpec((C, N, BLOCK), lambda i: (0, 0, i)),
+            pl.BlockSpec((L, N, BLOCK), lambda i: (0, 0, i)),
+        ),
+        compiler_params=pltriton.CompilerParams(num_warps=BLOCK // 32, num_stages=1),
+        interpret=interpret,
+    )(n.astype(jnp.int32), h.astype(dtype), t0.astype(dtype), padded(ys.astype(dtype)),
+      padded(g.astype(dtype)), pp)  # fmt: skip
+    return y0b[:, :B].T, pb[:, :B]
+
+
+def _back_kernel(
+    fn, tab: diffrax.ButcherTableau, unit: Unit, K: int, N: int, P: int, Pc: int, L: int
+):
+    """The reverse mode of one block: from the states `y` at the K + 1 output times and the
+    cotangents `g` there, the cotangents of the initial states and of the P parameters (the
+    lifted constants included). Interval by interval backwards, its states are recomputed
+    from its start: checkpoints every L steps into `ck`, then each segment's L states into
+    `seg`, and the steps reversed through `jax.vjp` of the same step (the discrete adjoint of
+    the forward kernel's arithmetic)."""
+
+    def kernel(n_ref, h_ref, t0_ref, y_ref, g_ref, p_ref, y0b_ref, pb_ref, ck_ref, seg_ref):
+        pc = tuple(p_ref[j] for j in range(P))
+        dtype = y_ref.dtype
+
+        def at(ref, i):
+            return tuple(ref[i, j] for j in range(N))
+
+        def put(ref, i, y):
+            for j in range(N):
+                ref[i, j] = y[j]
+
+        def interval(i, carry):
+            k = K - 1 - i
+            h, t0, n = h_ref[k], t0_ref[k], n_ref[k]
+            segments = (n + L - 1) // L
+
+            def advance(first, count, y, keep=None):
+                def one(m, y):
+                    if keep is not None:
+                        put(keep, m, y)
+                    t = t0 + (first + m).astype(dtype) * h
+                    return step(fn, tab, unit, pc[: P - Pc], pc[P - Pc :], t, h, y)
+
+                return jax.lax.fori_loop(0, count, one, y)
+
+            def checkpoint(s, y):
+                put(ck_ref, s, y)
+                return advance(s * L, jnp.minimum(L, n - s * L), y)
+
+            jax.lax.fori_loop(0, segments, checkpoint, at(y_ref, k))
+
+            def segment(i2, carry):
+                s = segments - 1 - i2
+                first, count = s * L, jnp.minimum(L, n - s * L)
+                advance(first, count, at(ck_ref, s), keep=seg_ref)
+
+                def back(i3, carry):
+                    m = count - 1 - i3
+                    lam, pbar = carry
+                    t = t0 + (first + m).astype(dtype) * h
+
+                    def one(y, pc):
+                        return step(fn, tab, unit, pc[: P - Pc], pc[P - Pc :], t, h, y)
+
+                    ybar, pcbar = jax.vjp(one, at(seg_ref, m), pc)[1](lam)
+                    return ybar, tuple(a + b for a, b in zip(pbar, pcbar, strict=True))
+
+                return jax.lax.fori_loop(0, count, back, carry)
+
+            lam, pbar = jax.lax.fori_loop(0, segments, segment, carry)
+            return tuple(a + b for a, b in zip(lam, at(g_ref, k), strict=True)), pbar
+
+        zero = jnp.zeros_like(y_ref[0, 0])
+        init = (at(g_ref, K), tuple(zero for _ in range(P)))
+        lam, pbar = jax.lax.fori_loop(0, K, interval, init)
+        for j in range(N):
+            y0b_ref[j] = lam[j]
+        for j in range(P):
+            pb_ref[j] = pbar[j]
+
+    return kernel
+
+
 def serves(hoisted: Hoisted, unit: Unit, solver: diffrax.AbstractSolver) -> bool:
     """Whether the kernel integrates `hoisted` with `solver` (one of `tableau.METHODS`) on the
     default backend: a GPU, float32 or float64, and the kernel checked there (once per model,
@@ -162,6 +335,13 @@ def serves(hoisted: Hoisted, unit: Unit, solver: diffrax.AbstractSolver) -> bool
         and hoisted.dtype.name in DTYPES
         and _checked(_Key(hoisted, unit), type(solver))
     )
+
+
+def serves_back(hoisted: Hoisted, unit: Unit, method: type[diffrax.AbstractERK]) -> bool:
+    """Whether the reverse-mode kernel (`run_back`) works here: checked once per model, method
+    and element type as `serves` (the compiled kernel's cotangents against the interpreter's),
+    else one warning and reverse mode through Diffrax."""
+    return _checked_back(_Key(hoisted, unit), method)
 
 
 class _Key:
@@ -180,41 +360,63 @@ class _Key:
         return isinstance(other, _Key) and other.text == self.text
 
 
-@functools.cache
-def _checked(key: _Key, method: type[diffrax.AbstractERK]) -> bool:
-    """Whether the compiled kernel runs here and agrees with Pallas' interpreter on two blocks
-    of bodies over three intervals (random states, unit groups normalised, parameters in
-    [1, 2]; relative 1e-4 in float32, 1e-10 in float64)."""
+def _compare(what: str, key: _Key, method, fn, args) -> bool:
+    """Whether `fn(*args, interpret=...)` compiled here agrees with Pallas' interpreter (relative
+    1e-4 in float32, 1e-10 in float64); one warning naming `what` where not."""
+    dtype = key.hoisted.dtype
+    try:
+        # compiled ahead and called: run at once, also where `simulate` is being traced
+        got, want = (
+            jax.tree.map(
+                np.asarray,
+                jax.jit(functools.partial(fn, interpret=i)).lower(*args).compile()(*args),
+            )
+            for i in (False, True)
+        )
+        tol = 1e-4 if dtype.name == "float32" else 1e-10
+        for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(want), strict=True):
+            if not np.allclose(a, b, rtol=tol, atol=tol, equal_nan=True):
+                raise ValueError("its numbers differ from Pallas' interpreter's")
+    except Exception as e:  # a lowering or compile failure, or wrong numbers: not served
+        warnings.warn(
+            f"rigidjax's Pallas {what} for {method.__name__} in {dtype.name} does not work on "
+            f"this GPU ({type(e).__name__}: {e}); the same integration runs through Diffrax and "
+            "XLA instead.",
+            RuntimeWarning,
+            stacklevel=3,
+        )
+        return False
+    return True
+
+
+def _sample(key: _Key):
+    """Two blocks of random states (unit groups normalised), parameters in [1, 2] and three
+    intervals of 3, 0 and 5 steps: the checks' problem."""
     hoisted, dtype = key.hoisted, key.hoisted.dtype
     rng = np.random.default_rng(0)
     B = BLOCK + 3
     y = rng.normal(size=(B, hoisted.n))
     for a, m in key.unit:
         y[:, a : a + m] /= np.linalg.norm(y[:, a : a + m], axis=1, keepdims=True)
-    p = rng.uniform(1, 2, size=(hoisted.p + hoisted.c.shape[0], B))
-    n, h = np.array([3, 0, 5], np.int32), np.array([0.01, 0.02, 0.005])
-    args = tuple(a.astype(dtype) for a in (y, p, h, np.array([0.0, 0.03, 0.03])))
-    args = (*args[:2], n, *args[2:])
-    try:
-        # compiled ahead and called: run at once, also where `simulate` is being traced
-        got, want = (
-            np.asarray(
-                jax.jit(functools.partial(run, hoisted, key.unit, method, interpret=i))
-                .lower(*args)
-                .compile()(*args)
-            )
-            for i in (False, True)
-        )
-        tol = 1e-4 if dtype.name == "float32" else 1e-10
-        if not np.allclose(got, want, rtol=tol, atol=tol, equal_nan=True):
-            raise ValueError("its states differ from Pallas' interpreter's")
-    except Exception as e:  # a lowering or compile failure, or wrong numbers: not served
-        warnings.warn(
-            f"rigidjax's Pallas kernel for {method.__name__} in {dtype.name} does not work on "
-            f"this GPU ({type(e).__name__}: {e}); the same integration runs through Diffrax and "
-            "XLA instead.",
-            RuntimeWarning,
-            stacklevel=2,
-        )
-        return False
-    return True
+    p = rng.uniform(1, 2, size=(hoisted.p + hoisted.c.shape[0], B)).astype(dtype)
+    h, t0 = np.array([0.01, 0.02, 0.005], dtype), np.array([0.0, 0.03, 0.03], dtype)
+    return y.astype(dtype), p, np.array([3, 0, 5], np.int32), h, t0
+
+
+@functools.cache
+def _checked_back(key: _Key, method: type[diffrax.AbstractERK]) -> bool:
+    """Whether the compiled reverse-mode kernel agrees with the interpreter's on `_sample`."""
+    y, p, n, h, t0 = (jnp.asarray(a) for a in _sample(key))
+    ys = np.asarray(run(key.hoisted, key.unit, method, y, p, n, h, t0, interpret=True))
+    g = np.random.default_rng(1).normal(size=ys.shape).astype(ys.dtype)
+    fn = functools.partial(run_back, key.hoisted, key.unit, method, longest=5)
+    return _compare("reverse-mode kernel", key, method, fn, (ys, g, p, n, h, t0))
+
+
+@functools.cache
+def _checked(key: _Key, method: type[diffrax.AbstractERK]) -> bool:
+    """Whether the compiled kernel runs here and agrees with Pallas' interpreter on `_sample`
+    (two blocks of bodies over three intervals)."""
+    y, p, n, h, t0 = _sample(key)
+    fn = functools.partial(run, key.hoisted, key.unit, method)
+    return _compare("kernel", key, method, fn, (y, p, n, h, t0))

@@ -19,6 +19,7 @@ import jax.tree_util as jtu
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._checks import is_concrete
 from .._integrate import (
     SolveOptions,
     fixed_step_count,
@@ -353,26 +354,53 @@ def _gpu(
     options: SolveOptions,
 ) -> tuple[Array, dict[str, Array], diffrax.RESULTS]:
     """The Pallas kernel's solve (`model_pallas`, in Pallas' interpreter where the backend is
-    not a GPU: the tests). The kernel has no adjoint of its own: reverse mode runs the same
-    steps through Diffrax (`ExplicitRK(method)`), whose reverse mode differentiates them."""
+    not a GPU: the tests). Reverse mode runs the kernel's own adjoint (`model_pallas.run_back`,
+    the same steps reversed); where the output times are differentiated, the same steps
+    through Diffrax (`ExplicitRK(method)`), whose reverse mode differentiates them."""
     method = cast(diffrax.AbstractERK, method_of(options))  # one of METHODS: `serves` checked
     through = dataclasses.replace(options, solver=ExplicitRK(method), throw=False)
+    interpret = jax.default_backend() != "gpu"
 
-    def forward(y0, p, c, ts):
+    def steps(ts):
         width = ts[1:] - ts[:-1]
         n = fixed_step_count(width, jnp.asarray(options.dt0, ts.dtype))
-        taken = jnp.minimum(n, options.max_steps).astype(jnp.int32)
-        pk = _packed(p, c)
-        interpret = jax.default_backend() != "gpu"
-        args = (hoisted, model.unit, type(method), y0, pk, taken, width / n, ts[:-1])
+        return jnp.minimum(n, options.max_steps).astype(jnp.int32), width / n, ts[:-1]
+
+    def forward(y0, p, c, ts):
+        args = (hoisted, model.unit, type(method), y0, _packed(p, c), *steps(ts))
         return model_pallas.run(*args, interpret=interpret)
 
     def through_diffrax(y0, p, c, ts):
         ys = _diffrax(model, hoisted, ts, y0, p, c, through, False)[0]
         return jnp.moveaxis(ys, 0, 1)
 
+    def fwd(y0, p, c, ts):
+        args = (y0.value, p.value, c.value, ts.value)
+        if ts.perturbed:
+            ys, pullback = jax.vjp(through_diffrax, *args)
+            return ys, (pullback, None)
+        ys = forward(*args)
+        return ys, (args, ys)
+
+    def bwd(residuals, g):
+        if residuals[1] is None:
+            return residuals[0](g)
+        (y0, p, c, ts), ys = residuals
+        if isinstance(g, jax.custom_derivatives.SymbolicZero):
+            g = jnp.zeros_like(ys)
+        if not (interpret or model_pallas.serves_back(hoisted, model.unit, type(method))):
+            return jax.vjp(through_diffrax, y0, p, c, ts)[1](g)
+        args = (hoisted, model.unit, type(method), ys, g, _packed(p, c), *steps(ts))
+        with jax.ensure_compile_time_eval():  # the steps, where the times are known now
+            n = steps(ts)[0]
+        longest = int(np.max(np.asarray(n), initial=1)) if is_concrete(n) else options.max_steps
+        y0b, pb = model_pallas.run_back(*args, longest=longest, interpret=interpret)
+        P = p.shape[1]
+        pbar = pb[:P].T if p.shape[0] > 1 else jnp.sum(pb[:P], axis=1)[None]
+        return y0b, pbar, jnp.sum(pb[P:], axis=1), None
+
     run = jax.custom_vjp(forward)
-    run.defvjp(lambda *a: jax.vjp(through_diffrax, *a), lambda pullback, g: pullback(g))
+    run.defvjp(fwd, bwd, symbolic_zeros=True)
     ys, stats, result = kernel_solve(lambda n, taken, h, t0: run(y0, p, c, ts), ts, options)
     return jnp.moveaxis(ys, 1, 0), stats, result
 
