@@ -12,6 +12,10 @@ Same steps and arithmetic as the CPU kernel and the Diffrax path (`ExplicitRK(me
 `t0 + s h + c_i h`, each unit group divided by its norm after each step:
 
     z_i = y + h Σ_{l<i} a_il k_l,  k_i = f(t + c_i h, z_i, p),  u = y + h Σ_l b_l k_l
+
+Its reverse mode (`run_back`) is a second kernel of the same layout: interval by interval
+backwards, the states are recomputed from checkpoints √n steps apart and each step is reversed
+through `jax.vjp` of the same step on register vectors (the discrete adjoint).
 """
 
 from __future__ import annotations
