@@ -44,15 +44,14 @@ def quat_checks(name: str) -> list[Check]:
         k = first(zero(np, q))
         return f": {at(name, k)} = {fmt(q[k])}"
 
-    return [
-        finite_check(name, 1)._replace(message=f"{name} must be a finite quaternion (w, x, y, z)"),
-        Check(
-            zero,
-            f"{name} is a zero quaternion, which is no rotation",
-            detail,
-            f"; a rotation needs |{name}| > 0 (use rigidjax.quat.identity() for no rotation)",
-        ),
-    ]
+    message = f"{name} is a zero quaternion, which is no rotation"
+    hint = f"; a rotation needs |{name}| > 0 (use rigidjax.quat.identity() for no rotation)"
+    return _finite_and(name, 1, "quaternion (w, x, y, z)", Check(zero, message, detail, hint))
+
+
+def _finite_and(name: str, rank: int, what: str, check: Check) -> list[Check]:
+    """`name` finite (a `what` of `rank` trailing dimensions), then `check`."""
+    return [finite_check(name, rank)._replace(message=f"{name} must be a finite {what}"), check]
 
 
 def check_quat(q: Quat, name: str, on: Array | None = None) -> Array:
@@ -79,8 +78,10 @@ def matrix_checks(name: str) -> list[Check]:
         k = first(improper(np, P))
         return f": det {at(name, k)} = {det(np, P[k]):.6g} for {at(name, k)} = {fmt(P[k])}"
 
-    return [
-        finite_check(name, 2)._replace(message=f"{name} must be a finite rotation matrix"),
+    return _finite_and(
+        name,
+        2,
+        "rotation matrix",
         Check(
             improper,
             f"{name} is not a rotation matrix: non-positive determinant (a left-handed or "
@@ -89,7 +90,7 @@ def matrix_checks(name: str) -> list[Check]:
             "; a rotation has det = +1: negate one axis (column) of a left-handed frame "
             "(a matrix with det > 0 that is not quite orthogonal is accepted and orthogonalised)",
         ),
-    ]
+    )
 
 
 def check_matrix(P: Mat33, name: str) -> Mat33:

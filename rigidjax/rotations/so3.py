@@ -62,13 +62,17 @@ def exp(theta: Vec3Like) -> Mat33:
     return _exp(theta)
 
 
+def _quadratic(theta: Vec3, first, second) -> Mat33:
+    """`E + first(θ²) R + second(θ²) R²`, `R = θ × E` (the form of `exp` and `Z_inv`), the
+    coefficients as series in θ² where θ is small."""
+    x2 = _sq(theta)
+    a, b = first(x2)[..., None, None], second(x2)[..., None, None]
+    return jnp.eye(3, dtype=theta.dtype) + a * hat(theta) + b * _hat_sq(theta, x2)
+
+
 @compiled(1)
 def _exp(theta: Vec3) -> Mat33:
-    x2 = _sq(theta)
-    R = hat(theta)
-    a = _series.sin_over(x2)[..., None, None]
-    b = _series.one_minus_cos_over(x2)[..., None, None]
-    return jnp.eye(3, dtype=theta.dtype) + a * R + b * _hat_sq(theta, x2)
+    return _quadratic(theta, _series.sin_over, _series.one_minus_cos_over)
 
 
 def log(P: Mat33Like) -> Vec3:
@@ -109,11 +113,7 @@ def Z_inv(theta: Vec3Like) -> Mat33:
 
     The left Jacobian of SO(3)."""
     theta = vector(theta, 3, "theta")
-    x2 = _sq(theta)
-    R = hat(theta)
-    b = _series.one_minus_cos_over(x2)[..., None, None]
-    c = _series.theta_minus_sin_over(x2)[..., None, None]
-    return jnp.eye(3, dtype=theta.dtype) + b * R + c * _hat_sq(theta, x2)
+    return _quadratic(theta, _series.one_minus_cos_over, _series.theta_minus_sin_over)
 
 
 def Z(theta: Vec3Like) -> Mat33:
