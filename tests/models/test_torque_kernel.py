@@ -159,6 +159,37 @@ def test_vmap_over_a_traced_gain_is_a_loop():
     assert not np.allclose(mapped[0], mapped[2])
 
 
+def test_nested_vmap_shares_unmapped_blocks():
+    """Two nested `jax.vmap`s (gains outside, moments inside) over one-body solves: the kernel
+    reads each parameter block, the steps and the initial state through its own leading
+    dimensions (size 1 where not mapped), and every member equals its own solve; the
+    gradient w.r.t. the gains (a block mapped by the outer map only) equals the Diffrax
+    path's."""
+    w0, q0 = _inputs(1, seed=5)
+    gains = jnp.array([0.0, 0.4, 1.1])
+    moments = jnp.array([[1.0, 2.0, 3.0], [2.0, 2.5, 3.5]])
+
+    def one(g, I, solver=None):
+        tr = rj.simulate(
+            rj.RigidBody(I), w0[0], q0[0], TS, torque=lambda t, w, q: -g * w * jnp.cos(t),
+            solver=solver or rj.RK4(), **FIXED,
+        )  # fmt: skip
+        return tr.omega[-1]
+
+    inner = jax.vmap(one, in_axes=(None, 0))
+    mapped = jax.jit(jax.vmap(inner, in_axes=(0, None)))(gains, moments)
+    for i, g in enumerate(gains):
+        for j, I in enumerate(moments):
+            np.testing.assert_allclose(mapped[i, j], one(g, I), rtol=0, atol=1e-14)
+
+    def loss(gs, solver):
+        return jnp.sum(jax.vmap(lambda g: jax.vmap(lambda I: one(g, I, solver))(moments))(gs))
+
+    np.testing.assert_allclose(
+        jax.grad(loss)(gains, rj.RK4()), jax.grad(loss)(gains, ExplicitRK(rj.RK4())), rtol=1e-10
+    )
+
+
 def test_unsupported_torque_falls_back_with_one_warning():
     """A torque with a primitive that has no scalar form (a host callback) runs on the Diffrax
     path, with one warning naming it, and the Diffrax path's numbers."""
