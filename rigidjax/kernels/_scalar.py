@@ -260,10 +260,9 @@ class _Unroller:
 
 
 def _checked(eqn) -> int:
-    """How many trailing operands of `eqn` only feed an `equinox.error_if` check
-    `(x..., pred[, index]) -> x...` (its predicate, and its message index unless that is a
-    constant); 0 for any other equation (after differentiation a check's tangent part is a
-    plain identity call, unrolled as any call)."""
+    """How many trailing operands of an `equinox.error_if` check `(x..., pred[, index]) -> x...`
+    only feed the check (its predicate, and its message index unless constant); 0 for any other
+    equation (a differentiated check's tangent part is an identity call, unrolled as any)."""
     if not (eqn.primitive.name == "jit" and eqn.params.get("name") == "branched_error_if_impl"):
         return 0
     kinds = [np.dtype(v.aval.dtype) for v in eqn.invars[-2:]]

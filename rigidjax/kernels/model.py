@@ -18,6 +18,7 @@ from __future__ import annotations
 import functools
 import hashlib
 from collections.abc import Callable, Sequence
+from importlib import resources
 from typing import Any, NamedTuple, cast
 
 import diffrax
@@ -294,6 +295,12 @@ def _header(
     return text, name
 
 
+def _headers(model_h: str) -> tuple[tuple[str, str], ...]:
+    """The headers of a `model.cc` build: the generated `model.h` and the batch layout."""
+    layout = resources.files("rigidjax.kernels").joinpath("model_layout.h").read_text()
+    return (("model.h", model_h), ("model_layout.h", layout))
+
+
 class Kernel(NamedTuple):
     """A built model kernel: its forward handler's name, its reverse modes (`backward(times)`:
     built and registered on first use; without, with the cotangents of the steps' times),
@@ -310,7 +317,7 @@ class Kernel(NamedTuple):
         """The handler's name of the reverse mode (with the cotangents of the steps' sizes and
         start times where `times`), built and registered on the first call."""
         text, name = self.backward_headers[times]
-        if load(_NAME, (name,), (("model.h", text),)) is None:
+        if load(_NAME, (name,), _headers(text)) is None:
             raise RuntimeError(
                 "the reverse mode of rigidjax's model kernel could not be built (see the "
                 "warning); pass solver=rigidjax.ExplicitRK(method) to differentiate through "
@@ -339,7 +346,7 @@ def build(
     method = cast(type[diffrax.AbstractERK], type(solver))  # one of METHODS
     source = hoisted.source(unit, record)
     text, name = _header(method, dtype, source, "forward")
-    if load(_NAME, (name,), (("model.h", text),)) is None:
+    if load(_NAME, (name,), _headers(text)) is None:
         return None
     backward = tuple(_header(method, dtype, source, "backward", times) for times in (False, True))
     return Kernel(name, backward, hoisted.n, hoisted.p + hoisted.c.shape[0], record)  # type: ignore[arg-type]
