@@ -104,7 +104,7 @@ def canonical(q: QuatLike) -> Quat:
     """The representative of ±q that SciPy's `as_quat(canonical=True)` returns: λ0 > 0, or, for
     a 180° rotation (λ0 = 0), the first non-zero of λ1, λ2, λ3 positive."""
     q = vector(q, 4, "q")
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    w, x, y, z = jnp.unstack(q, axis=-1)
     flip = (w < 0) | ((w == 0) & ((x < 0) | ((x == 0) & ((y < 0) | ((y == 0) & (z < 0))))))
     return jnp.where(flip[..., None], -q, q)
 
@@ -204,18 +204,14 @@ def _to_matrix_compiled(q: Quat, checked: bool) -> Mat33:
 
 def _from_orthogonal(P: Mat33) -> Quat:
     """The largest-component construction of `from_matrix` (no checks)."""
-    p00, p11, p22 = P[..., 0, 0], P[..., 1, 1], P[..., 2, 2]
+    # the nine entries in one `unstack` (an index each would be a slice and a squeeze: twice
+    # the program to trace and differentiate)
+    (p00, p01, p02, p10, p11, p12, p20, p21, p22) = jnp.unstack(
+        P.reshape(*P.shape[:-2], 9), axis=-1
+    )
     tr = p00 + p11 + p22
-    d21, d02, d10 = (
-        P[..., 2, 1] - P[..., 1, 2],
-        P[..., 0, 2] - P[..., 2, 0],
-        P[..., 1, 0] - P[..., 0, 1],
-    )
-    s01, s02, s12 = (
-        P[..., 0, 1] + P[..., 1, 0],
-        P[..., 0, 2] + P[..., 2, 0],
-        P[..., 1, 2] + P[..., 2, 1],
-    )
+    d21, d02, d10 = p21 - p12, p02 - p20, p10 - p01
+    s01, s02, s12 = p01 + p10, p02 + p20, p12 + p21
     t = [1 + tr, 1 + 2 * p00 - tr, 1 + 2 * p11 - tr, 1 + 2 * p22 - tr]
     candidates = [
         jnp.stack([t[0], d21, d02, d10], axis=-1),
@@ -241,10 +237,19 @@ def _polar(P: Mat33) -> Mat33:
     return jax.lax.fori_loop(0, 8, _polar_step, P)
 
 
+def _cross(a: Array, b: Array) -> Array:
+    """`a × b` from the components in one `unstack` each (`jnp.cross` indexes them one by one:
+    a larger program to trace and differentiate)."""
+    a0, a1, a2 = jnp.unstack(a, axis=-1)
+    b0, b1, b2 = jnp.unstack(b, axis=-1)
+    return jnp.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
 def _polar_step(_: Any, X: Mat33) -> Mat33:
-    r0, r1, r2 = X[..., 0, :], X[..., 1, :], X[..., 2, :]
-    C = jnp.stack([jnp.cross(r1, r2), jnp.cross(r2, r0), jnp.cross(r0, r1)], axis=-2)
-    d = jnp.sum(r0 * C[..., 0, :], axis=-1)[..., None, None]
+    r0, r1, r2 = jnp.unstack(X, axis=-2)
+    c0, c1, c2 = _cross(r1, r2), _cross(r2, r0), _cross(r0, r1)
+    C = jnp.stack([c0, c1, c2], axis=-2)
+    d = jnp.sum(r0 * c0, axis=-1)[..., None, None]
     g = jnp.cbrt(jnp.abs(d))
     return 0.5 * (X / g + C * (g / d))
 
