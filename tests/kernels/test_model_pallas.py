@@ -279,3 +279,22 @@ def test_gpu_kernel_adjoint(on_gpu_kernel):
     mapped = jax.jit(jax.vmap(lambda g: one(g, rj.RK4())))(gains)
     for i in range(2):
         np.testing.assert_allclose(mapped[i], one(gains[i], ExplicitRK(rj.RK4())), rtol=1e-10)
+
+
+def test_reverse_kernel_lowers_to_triton(triton_modules):
+    """The reverse-mode kernel (`run_back`) of the same attitude-torque model, lowered for CUDA
+    without a GPU: one Triton call holding the whole reversed time loop (no loop of XLA's),
+    also under `jax.vmap`; its numbers on a GPU are checked by `serves_back` before use."""
+    dtype = jnp.float64
+    model = rigid_body_model(_gravity_gradient(0.3))
+    hoisted = model_kernel.hoist(model.field, model.size, model.params, dtype)
+    B = pk.BLOCK + 5
+    ys, g = jnp.ones((B, 3, 7), dtype), jnp.ones((B, 3, 7), dtype)
+    p = jnp.concatenate([moments_params(jnp.ones(3, dtype)), hoisted.c.astype(dtype)])[:, None]
+    n, h, t0 = jnp.asarray([3, 4], jnp.int32), jnp.asarray([0.1, 0.2], dtype), jnp.zeros(2, dtype)
+    back = functools.partial(pk.run_back, hoisted, model.unit, rj.RK4, longest=4)
+    vback = jax.vmap(back, in_axes=(0, 0, None, None, None, None))
+    for f, a in ((back, (ys, g)), (vback, (ys[None], g[None]))):
+        text = jax.jit(f).trace(*a, p, n, h, t0).lower(lowering_platforms=("cuda",)).as_text()
+        assert text.count("__gpu$xla.gpu.triton") == 1 and "stablehlo.while" not in text
+    assert len(triton_modules) == 2 and all("scf.for" in m for m in triton_modules)
