@@ -251,10 +251,9 @@ def check_moments(I: Array, name: str = "inertia") -> Array:
     """Principal moments `I (..., 3)` of a body, checked: finite and positive. One error naming
     `name`, the offending moments and the fix (see `rigidjax._checks.validate_all`). Moments
     that violate the triangle inequality (the largest > the sum of the other two: no rigid body
-    has them) get a `RuntimeWarning` that names them when they are concrete (not under `jit`), not
-    an error: Euler's equations and their
-    closed form hold for any positive moments, and reference cases use such moments (I = (3, 5,
-    9) in Principia's tests)."""
+    has them) get a `RuntimeWarning` that names them when they are concrete (not under `jit`),
+    not an error: Euler's equations and their closed form hold for any positive moments, and
+    reference cases use such moments (I = (3, 5, 9) in Principia's tests)."""
 
     def bad_finite(xp, v):
         return ~xp.all(xp.isfinite(v), axis=-1)

@@ -297,8 +297,13 @@ def _header(
 
 def _headers(model_h: str) -> tuple[tuple[str, str], ...]:
     """The headers of a `model.cc` build: the generated `model.h` and the batch layout."""
-    layout = resources.files("rigidjax.kernels").joinpath("model_layout.h").read_text()
-    return (("model.h", model_h), ("model_layout.h", layout))
+    return (("model.h", model_h), ("model_layout.h", _layout()))
+
+
+@functools.cache
+def _layout() -> str:
+    """`model_layout.h`, read once."""
+    return resources.files("rigidjax.kernels").joinpath("model_layout.h").read_text()
 
 
 class Kernel(NamedTuple):
@@ -348,8 +353,11 @@ def build(
     text, name = _header(method, dtype, source, "forward")
     if load(_NAME, (name,), _headers(text)) is None:
         return None
-    backward = tuple(_header(method, dtype, source, "backward", times) for times in (False, True))
-    return Kernel(name, backward, hoisted.n, hoisted.p + hoisted.c.shape[0], record)  # type: ignore[arg-type]
+    backward = (
+        _header(method, dtype, source, "backward", False),
+        _header(method, dtype, source, "backward", True),
+    )
+    return Kernel(name, backward, hoisted.n, hoisted.p + hoisted.c.shape[0], record)
 
 
 def _call(target: str, dtype, shapes: list[tuple[int, ...]], *args: Array | np.ndarray) -> list:
@@ -435,5 +443,4 @@ def run(
 
     solve = jax.custom_vjp(forward)
     solve.defvjp(run_fwd, run_bwd, symbolic_zeros=True)
-    y, rec = solve(y0, tuple(blocks), n, h, t0)
-    return y, rec
+    return solve(y0, tuple(blocks), n, h, t0)

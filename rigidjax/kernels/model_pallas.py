@@ -23,6 +23,7 @@ from __future__ import annotations
 import functools
 import math
 import warnings
+from collections.abc import Callable
 
 import diffrax
 import jax
@@ -108,21 +109,51 @@ def run(
     batch is padded to whole blocks with copies of the first body. Under `jax.vmap` over the
     bodies (a sweep of one-body solves), the mapped bodies join one kernel call."""
     call = functools.partial(_blocks, hoisted, unit, method, interpret=interpret)
-    batched = jax.custom_batching.custom_vmap(call)
+    return _joining(call, states=1, out_body_axes=(0,))(y0, p, n, h, t0)[0]
+
+
+def _joining(call: Callable, states: int, out_body_axes: tuple[int, ...]) -> Callable:
+    """`call(*states, p, *steps)` (each state `(B, ...)`, the parameters `(P, B or 1)`, the
+    steps shared by the bodies) returning a tuple of arrays with the bodies on `out_body_axes`
+    (0 or −1), such that under `jax.vmap` the mapped members' bodies join one call (a sweep of
+    one-body solves fills whole blocks); members with steps of their own take a call each."""
+
+    def wrapped(*args):
+        out = call(*args)
+        return out if isinstance(out, tuple) else (out,)
+
+    batched = jax.custom_batching.custom_vmap(wrapped)
 
     @batched.def_vmap
-    def _(size: int, mapped: list[bool], y0, p, n, h, t0):
-        if any(mapped[2:]):  # steps of their own per member: one kernel call each
+    def _(size: int, mapped: list[bool], *args):
+        done = tuple(True for _ in out_body_axes)
+        if any(mapped[states + 1 :]):  # steps of their own per member: one kernel call each
             axes = tuple(0 if m else None for m in mapped)
-            return jax.vmap(call, in_axes=axes)(y0, p, n, h, t0), True
-        y = y0 if mapped[0] else jnp.broadcast_to(y0, (size, *y0.shape))
-        V, B, N = y.shape
-        pv = p if mapped[1] else jnp.broadcast_to(p, (size, *p.shape))
-        pv = jnp.moveaxis(jnp.broadcast_to(pv, (V, p.shape[-2], B)), 0, 1)
-        out = batched(y.reshape(V * B, N), pv.reshape(-1, V * B), n, h, t0)
-        return out.reshape(V, B, *out.shape[1:]), True
+            return jax.vmap(wrapped, in_axes=axes)(*args), done
+        xs = [
+            a if m else jnp.broadcast_to(a, (size, *a.shape))
+            for a, m in zip(args[:states], mapped[:states], strict=True)
+        ]
+        V, B = xs[0].shape[:2]
+        p = args[states]
+        pv = p if mapped[states] else jnp.broadcast_to(p, (size, *p.shape))
+        pv = jnp.moveaxis(jnp.broadcast_to(pv, (V, p.shape[-2], B)), 0, 1).reshape(-1, V * B)
+        joined = [x.reshape(V * B, *x.shape[2:]) for x in xs]
+        outs = batched(*joined, pv, *args[states + 1 :])
+        return tuple(
+            o.reshape(V, B, *o.shape[1:])
+            if axis == 0
+            else jnp.moveaxis(o.reshape(*o.shape[:-1], V, B), -2, 0)
+            for o, axis in zip(outs, out_body_axes, strict=True)
+        ), done
 
-    return batched(y0, p, n, h, t0)
+    return batched
+
+
+def _padded(a: Array, Bp: int) -> Array:
+    """`a` with its bodies (axis 0) moved last and padded to `Bp` with copies of the first."""
+    a = jnp.moveaxis(a, 0, -1)
+    return jnp.concatenate([a, jnp.broadcast_to(a[..., :1], (*a.shape[:-1], Bp - a.shape[-1]))], -1)
 
 
 def _blocks(
@@ -134,9 +165,8 @@ def _blocks(
     B, N, K, dtype = y0.shape[0], y0.shape[1], h.shape[0], y0.dtype
     P = hoisted.p
     Bp = -(-B // BLOCK) * BLOCK
-    x0 = jnp.concatenate([y0, jnp.broadcast_to(y0[:1], (Bp - B, N))]).T  # (N, Bp)
-    pp = jnp.broadcast_to(p.astype(dtype), (p.shape[0], B))
-    pp = jnp.concatenate([pp, jnp.broadcast_to(pp[:, :1], (p.shape[0], Bp - B))], axis=1)
+    x0 = _padded(y0, Bp)  # (N, Bp)
+    pp = _padded(jnp.broadcast_to(p.astype(dtype), (p.shape[0], B)).T, Bp)
     out = pl.pallas_call(
         _kernel(hoisted.components, _stages.tableau_of(method()), unit, K, N, P, p.shape[0] - P),
         out_shape=jax.ShapeDtypeStruct((K + 1, N, Bp), dtype),
@@ -179,26 +209,7 @@ def run_back(
     call = functools.partial(
         _back_blocks, hoisted, unit, method, L, -(-max(longest, 1) // L), interpret=interpret
     )
-    batched = jax.custom_batching.custom_vmap(call)
-
-    @batched.def_vmap
-    def _(size: int, mapped: list[bool], ys, g, p, n, h, t0):
-        if any(mapped[3:]):  # steps of their own per member: one kernel call each
-            axes = tuple(0 if m else None for m in mapped)
-            return jax.vmap(call, in_axes=axes)(ys, g, p, n, h, t0), (True, True)
-        ys, g = (
-            a if m else jnp.broadcast_to(a, (size, *a.shape))
-            for a, m in zip((ys, g), mapped[:2], strict=True)
-        )
-        V, B = ys.shape[:2]
-        pv = p if mapped[2] else jnp.broadcast_to(p, (size, *p.shape))
-        pv = jnp.moveaxis(jnp.broadcast_to(pv, (V, p.shape[-2], B)), 0, 1).reshape(-1, V * B)
-        yb, pb = batched(
-            ys.reshape(V * B, *ys.shape[2:]), g.reshape(V * B, *g.shape[2:]), pv, n, h, t0
-        )
-        return (yb.reshape(V, B, -1), jnp.moveaxis(pb.reshape(-1, V, B), 1, 0)), (True, True)
-
-    return batched(ys, g, p, n, h, t0)
+    return _joining(call, states=2, out_body_axes=(0, -1))(ys, g, p, n, h, t0)
 
 
 def _back_blocks(
@@ -217,11 +228,7 @@ def _back_blocks(
     K, dtype, P = T - 1, ys.dtype, p.shape[0]
     Bp = -(-B // BLOCK) * BLOCK
 
-    def padded(a):  # bodies last, padded to whole blocks with copies of the first body
-        a = jnp.moveaxis(a, 0, -1)
-        return jnp.concatenate([a, jnp.broadcast_to(a[..., :1], (*a.shape[:-1], Bp - B))], -1)
-
-    pp = padded(jnp.moveaxis(jnp.broadcast_to(p.astype(dtype), (P, B)), 1, 0))
+    pp = _padded(jnp.broadcast_to(p.astype(dtype), (P, B)).T, Bp)
     kernel = _back_kernel(
         hoisted.components, _stages.tableau_of(method()), unit, K, N, P, P - hoisted.p, L
     )
@@ -250,8 +257,8 @@ def _back_blocks(
         ),
         compiler_params=pltriton.CompilerParams(num_warps=BLOCK // 32, num_stages=1),
         interpret=interpret,
-    )(n.astype(jnp.int32), h.astype(dtype), t0.astype(dtype), padded(ys.astype(dtype)),
-      padded(g.astype(dtype)), pp)  # fmt: skip
+    )(n.astype(jnp.int32), h.astype(dtype), t0.astype(dtype), _padded(ys.astype(dtype), Bp),
+      _padded(g.astype(dtype), Bp), pp)  # fmt: skip
     return y0b[:, :B].T, pb[:, :B]
 
 
@@ -262,8 +269,9 @@ def _back_kernel(
     cotangents `g` there, the cotangents of the initial states and of the P parameters (the
     lifted constants included). Interval by interval backwards, its states are recomputed
     from its start: checkpoints every L steps into `ck`, then each segment's L states into
-    `seg`, and the steps reversed through `jax.vjp` of the same step (the discrete adjoint of
-    the forward kernel's arithmetic)."""
+    `seg` (two-level checkpointing, L ≈ √n: Griewank & Walther, *Evaluating Derivatives*, 2nd
+    ed., ch. 12), and the steps reversed through `jax.vjp` of the same step (the discrete
+    adjoint of the forward kernel's arithmetic)."""
 
     def kernel(n_ref, h_ref, t0_ref, y_ref, g_ref, p_ref, y0b_ref, pb_ref, ck_ref, seg_ref):
         pc = tuple(p_ref[j] for j in range(P))
@@ -281,12 +289,15 @@ def _back_kernel(
             h, t0, n = h_ref[k], t0_ref[k], n_ref[k]
             segments = (n + L - 1) // L
 
+            def stepped(s, y, pc):  # step s of the interval (the parameters and constants pc)
+                t = t0 + s.astype(dtype) * h
+                return step(fn, tab, unit, pc[: P - Pc], pc[P - Pc :], t, h, y)
+
             def advance(first, count, y, keep=None):
                 def one(m, y):
                     if keep is not None:
                         put(keep, m, y)
-                    t = t0 + (first + m).astype(dtype) * h
-                    return step(fn, tab, unit, pc[: P - Pc], pc[P - Pc :], t, h, y)
+                    return stepped(first + m, y, pc)
 
                 return jax.lax.fori_loop(0, count, one, y)
 
@@ -304,11 +315,7 @@ def _back_kernel(
                 def back(i3, carry):
                     m = count - 1 - i3
                     lam, pbar = carry
-                    t = t0 + (first + m).astype(dtype) * h
-
-                    def one(y, pc):
-                        return step(fn, tab, unit, pc[: P - Pc], pc[P - Pc :], t, h, y)
-
+                    one = functools.partial(stepped, first + m)
                     ybar, pcbar = jax.vjp(one, at(seg_ref, m), pc)[1](lam)
                     return ybar, tuple(a + b for a, b in zip(pbar, pcbar, strict=True))
 

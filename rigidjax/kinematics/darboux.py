@@ -156,7 +156,7 @@ def darboux(
             # a model (`solve_tree`): fixed explicit steps run on the CPU kernel written from
             # the field, ω(t) included; the quaternion is renormalised after every step
             ys, _, _ = solve_tree(
-                _KinematicsField(kin, w), ts, y0, (), options,
+                term.vector_field, ts, y0, (), options,
                 unit=(0,) if type(kin) is Quaternion else (), name="Darboux kinematics",
             )  # fmt: skip
             P = to_matrix(ys)

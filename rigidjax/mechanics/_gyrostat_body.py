@@ -8,6 +8,7 @@ from jaxtyping import Array, Float
 
 from .._checks import as_float, check_finite, check_positive, check_unit_norm, validate
 from .._custom_types import RealLike
+from ..rotations._validation import det
 from .body import RigidBody
 
 
@@ -111,5 +112,5 @@ def _not_positive_definite(xp, M):
     leading principal minors positive): closed form, unlike an eigensolver per matrix."""
     m1 = M[..., 0, 0]
     m2 = m1 * M[..., 1, 1] - M[..., 0, 1] * M[..., 1, 0]
-    m3 = xp.sum(M[..., 0, :] * xp.cross(M[..., 1, :], M[..., 2, :]), axis=-1)
+    m3 = det(xp, M)
     return ~((m1 > 0) & (m2 > 0) & (m3 > 0))[..., None]

@@ -81,10 +81,14 @@ def _joined(tree: Any, dtype) -> Array:
     return jnp.concatenate([jnp.ravel(a).astype(dtype) for a in jax.tree_util.tree_leaves(tree)])
 
 
+def leaves(tree: Any, dtype) -> list[Array]:
+    """The leaves of one body's `tree`, each flattened: `[(n_i,), ...]`."""
+    return [jnp.ravel(jnp.asarray(a)).astype(dtype) for a in jax.tree_util.tree_leaves(tree)]
+
+
 def ravel(tree: Any, dtype) -> Array:
     """The leaves of one body's `tree`, flattened and joined: `(N,)`."""
-    leaves = [jnp.ravel(jnp.asarray(a)).astype(dtype) for a in jax.tree_util.tree_leaves(tree)]
-    return jnp.concatenate([*leaves, jnp.zeros((0,), dtype)])
+    return jnp.concatenate([*leaves(tree, dtype), jnp.zeros((0,), dtype)])
 
 
 def tree_model(

@@ -32,7 +32,7 @@ from ..kernels import model as model_kernel
 from ..kernels import model_pallas
 from ..kernels._scalar import Unsupported
 from ..solvers.explicit_rk import ExplicitRK
-from .model import Model, ravel, tree_model
+from .model import Model, leaves, ravel, tree_model
 
 
 class BatchMaxRMS(eqx.Module):
@@ -188,7 +188,7 @@ def solve_model(
     keep = np.ones(ts.shape[0], bool) if keep is None else np.asarray(keep, bool)
     blocks = [p] if isinstance(p, jax.Array | np.ndarray) else list(p)
     p = _joined(blocks, ts.dtype)
-    ys, stats, result = _solve(model, ts, y0, blocks, quiet, single, jumps, keep)
+    ys, stats, result = _solve(model, ts, y0, blocks, p, quiet, single, jumps, keep)
     ts = ts[np.flatnonzero(keep)]
     if options.throw:
 
@@ -209,15 +209,16 @@ def _solve(
     ts: Array,
     y0: Array,
     blocks: list[Array],
+    p: Array,
     options: SolveOptions,
     single: bool,
     jumps: np.ndarray | None,
     keep: np.ndarray,
 ) -> tuple[Array, dict[str, Array], diffrax.RESULTS]:
     """`solve_model` without raising failures: the CPU kernel (each block of parameters its
-    own operand: a shared block is never copied per body), the GPU kernel, or Diffrax."""
+    own operand: a shared block is never copied per body), the GPU kernel, or Diffrax (`p`:
+    the blocks joined)."""
     dtype = ts.dtype
-    p = _joined(blocks, dtype)
     hoisted, missing = _compile(model, dtype)
     if hoisted is not None and kernel_options(options):
         c = hoisted.c.astype(dtype)
@@ -390,10 +391,10 @@ def _gpu(
             g = jnp.zeros_like(ys)
         if not (interpret or model_pallas.serves_back(hoisted, model.unit, type(method))):
             return jax.vjp(through_diffrax, y0, p, c, ts)[1](g)
-        args = (hoisted, model.unit, type(method), ys, g, _packed(p, c), *steps(ts))
-        with jax.ensure_compile_time_eval():  # the steps, where the times are known now
-            n = steps(ts)[0]
+        with jax.ensure_compile_time_eval():  # concrete steps where the times are known now
+            n, h, t0 = steps(ts)
         longest = int(np.max(np.asarray(n), initial=1)) if is_concrete(n) else options.max_steps
+        args = (hoisted, model.unit, type(method), ys, g, _packed(p, c), n, h, t0)
         y0b, pb = model_pallas.run_back(*args, longest=longest, interpret=interpret)
         P = p.shape[1]
         pbar = pb[:P].T if p.shape[0] > 1 else jnp.sum(pb[:P], axis=1)[None]
@@ -427,7 +428,7 @@ def solve_tree(
     a leading time axis. Under `jax.vmap` the mapped bodies join one kernel call."""
     dtype = ts.dtype
     tm, model = tree_model(vf, y0, args, unit, name, jump, record)
-    p = [jnp.ravel(jnp.asarray(a)).astype(dtype)[None] for a in jtu.tree_leaves(args)]
+    p = [leaf[None] for leaf in leaves(args, dtype)]  # a block each
     y = ravel(y0, dtype)[None]
     ys, stats, result = solve_model(model, ts, y, p, options, single=True, jumps=jumps, keep=keep)
     if "recorded" in stats:
