@@ -254,8 +254,8 @@ def test_gpu_kernel_adjoint(on_gpu_kernel):
     """Reverse mode through the GPU kernel's own adjoint (a second Pallas kernel that reverses
     the same steps, recomputed from checkpoints) where the output times are not
     differentiated: gradients w.r.t. the moments, a traced gain and the initial state equal the
-    Diffrax path's; under `jax.vmap` of a one-body gradient (per-member gains) the members'
-    gradients are their own."""
+    Diffrax path's, and central differences of the gain's; under `jax.vmap` of a one-body
+    gradient (per-member gains) the members' gradients are their own."""
     w, q = _inputs(3)
 
     def loss(I, g, w, solver, ts=TS):
@@ -269,8 +269,14 @@ def test_gpu_kernel_adjoint(on_gpu_kernel):
     grad = jax.grad(loss, argnums=(0, 1, 2))
     assert str(jax.make_jaxpr(lambda *a: grad(*a, rj.RK4()))(*args)).count("pallas_call") == 2
     want = grad(*args, ExplicitRK(rj.RK4()))
-    for g, r in zip(grad(*args, rj.RK4()), want, strict=True):
+    got = grad(*args, rj.RK4())
+    for g, r in zip(got, want, strict=True):
         np.testing.assert_allclose(g, r, rtol=1e-10, atol=1e-12)
+    eps = 1e-6
+    fd = (loss(args[0], args[1] + eps, w, rj.RK4()) - loss(args[0], args[1] - eps, w, rj.RK4())) / (
+        2 * eps
+    )
+    np.testing.assert_allclose(got[1], fd, rtol=1e-7)
 
     def one(g, solver):
         return jax.grad(lambda g: loss(args[0], g, w[:1], solver, TS[:3]))(g)
