@@ -47,10 +47,26 @@ def safe_sqrt(x: Float[Array, "*shape"]) -> Float[Array, "*shape"]:
     return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, jnp.ones_like(x))), jnp.zeros_like(x))
 
 
+def cross3(a: Float[Array, "*#batch 3"], b: Float[Array, "*#batch 3"]) -> Float[Array, "*batch 3"]:
+    """`a × b` from the components read in one `unstack` each (`jnp.cross` indexes them one by
+    one: a larger program to trace and differentiate)."""
+    a0, a1, a2 = jnp.unstack(a, axis=-1)
+    b0, b1, b2 = jnp.unstack(b, axis=-1)
+    return jnp.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
+def cofactors(
+    M: Float[Array, "*batch 3 3"],
+) -> tuple[Float[Array, "*batch 3 3"], Float[Array, "*batch"]]:
+    """The cofactor matrix of a 3×3 `M` (its rows the cross products of the rows of M,
+    `cof(M) = det(M) M⁻ᵀ`) and `det M = r0 · (r1 × r2)`."""
+    r0, r1, r2 = jnp.unstack(M, axis=-2)
+    c0 = cross3(r1, r2)
+    return jnp.stack([c0, cross3(r2, r0), cross3(r0, r1)], axis=-2), jnp.sum(r0 * c0, axis=-1)
+
+
 def inv3(M: Float[Array, "3 3"]) -> Float[Array, "3 3"]:
-    """Inverse of a 3×3 matrix by cofactors, `M⁻¹ = cof(M)ᵀ/det M` (rows of cof: cross products
-    of the rows of M); a small program to compile and to vectorise over a batch, unlike a
-    pivoted LU."""
-    r0, r1, r2 = M[0], M[1], M[2]
-    cof = jnp.stack([jnp.cross(r1, r2), jnp.cross(r2, r0), jnp.cross(r0, r1)])
-    return cof.T / jnp.dot(r0, cof[0])
+    """Inverse of a 3×3 matrix by cofactors, `M⁻¹ = cof(M)ᵀ/det M`; a small program to compile
+    and to vectorise over a batch, unlike a pivoted LU."""
+    cof, det = cofactors(M)
+    return cof.T / det

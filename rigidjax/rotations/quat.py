@@ -38,6 +38,7 @@ from .._custom_types import (
     Vec3,
     Vec3Like,
 )
+from .._numerics import cofactors
 from . import _series
 from . import _validation as _v
 from ._compiled import compiled
@@ -237,19 +238,9 @@ def _polar(P: Mat33) -> Mat33:
     return jax.lax.fori_loop(0, 8, _polar_step, P)
 
 
-def _cross(a: Array, b: Array) -> Array:
-    """`a × b` from the components in one `unstack` each (`jnp.cross` indexes them one by one:
-    a larger program to trace and differentiate)."""
-    a0, a1, a2 = jnp.unstack(a, axis=-1)
-    b0, b1, b2 = jnp.unstack(b, axis=-1)
-    return jnp.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
-
-
 def _polar_step(_: Any, X: Mat33) -> Mat33:
-    r0, r1, r2 = jnp.unstack(X, axis=-2)
-    c0, c1, c2 = _cross(r1, r2), _cross(r2, r0), _cross(r0, r1)
-    C = jnp.stack([c0, c1, c2], axis=-2)
-    d = jnp.sum(r0 * c0, axis=-1)[..., None, None]
+    C, det = cofactors(X)
+    d = det[..., None, None]
     g = jnp.cbrt(jnp.abs(d))
     return 0.5 * (X / g + C * (g / d))
 
