@@ -67,25 +67,32 @@ RJ_INLINE T Row(const T (*k)[N], int j, T s) {
   }
 }
 
+// z = y + h Σ_{l<I} a_Il k_l (y itself for a still component): stage I's argument, or the
+// step's end for I = Tab::S.
 template <int I, typename T>
+RJ_INLINE void Combine(const T* y, T h, const T (*k)[N], T* z) {
+  RJ_UNROLL
+  for (int j = 0; j < N; ++j) z[j] = Model::still[j] ? y[j] : y[j] + h * Row<I, 0, true>(k, j, T(0));
+}
+
+template <int I, int E, typename T>
 RJ_INLINE void StagesFrom(const T* y, const T* p, T t, T h, T (*k)[N], T (*z)[N]) {
-  if constexpr (I < Tab::S) {
-    RJ_UNROLL
-    for (int j = 0; j < N; ++j) z[I][j] = Model::still[j] ? y[j] : y[j] + h * Row<I, 0, true>(k, j, T(0));
+  if constexpr (I < E) {
+    Combine<I>(y, h, k, z[I]);
     Model::F(t + T(Tab::ct[I]) * h, z[I], p, k[I]);
-    StagesFrom<I + 1>(y, p, t, h, k, z);
+    StagesFrom<I + 1, E>(y, p, t, h, k, z);
   }
 }
 
-// One step from y at time t: the stages k_i at z_i (z_0 = y) and u = y + h Σ b_l k_l.
-template <typename T>
-RJ_INLINE void Stages(const T* y, const T* p, T t, T h, T (*k)[N], T (*z)[N], T* u) {
+// The first E stages of a step from y at time t: k_i at z_i (z_0 = y).
+template <int E, typename T>
+RJ_INLINE void Stages(const T* y, const T* p, T t, T h, T (*k)[N], T (*z)[N]) {
   RJ_UNROLL
   for (int j = 0; j < N; ++j) z[0][j] = y[j];
-  Model::F(t + T(Tab::ct[0]) * h, y, p, k[0]);
-  StagesFrom<1>(y, p, t, h, k, z);
-  RJ_UNROLL
-  for (int j = 0; j < N; ++j) u[j] = Model::still[j] ? y[j] : y[j] + h * Row<Tab::S, 0, true>(k, j, T(0));
+  if constexpr (E > 0) {
+    Model::F(t + T(Tab::ct[0]) * h, y, p, k[0]);
+    StagesFrom<1, E>(y, p, t, h, k, z);
+  }
 }
 
 // 1 / |u| of unit group g.
@@ -125,7 +132,8 @@ void Steps(int64_t m, T (*__restrict x)[kBlock], const T (*__restrict C)[kBlock]
       for (int j = 0; j < N; ++j) y[j] = x[j][i];
       RJ_UNROLL
       for (int j = 0; j < Model::P; ++j) p[j] = C[j][i];
-      Stages(y, p, t, h, k, z, u);
+      Stages<Tab::S>(y, p, t, h, k, z);
+      Combine<Tab::S>(y, h, k, u);
       T r[NU];
       Normalize(u, r);
       if constexpr (Keep) {
@@ -260,12 +268,14 @@ RJ_INLINE void StagesBack(const T* p, T t, T h, const T (*k)[N], const T (*z)[N]
   }
 }
 
-// Reverse step s (at time t0 + s h) from the states x it started from and the inverse norms inv
-// of its end's unit groups: lam, the cotangent of its end state, becomes that of its start;
-// pb, hb and tb collect the cotangents of the parameters, the step size and the interval's
-// start time.
+// Reverse step s (at time t0 + s h) from the states x it started from, the states nx it ended
+// at and the inverse norms inv of its end's unit groups: lam, the cotangent of its end state,
+// becomes that of its start; pb, hb and tb collect the cotangents of the parameters, the step
+// size and the interval's start time. The last stage's rate is recomputed only with kTimes:
+// otherwise it reaches nothing but the step's end, whose directions n are nx's.
 template <typename T>
-void StepBack(int64_t m, const T (*__restrict x)[kBlock], const T (*__restrict inv)[kBlock],
+void StepBack(int64_t m, const T (*__restrict x)[kBlock], const T (*__restrict nx)[kBlock],
+              const T (*__restrict inv)[kBlock],
               const T (*__restrict C)[kBlock], int64_t s, T t0, T h, T (*__restrict lam)[kBlock],
               T (*__restrict pb)[kBlock],
               T* __restrict hb, T* __restrict tb) {
@@ -273,12 +283,13 @@ void StepBack(int64_t m, const T (*__restrict x)[kBlock], const T (*__restrict i
   const T t = t0 + T(s) * h;
 #pragma GCC ivdep
   for (int64_t i = 0; i < m; ++i) {
-    T y[N], p[P], k[S][N], z[S][N], u[N];
+    T y[N], p[P], k[S][N], z[S][N];
     RJ_UNROLL
     for (int j = 0; j < N; ++j) y[j] = x[j][i];
     RJ_UNROLL
     for (int j = 0; j < Model::P; ++j) p[j] = C[j][i];
-    Stages(y, p, t, h, k, z, u);
+    Stages<kTimes ? S : S - 1>(y, p, t, h, k, z);
+    if constexpr (!kTimes && S > 1) Combine<S - 1>(y, h, k, z[S - 1]);
     // each unit group: ū = (λ − n (n·λ)) / |u|, n = u / |u|
     T ub[N];
     RJ_UNROLL
@@ -289,9 +300,9 @@ void StepBack(int64_t m, const T (*__restrict x)[kBlock], const T (*__restrict i
       const T r = inv[g][i];
       T dot = T(0);
       RJ_UNROLL
-      for (int j = a; j < a + len; ++j) dot += u[j] * r * lam[j][i];
+      for (int j = a; j < a + len; ++j) dot += nx[j][i] * lam[j][i];
       RJ_UNROLL
-      for (int j = a; j < a + len; ++j) ub[j] = r * (lam[j][i] - u[j] * r * dot);
+      for (int j = a; j < a + len; ++j) ub[j] = r * (lam[j][i] - nx[j][i] * dot);
     }
     T yb[N], kb[S][N], pbar[P];
     RJ_UNROLL
@@ -368,11 +379,11 @@ void GroupBack(const T* y, const Param<T>* prm, const int32_t* n, const T* h, co
                               ? std::max<int64_t>(steps, 1)
                               : static_cast<int64_t>(std::ceil(std::sqrt(double(steps))));
         const int64_t segments = (steps + S - 1) / S;
-        const size_t need = static_cast<size_t>(((segments + S) * N + S * NU) * kBlock);
+        const size_t need = static_cast<size_t>(((segments + S + 1) * N + S * NU) * kBlock);
         if (saved.size() < need) saved.resize(need);
         T(*ckpt)[N][kBlock] = reinterpret_cast<T(*)[N][kBlock]>(saved.data());
         T(*states)[N][kBlock] = ckpt + segments;
-        T(*norms)[NU][kBlock] = reinterpret_cast<T(*)[NU][kBlock]>(states + S);
+        T(*norms)[NU][kBlock] = reinterpret_cast<T(*)[NU][kBlock]>(states + S + 1);
         for (int64_t i = 0; i < m; ++i) {
           RJ_UNROLL
           for (int j = 0; j < N; ++j) x[j][i] = y[at.saved(row[i], col[i], k, j)];
@@ -394,8 +405,10 @@ void GroupBack(const T* y, const Param<T>* prm, const int32_t* n, const T* h, co
             std::memcpy(states[j], x, sizeof(x));
             Steps<T, true>(m, x, C, s * S + j, 1, t0[k], h[k], norms + j);
           }
+          std::memcpy(states[len], x, sizeof(x));
           for (int64_t j = len - 1; j >= 0; --j)
-            StepBack<T>(m, states[j], norms[j], C, s * S + j, t0[k], h[k], lam, pb, hsum, tsum);
+            StepBack<T>(m, states[j], states[j + 1], norms[j], C, s * S + j, t0[k], h[k], lam, pb,
+                        hsum, tsum);
         }
         if (jumped) JumpBack<T>(m, x0, C, t0[k], lam, pb, tsum);
         for (int64_t i = 0; i < m; ++i) {
