@@ -109,6 +109,33 @@ def save_figure(fig, path: str) -> None:
     pyplot().close(fig)
 
 
+def write_results(
+    out: Path, name: str, writers: dict[str, Callable[[str], object]], plot: Callable[[str], object]
+) -> dict[str, Path]:
+    """Make `out` and write `out/NAME.KIND` with each of `writers` (by KIND) and, when matplotlib
+    is installed, `out/NAME.png` with `plot`, each atomically; the paths by KIND. RunError when
+    one cannot be written (`out` was checked up front, but the disk can still fill up or change).
+    """
+    if can_plot():
+        writers = {**writers, "png": plot}
+    paths = {kind: out / f"{name}.{kind}" for kind in writers}
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        for kind, write in writers.items():
+            write_atomic(paths[kind], write)
+    except OSError as e:
+        raise RunError(f"could not write the results in {out}: {e}") from e
+    return paths
+
+
+def print_written(paths: dict[str, Path]) -> None:
+    """A `wrote KIND: path` line per file, and the reason when there is no plot."""
+    for kind, path in paths.items():
+        print(f"wrote {kind.upper()}: {path.resolve()}")
+    if "png" not in paths:
+        print(NO_PLOT)
+
+
 def check_positive(args, *names: str) -> None:
     """UsageError unless each option `names` (argparse dests) is None or positive and finite."""
     for name in names:

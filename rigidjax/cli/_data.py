@@ -1,15 +1,17 @@
 """Reading the CSV data files of `rigidjax identify` and `rigidjax darboux`: a header line names
 the columns (t, wx, wy, wz and optionally qw, qx, qy, qz; ω and Ω may stand for w), or, without
-a header, the columns come in that order. Every error names the file, the line and the fix."""
+a header, the columns come in that order. Every error names the file, the line and the fix.
+`prepare` is the start the two commands share."""
 
 from __future__ import annotations
 
+import argparse
 import csv
 from pathlib import Path
 
 import numpy as np
 
-from ._common import UsageError
+from ._common import UsageError, check_out, check_positive, set_precision
 
 GYRO = ("t", "wx", "wy", "wz")
 ATTITUDE = ("qw", "qx", "qy", "qz")
@@ -87,3 +89,17 @@ def read(path: Path, *, attitude: bool) -> dict[str, np.ndarray]:
             )
         out["quat"] = q / norm[:, None]
     return out
+
+
+def prepare(
+    args: argparse.Namespace, *positive: str, attitude: bool
+) -> tuple[dict[str, np.ndarray], Path]:
+    """The start of `identify` and `darboux`: check the options `positive`, read `args.data`
+    (`read`), check the output folder (`--out`, by default DATA_out) and set float64; the data
+    and the folder."""
+    check_positive(args, *positive)
+    data = read(args.data, attitude=attitude)
+    out: Path = args.out or Path(f"{args.data.stem}_out")
+    check_out(out)
+    set_precision(False)
+    return data, out

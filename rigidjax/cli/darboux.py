@@ -14,19 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import (
-    NO_PLOT,
-    RunError,
-    can_plot,
-    check_out,
-    check_positive,
-    checked,
-    pyplot,
-    save_figure,
-    set_precision,
-    write_atomic,
-)
-from ._data import read
+from ._common import checked, print_written, pyplot, save_figure, write_results
+from ._data import prepare
 
 METHODS = ("rotvec", "quat", "matrix", "euler", "cayley_klein", "geometric")
 
@@ -64,11 +53,7 @@ def _plot(path: str, t, q, ypr) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    check_positive(args, "rtol", "atol")
-    data = read(args.data, attitude=False)
-    out: Path = args.out or Path(f"{args.data.stem}_out")
-    check_out(out)
-    set_precision(False)
+    data, out = prepare(args, "rtol", "atol", attitude=False)
     import jax.numpy as jnp
 
     from .._checks import check_unit_norm, vector
@@ -95,18 +80,14 @@ def run(args: argparse.Namespace) -> int:
     seconds = time.perf_counter() - start
     ypr = np.degrees(np.asarray(euler.from_matrix(P, seq="ZYX")))
     q, P = np.asarray(q), np.asarray(P)
-    out.mkdir(parents=True, exist_ok=True)
-    paths = {"csv": out / "attitude.csv", "npz": out / "attitude.npz"}
     table = np.column_stack([data["t"], q, ypr])
     header = "t,qw,qx,qy,qz,yaw_deg,pitch_deg,roll_deg"
-    try:
-        write_atomic(
-            paths["csv"],
-            lambda f: np.savetxt(f, table, delimiter=",", header=header, comments=""),
-        )
-        write_atomic(
-            paths["npz"],
-            lambda f: np.savez(
+    paths = write_results(
+        out,
+        "attitude",
+        {
+            "csv": lambda f: np.savetxt(f, table, delimiter=",", header=header, comments=""),
+            "npz": lambda f: np.savez(
                 open(f, "wb"),  # noqa: SIM115 - np.savez closes nothing it did not open
                 t=data["t"],
                 quat=q,
@@ -115,19 +96,13 @@ def run(args: argparse.Namespace) -> int:
                 frame=args.frame,
                 method=args.method,
             ),
-        )
-        if can_plot():
-            paths["png"] = out / "attitude.png"
-            write_atomic(paths["png"], lambda f: _plot(f, data["t"], q, ypr))
-    except OSError as e:
-        raise RunError(f"could not write the results in {out}: {e}") from e
+        },
+        lambda f: _plot(f, data["t"], q, ypr),
+    )
     angle = np.degrees(2 * np.arccos(np.clip(abs(np.sum(q[-1] * np.asarray(q0))), 0, 1)))
     print(
         f"integrated {data['t'].size} gyro samples over {data['t'][-1] - data['t'][0]:g} s "
         f"({args.method}, {args.frame} rates) in {seconds:.3g} s; total rotation {angle:.4g}°"
     )
-    for k, p in paths.items():
-        print(f"wrote {k.upper()}: {p.resolve()}")
-    if "png" not in paths:
-        print(NO_PLOT)
+    print_written(paths)
     return 0

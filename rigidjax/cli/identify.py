@@ -15,19 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import (
-    NO_PLOT,
-    RunError,
-    can_plot,
-    check_out,
-    check_positive,
-    checked,
-    pyplot,
-    save_figure,
-    set_precision,
-    write_atomic,
-)
-from ._data import read
+from ._common import checked, print_written, pyplot, save_figure, write_results
+from ._data import prepare
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -55,11 +44,7 @@ def _plot(path: str, t, omega, model) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    check_positive(args, "trace", "sigma_omega", "sigma_angle")
-    data = read(args.data, attitude=not args.gyro_only)
-    out: Path = args.out or Path(f"{args.data.stem}_out")
-    check_out(out)
-    set_precision(False)
+    data, out = prepare(args, "trace", "sigma_omega", "sigma_angle", attitude=not args.gyro_only)
     import jax.numpy as jnp
 
     from ..fit import identify_inertia
@@ -100,23 +85,17 @@ def run(args: argparse.Namespace) -> int:
         "gyro_rms_residual": rms,
         "time_s": seconds,
     }
-    out.mkdir(parents=True, exist_ok=True)
-    paths = {"json": out / "identify.json"}
-    try:
-        write_atomic(paths["json"], lambda f: Path(f).write_text(json.dumps(result, indent=2)))
-        if can_plot():
-            paths["png"] = out / "identify.png"
-            write_atomic(paths["png"], lambda f: _plot(f, data["t"], data["omega"], fit))
-    except OSError as e:
-        raise RunError(f"could not write the results in {out}: {e}") from e
+    paths = write_results(
+        out,
+        "identify",
+        {"json": lambda f: Path(f).write_text(json.dumps(result, indent=2))},
+        lambda f: _plot(f, data["t"], data["omega"], fit),
+    )
     print(f"inertia ({est.scale}), ± one standard deviation:")
     for i in range(3):
         print("  " + "  ".join(f"{inertia[i, j]: .6f} ± {std[i, j]:.1e}" for j in range(3)))
     print("principal moments: " + ", ".join(f"{m:.6f}" for m in result["principal_moments"]))
     status = "converged" if result["converged"] else "NOT converged"
     print(f"{status} in {seconds:.3g} s; gyro rms residual {rms:.3g} rad/s")
-    for k, p in paths.items():
-        print(f"wrote {k.upper()}: {p.resolve()}")
-    if "png" not in paths:
-        print(NO_PLOT)
+    print_written(paths)
     return 0

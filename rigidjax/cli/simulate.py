@@ -24,15 +24,14 @@ from typing import Any
 import numpy as np
 
 from ._common import (
-    NO_PLOT,
     UsageError,
-    can_plot,
     check_positive,
     checked,
     checks_as_nan,
+    print_written,
     pyplot,
     save_figure,
-    write_atomic,
+    write_results,
 )
 
 DEFAULTS = dict(
@@ -251,35 +250,31 @@ def _write(args: argparse.Namespace, x: _Inputs, r: dict, times: dict) -> dict[s
     ts, omega, q = x.ts, r["omega"], r["quat"]
     d = _derived(x.body, omega, q)
     T, Mn = d["energy"], d["momentum_norm"]
-    out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
-    kinds = ("npz", "csv", "png") if can_plot() else ("npz", "csv")
-    paths = {k: out / f"trajectory.{k}" for k in kinds}
     table = np.column_stack([ts, omega, q, T, Mn])
     header = "t,omega1,omega2,omega3,q_w,q_x,q_y,q_z,energy,momentum_norm"
-    write_atomic(
-        paths["npz"],
-        lambda f: np.savez(
-            open(f, "wb"),  # noqa: SIM115 - np.savez closes nothing it did not open
-            ts=ts,
-            omega=omega,
-            quat=q,
-            matrix=d["matrix"],
-            energy=T,
-            momentum_norm=Mn,
-            inertia=np.asarray(x.body.inertia),
-            kinematics=args.kinematics,
-            num_steps=np.asarray(r["num_steps"]),
-            **times,
-        ),
+    drifts = (T / T[0] - 1, Mn / Mn[0] - 1)
+    paths = write_results(
+        args.out,
+        "trajectory",
+        {
+            "npz": lambda f: np.savez(
+                open(f, "wb"),  # noqa: SIM115 - np.savez closes nothing it did not open
+                ts=ts,
+                omega=omega,
+                quat=q,
+                matrix=d["matrix"],
+                energy=T,
+                momentum_norm=Mn,
+                inertia=np.asarray(x.body.inertia),
+                kinematics=args.kinematics,
+                num_steps=np.asarray(r["num_steps"]),
+                **times,
+            ),
+            "csv": lambda f: np.savetxt(f, table, delimiter=",", header=header, comments=""),
+        },
+        lambda f: _plot(f, ts, omega, *drifts, d["axis2"], args.inertia),
     )
-    write_atomic(
-        paths["csv"], lambda f: np.savetxt(f, table, delimiter=",", header=header, comments="")
-    )
-    if "png" in paths:
-        drifts = (T / T[0] - 1, Mn / Mn[0] - 1)
-        write_atomic(paths["png"], lambda f: _plot(f, ts, omega, *drifts, d["axis2"], args.inertia))
-    r["drift"] = (np.max(np.abs(T / T[0] - 1)), np.max(np.abs(Mn / Mn[0] - 1)))
+    r["drift"] = tuple(np.max(np.abs(drift)) for drift in drifts)
     return paths
 
 
@@ -292,10 +287,7 @@ def _summary(args: argparse.Namespace, r: dict, times: dict, paths: dict[str, Pa
         f"run {times['run_time_s']:.3g} s"
     )
     print(f"max relative drift: energy {r['drift'][0]:.2e}, |M| {r['drift'][1]:.2e}")
-    for k, p in paths.items():
-        print(f"wrote {k.upper()}: {p.resolve()}")
-    if "png" not in paths:
-        print(NO_PLOT)
+    print_written(paths)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -309,9 +301,5 @@ def run(args: argparse.Namespace) -> int:
     r, times = _compile_and_run(args, inputs)
     if r["failure"] is not None:
         raise RunError(f"simulation failed, nothing written: {r['failure']}")
-    try:
-        paths = _write(args, inputs, r, times)
-    except OSError as e:  # checked up front, but the disk can still fill up or change
-        raise RunError(f"could not write the results in {args.out}: {e}") from e
-    _summary(args, r, times, paths)
+    _summary(args, r, times, _write(args, inputs, r, times))
     return 0

@@ -13,6 +13,7 @@ Reduction: `r = l ∘ q ∘ ρ` with `l` from `left` and `ρ` from `right` chose
 
 from __future__ import annotations
 
+import itertools
 from typing import TYPE_CHECKING, Literal, TypeAlias, overload
 
 import jax.numpy as jnp
@@ -89,62 +90,25 @@ def _octahedral_xyzw() -> np.ndarray:
 
 
 def _icosahedral_xyzw() -> np.ndarray:
+    """The tetrahedral group and the 48 rotations whose quaternions are the even permutations of
+    (±a, ±b, ±c, 0), (a, b, c) = (1, 1/φ, φ)/2, up to sign (the first non-zero entry positive);
+    in SciPy's order: lexicographic with the entries ranked +a, +b, +c, −a, −b, −c, 0."""
     phi = (1 + np.sqrt(5)) / 2
-    a, b, c = 0.5, 0.5 / phi, phi / 2
-    # SciPy's table (scipy/spatial/transform/_rotation_groups.py), scalar last
-    g2 = np.array(
-        [
-            [+a, +b, +c, 0],
-            [+a, +b, -c, 0],
-            [+a, +c, 0, +b],
-            [+a, +c, 0, -b],
-            [+a, -b, +c, 0],
-            [+a, -b, -c, 0],
-            [+a, -c, 0, +b],
-            [+a, -c, 0, -b],
-            [+a, 0, +b, +c],
-            [+a, 0, +b, -c],
-            [+a, 0, -b, +c],
-            [+a, 0, -b, -c],
-            [+b, +a, 0, +c],
-            [+b, +a, 0, -c],
-            [+b, +c, +a, 0],
-            [+b, +c, -a, 0],
-            [+b, -a, 0, +c],
-            [+b, -a, 0, -c],
-            [+b, -c, +a, 0],
-            [+b, -c, -a, 0],
-            [+b, 0, +c, +a],
-            [+b, 0, +c, -a],
-            [+b, 0, -c, +a],
-            [+b, 0, -c, -a],
-            [+c, +a, +b, 0],
-            [+c, +a, -b, 0],
-            [+c, +b, 0, +a],
-            [+c, +b, 0, -a],
-            [+c, -a, +b, 0],
-            [+c, -a, -b, 0],
-            [+c, -b, 0, +a],
-            [+c, -b, 0, -a],
-            [+c, 0, +a, +b],
-            [+c, 0, +a, -b],
-            [+c, 0, -a, +b],
-            [+c, 0, -a, -b],
-            [0, +a, +c, +b],
-            [0, +a, +c, -b],
-            [0, +a, -c, +b],
-            [0, +a, -c, -b],
-            [0, +b, +a, +c],
-            [0, +b, +a, -c],
-            [0, +b, -a, +c],
-            [0, +b, -a, -c],
-            [0, +c, +b, +a],
-            [0, +c, +b, -a],
-            [0, +c, -b, +a],
-            [0, +c, -b, -a],
-        ]
+    value = np.array([0.0, 0.5, 0.5 / phi, phi / 2])  # of the entry codes 0, ±1, ±2, ±3
+    pairs = list(itertools.combinations(range(4), 2))
+    even = [
+        p for p in itertools.permutations(range(4)) if sum(p[i] > p[j] for i, j in pairs) % 2 == 0
+    ]
+    codes = {
+        tuple(s * (1, 2, 3, 0)[i] for s, i in zip(signs, p, strict=True))
+        for p in even
+        for signs in itertools.product((1, -1), repeat=4)
+    }
+    rank = {1: 0, 2: 1, 3: 2, -1: 3, -2: 4, -3: 5, 0: 6}
+    rows = sorted(
+        (e for e in codes if next(k for k in e if k) > 0), key=lambda e: [rank[k] for k in e]
     )
-    return np.concatenate([_tetrahedral_xyzw(), g2])
+    return np.concatenate([_tetrahedral_xyzw(), np.sign(rows) * value[np.abs(rows)]])
 
 
 def rotation_group(
