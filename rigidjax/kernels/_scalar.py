@@ -307,11 +307,9 @@ def _kind_dtype(x: Scalar):
 
 def _cast(x, dtype) -> Scalar:
     d = np.dtype(dtype)
-    if d == np.bool_:
-        return bool(x)
-    if np.issubdtype(d, np.integer):
-        return int(x)
-    return float(x)
+    if np.issubdtype(d, np.complexfloating):
+        raise Unsupported(f"complex numbers ({d.name})")
+    return bool(x) if d == np.bool_ else int(x) if np.issubdtype(d, np.integer) else float(x)
 
 
 def _broadcast_in_dim(u: _Unroller, p, ins, eqn):

@@ -3,7 +3,9 @@
 //
 //   the model (model.h, written from the JAX field's jaxpr)  ẏ = f(t, y, p), y ∈ R^N, p ∈ R^P
 //   one step  z_i = y + h Σ_{l<i} a_il k_l,  k_i = f(t + c_i h, z_i),  u = y + h Σ_l b_l k_l
-//   after every step  each unit group of u (a quaternion) ← itself / its norm
+//   after every step  each unit group of u (a quaternion) ← itself / its norm, then
+//                     u ← E(u, p)   (Model::E, with Model::kEnd: a shadow or chart switch;
+//                                    its transposed Jacobian Model::ET)
 //   a component whose rate is the constant 0 (Model::still: a held command) is copied by the
 //   stages (y + h·0 = y for any finite h)
 //   at the start of each interval k with jump[k] ≠ 0 (a sample of a held command)
@@ -136,6 +138,12 @@ void Steps(int64_t m, T (*__restrict x)[kBlock], const T (*__restrict C)[kBlock]
       Combine<Tab::S>(y, h, k, u);
       T r[NU];
       Normalize(u, r);
+      if constexpr (Model::kEnd) {
+        T v[N];
+        Model::E(t + h, u, p, v);
+        RJ_UNROLL
+        for (int j = 0; j < N; ++j) u[j] = v[j];
+      }
       if constexpr (Keep) {
         RJ_UNROLL
         for (int g = 0; g < Model::NU; ++g) inv[s - first][g][i] = r[g];
@@ -271,8 +279,8 @@ RJ_INLINE void StagesBack(const T* p, T t, T h, const T (*k)[N], const T (*z)[N]
 // Reverse step s (at time t0 + s h) from the states x it started from, the states nx it ended
 // at and the inverse norms inv of its end's unit groups: lam, the cotangent of its end state,
 // becomes that of its start; pb, hb and tb collect the cotangents of the parameters, the step
-// size and the interval's start time. The last stage's rate is recomputed only with kTimes:
-// otherwise it reaches nothing but the step's end, whose directions n are nx's.
+// size and the interval's start time. The last stage's rate is recomputed only with kTimes or
+// a step-end map: otherwise it reaches nothing but the step's end, whose directions n are nx's.
 template <typename T>
 void StepBack(int64_t m, const T (*__restrict x)[kBlock], const T (*__restrict nx)[kBlock],
               const T (*__restrict inv)[kBlock],
@@ -288,25 +296,45 @@ void StepBack(int64_t m, const T (*__restrict x)[kBlock], const T (*__restrict n
     for (int j = 0; j < N; ++j) y[j] = x[j][i];
     RJ_UNROLL
     for (int j = 0; j < Model::P; ++j) p[j] = C[j][i];
-    Stages<kTimes ? S : S - 1>(y, p, t, h, k, z);
-    if constexpr (!kTimes && S > 1) Combine<S - 1>(y, h, k, z[S - 1]);
-    // each unit group: ū = (λ − n (n·λ)) / |u|, n = u / |u|
+    constexpr bool whole = kTimes || Model::kEnd;
+    Stages<whole ? S : S - 1>(y, p, t, h, k, z);
+    if constexpr (!whole && S > 1) Combine<S - 1>(y, h, k, z[S - 1]);
+    T pbar[P];
+    RJ_UNROLL
+    for (int j = 0; j < P; ++j) pbar[j] = T(0);
+    // the end state before E (n: its unit groups' directions) and its cotangent wb
+    T n[N], wb[N];
+    if constexpr (Model::kEnd) {
+      Combine<S>(y, h, k, n);
+      RJ_UNROLL
+      for (int g = 0; g < Model::NU; ++g) {
+        RJ_UNROLL
+        for (int j = Model::unit[g][0]; j < Model::unit[g][0] + Model::unit[g][1]; ++j)
+          n[j] *= inv[g][i];
+      }
+      T v[N], te = T(0);  // (E does not depend on time: te stays 0)
+      RJ_UNROLL
+      for (int j = 0; j < N; ++j) v[j] = lam[j][i], wb[j] = T(0);
+      Model::ET(t + h, n, p, v, wb, pbar, te);
+    } else {
+      RJ_UNROLL
+      for (int j = 0; j < N; ++j) n[j] = nx[j][i], wb[j] = lam[j][i];
+    }
+    // each unit group: ū = (w̄ − n (n·w̄)) / |u|, n = u / |u|
     T ub[N];
     RJ_UNROLL
-    for (int j = 0; j < N; ++j) ub[j] = lam[j][i];
+    for (int j = 0; j < N; ++j) ub[j] = wb[j];
     RJ_UNROLL
     for (int g = 0; g < Model::NU; ++g) {
       const int a = Model::unit[g][0], len = Model::unit[g][1];
       const T r = inv[g][i];
       T dot = T(0);
       RJ_UNROLL
-      for (int j = a; j < a + len; ++j) dot += nx[j][i] * lam[j][i];
+      for (int j = a; j < a + len; ++j) dot += n[j] * wb[j];
       RJ_UNROLL
-      for (int j = a; j < a + len; ++j) ub[j] = r * (lam[j][i] - nx[j][i] * dot);
+      for (int j = a; j < a + len; ++j) ub[j] = r * (wb[j] - n[j] * dot);
     }
-    T yb[N], kb[S][N], pbar[P];
-    RJ_UNROLL
-    for (int j = 0; j < P; ++j) pbar[j] = T(0);
+    T yb[N], kb[S][N];
     T hbar = T(0), tbar = T(0);
     RJ_UNROLL
     for (int j = 0; j < N; ++j) {
@@ -428,33 +456,55 @@ void GroupBack(const T* y, const Param<T>* prm, const int32_t* n, const T* h, co
   }
 }
 
+// What both handlers do: the layout and parameter blocks from the operands' shapes (Shapes),
+// the handler's own checks (check(at): an error, or success), then group(prm, n, h, t0, jump,
+// save, first, count, at) for each group of rows that share their steps (ForEachGroup).
+template <ffi::DataType DT, typename Check, typename G>
+ffi::Error Handle(ffi::Span<const int64_t> lead, size_t base, ffi::Span<const int64_t> x0,
+                  size_t xbase, ffi::Buffer<ffi::S32> n, ffi::Buffer<DT> h, ffi::Buffer<DT> t0,
+                  ffi::Buffer<ffi::S32> jump, ffi::Buffer<ffi::S32> save,
+                  ffi::RemainingArgs blocks, Check check, G group) {
+  using T = ffi::NativeType<DT>;
+  Layout at;
+  Param<T> prm[kBlocks];
+  ffi::Error e = Shapes<DT>(lead, base, x0, xbase, n.dimensions(), h.dimensions(),
+                            t0.dimensions(), jump.dimensions(), save.dimensions(), blocks, &at, prm);
+  if (e.failure()) return e;
+  e = check(at);
+  if (e.failure()) return e;
+  const int32_t *nn = n.typed_data(), *jj = jump.typed_data(), *ss = save.typed_data();
+  const T *hh = h.typed_data(), *tt = t0.typed_data();
+  ForEachGroup(nn, hh, tt, jj, ss, at,
+               [&](int64_t s, int64_t sj, int64_t sv, int64_t first, int64_t count) {
+                 group(prm, nn + s, hh + s, tt + s, jj + sj, ss + sv, first, count, at);
+               });
+  return ffi::Error::Success();
+}
+
 template <ffi::DataType DT>
 ffi::Error ModelSteps(ffi::Buffer<DT> y0, ffi::Buffer<ffi::S32> n, ffi::Buffer<DT> h,
                       ffi::Buffer<DT> t0, ffi::Buffer<ffi::S32> jump, ffi::Buffer<ffi::S32> save,
                       ffi::RemainingArgs blocks, ffi::ResultBuffer<DT> y,
                       ffi::ResultBuffer<DT> rec) {
   using T = ffi::NativeType<DT>;
-  Layout at;
-  Param<T> prm[kBlocks];
-  ffi::Error e = Shapes<DT>(y->dimensions(), 3, y0.dimensions(), 2, n.dimensions(),
-                            h.dimensions(), t0.dimensions(), jump.dimensions(), save.dimensions(),
-                            blocks, &at, prm);
-  if (e.failure()) return e;
-  const auto yd = y->dimensions(), rd = rec->dimensions();
-  const int nd = at.rows.nd;
-  at.S = yd[nd + 1];
-  at.R = rd.size() == yd.size() ? rd[nd + 1] : -1;
-  if (yd[nd + 2] != N || at.R < 0 || rd[nd] != at.B || rd[nd + 2] != Model::NR) {
-    return ffi::Error::InvalidArgument("model kernel: inconsistent output shapes");
-  }
-  const int32_t *nn = n.typed_data(), *jj = jump.typed_data(), *ss = save.typed_data();
-  const T *hh = h.typed_data(), *tt = t0.typed_data();
-  ForEachGroup(nn, hh, tt, jj, ss, at,
-               [&](int64_t s, int64_t sj, int64_t sv, int64_t first, int64_t count) {
-                 Group<T>(y0.typed_data(), prm, nn + s, hh + s, tt + s, jj + sj, ss + sv,
-                          y->typed_data(), rec->typed_data(), first, count, at);
-               });
-  return ffi::Error::Success();
+  auto check = [&](Layout& at) {
+    const auto yd = y->dimensions(), rd = rec->dimensions();
+    const int nd = at.rows.nd;
+    at.S = yd[nd + 1];
+    at.R = rd.size() == yd.size() ? rd[nd + 1] : -1;
+    if (yd[nd + 2] != N || at.R < 0 || rd[nd] != at.B || rd[nd + 2] != Model::NR) {
+      return ffi::Error::InvalidArgument("model kernel: inconsistent output shapes");
+    }
+    return ffi::Error::Success();
+  };
+  auto group = [&](const Param<T>* prm, const int32_t* nn, const T* hh, const T* tt,
+                   const int32_t* jj, const int32_t* ss, int64_t first, int64_t count,
+                   const Layout& at) {
+    Group<T>(y0.typed_data(), prm, nn, hh, tt, jj, ss, y->typed_data(), rec->typed_data(), first,
+             count, at);
+  };
+  return Handle<DT>(y->dimensions(), 3, y0.dimensions(), 2, n, h, t0, jump, save, blocks, check,
+                    group);
 }
 
 template <ffi::DataType DT>
@@ -465,31 +515,28 @@ ffi::Error ModelStepsBack(ffi::Buffer<DT> y, ffi::Buffer<ffi::S32> n, ffi::Buffe
                           ffi::ResultBuffer<DT> pb, ffi::ResultBuffer<DT> hb,
                           ffi::ResultBuffer<DT> tb) {
   using T = ffi::NativeType<DT>;
-  Layout at;
-  Param<T> prm[kBlocks];
-  ffi::Error e = Shapes<DT>(y0b->dimensions(), 2, y.dimensions(), 3, n.dimensions(),
-                            h.dimensions(), t0.dimensions(), jump.dimensions(), save.dimensions(),
-                            blocks, &at, prm);
-  if (e.failure()) return e;
-  at.S = at.K + 1;
-  at.R = 0;
-  const size_t rows = static_cast<size_t>(at.rows.count() * at.B);
-  if (y.dimensions()[at.rows.nd + 1] != at.K + 1 || !Strides(at.rows, gy.dimensions(), 3, &at.gy) ||
-      !std::equal(y.dimensions().begin() + at.rows.nd, y.dimensions().end(),
-                  gy.dimensions().begin() + at.rows.nd, gy.dimensions().end()) ||
-      pb->element_count() != rows * Model::P || hb->element_count() != rows * at.K ||
-      tb->element_count() != rows * at.K) {
-    return ffi::Error::InvalidArgument("model kernel (reverse): inconsistent shapes");
-  }
-  const int32_t *nn = n.typed_data(), *jj = jump.typed_data(), *ss = save.typed_data();
-  const T *hh = h.typed_data(), *tt = t0.typed_data();
-  ForEachGroup(nn, hh, tt, jj, ss, at,
-               [&](int64_t s, int64_t sj, int64_t, int64_t first, int64_t count) {
-                 GroupBack<T>(y.typed_data(), prm, nn + s, hh + s, tt + s, jj + sj,
-                              gy.typed_data(), y0b->typed_data(), pb->typed_data(),
-                              hb->typed_data(), tb->typed_data(), first, count, at);
-               });
-  return ffi::Error::Success();
+  auto check = [&](Layout& at) {
+    at.S = at.K + 1;
+    at.R = 0;
+    const size_t rows = static_cast<size_t>(at.rows.count() * at.B);
+    if (y.dimensions()[at.rows.nd + 1] != at.K + 1 ||
+        !Strides(at.rows, gy.dimensions(), 3, &at.gy) ||
+        !std::equal(y.dimensions().begin() + at.rows.nd, y.dimensions().end(),
+                    gy.dimensions().begin() + at.rows.nd, gy.dimensions().end()) ||
+        pb->element_count() != rows * Model::P || hb->element_count() != rows * at.K ||
+        tb->element_count() != rows * at.K) {
+      return ffi::Error::InvalidArgument("model kernel (reverse): inconsistent shapes");
+    }
+    return ffi::Error::Success();
+  };
+  auto group = [&](const Param<T>* prm, const int32_t* nn, const T* hh, const T* tt,
+                   const int32_t* jj, const int32_t*, int64_t first, int64_t count,
+                   const Layout& at) {
+    GroupBack<T>(y.typed_data(), prm, nn, hh, tt, jj, gy.typed_data(), y0b->typed_data(),
+                 pb->typed_data(), hb->typed_data(), tb->typed_data(), first, count, at);
+  };
+  return Handle<DT>(y0b->dimensions(), 2, y.dimensions(), 3, n, h, t0, jump, save, blocks, check,
+                    group);
 }
 
 }  // namespace

@@ -45,11 +45,12 @@ class Hoisted:
     """A field of N states and P parameters with its traced float constants lifted out:
     `fn(t, y, p, c)`, the constants' values `c (Pc,)` (traced or not), and the jaxprs of `fn`
     and of its cotangent map, traced once; optionally a jump map `jump_fn(t, y, p, c) -> y`
-    (applied at the start of flagged intervals: a sampled command), with the same constants."""
+    (applied at the start of flagged intervals: a sampled command) and a step-end map
+    `end_fn(t, y, p, c) -> y` (after every step; `t` unused), with the same constants."""
 
-    def __init__(self, fns: Callable, c: Array, n: int, p: int, dtype, jumps: bool):
+    def __init__(self, fns: Callable, c: Array, n: int, p: int, dtype, jumps: bool, ends: bool):
         self.fns, self.c, self.n, self.p, self.dtype = fns, c, n, p, jnp.dtype(dtype)
-        self.jumps = jumps
+        self.jumps, self.ends = jumps, ends
         self._sources: dict[tuple, str] = {}
         self._jaxprs: dict[tuple, Any] = {}
 
@@ -58,6 +59,9 @@ class Hoisted:
 
     def jump_fn(self, t, y, p, c):
         return self.fns(t, y, p, c)[1]
+
+    def end_fn(self, t, y, p, c):
+        return self.fns(t, y, p, c)[1 + self.jumps]
 
     def _avals(self):
         dt = self.dtype
@@ -107,6 +111,12 @@ class Hoisted:
         """The jump map on component arrays (as `components`), the kernel's `J`."""
         return self._on_components(self.jaxpr(self.jump_fn))
 
+    @functools.cached_property
+    def end_components(self) -> Callable | None:
+        """The step-end map on component arrays (as `components`), the kernel's `E`; None
+        without one."""
+        return self._on_components(self.jaxpr(self.end_fn)) if self.ends else None
+
     def _on_components(self, forward) -> Callable:
         n, p = self.n, self.p
 
@@ -141,43 +151,61 @@ class _Traced(Exception):
     """The field closes over traced constants: its hoisting belongs to one trace only."""
 
 
-def hoist(field: Field, n: int, p: int, dtype, jump: Field | None = None) -> Hoisted:
-    """`field` (and the jump map `jump`, if any) traced on `t ()`, `y (n,)`, `p (p,)` of
-    `dtype`, their traced float constants lifted into `c`; kept (not traced again) for hashable
-    functions whose constants are concrete, as `jax.jit` keeps a function's compilation. A
-    traced integer constant (an index computed at run time) raises `Unsupported`."""
+def hoist(
+    field: Field,
+    n: int,
+    p: int,
+    dtype,
+    jump: Field | None = None,
+    end: Callable[[Array], tuple[Array, Array]] | None = None,
+) -> Hoisted:
+    """`field` (and the jump map `jump` and step-end map `end(y) -> (y, changed)`, if any; the
+    kernels apply `end(y)[0]` to every body, whether changed or not) traced on `t ()`,
+    `y (n,)`, `p (p,)` of `dtype`, their traced float constants lifted into `c`; kept (not
+    traced again) for hashable functions whose constants are concrete, as `jax.jit` keeps a
+    function's compilation. A traced integer constant (an index computed at run time) raises
+    `Unsupported`."""
+    maps = (field, jump, end)
     name = jnp.dtype(dtype).name
     try:
-        hash((field, jump))
+        hash(maps)
     except TypeError:
-        return _hoist(field, jump, n, p, name)
+        return _hoist(maps, n, p, name)
     try:
-        return _hoist_concrete(field, jump, n, p, name)
+        return _hoist_concrete(maps, n, p, name)
     except _Traced:
-        return _hoist(field, jump, n, p, name)
+        return _hoist(maps, n, p, name)
 
 
 @functools.lru_cache(maxsize=64)
-def _hoist_concrete(field: Field, jump: Field | None, n: int, p: int, dtype: str) -> Hoisted:
-    hoisted = _hoist(field, jump, n, p, dtype)
+def _hoist_concrete(maps: tuple, n: int, p: int, dtype: str) -> Hoisted:
+    hoisted = _hoist(maps, n, p, dtype)
     if not is_concrete(hoisted.c):
         raise _Traced
     return hoisted
 
 
-def _hoist(field: Field, jump: Field | None, n: int, p: int, dtype: str) -> Hoisted:
+def _hoist(maps: tuple, n: int, p: int, dtype: str) -> Hoisted:
     args = (
         jax.ShapeDtypeStruct((), dtype),
         jax.ShapeDtypeStruct((n,), dtype),
         jax.ShapeDtypeStruct((p,), dtype),
     )
 
-    def both(t, y, p):
-        return (field(t, y, p),) if jump is None else (field(t, y, p), jump(t, y, p))
+    field, jump, end = maps
 
-    closed = jax.make_jaxpr(both)(*args)
+    def all_maps(t, y, p):
+        return (
+            field(t, y, p),
+            *(() if jump is None else (jump(t, y, p),)),
+            *(() if end is None else (end(y)[0],)),
+        )
+
+    closed = jax.make_jaxpr(all_maps)(*args)
     if any(a.shape != (n,) for a in closed.out_avals):  # pyright: ignore
-        raise ValueError(f"the model's field and jump map must return arrays of shape ({n},)")
+        raise ValueError(
+            f"the model's field, jump and step-end maps must return arrays of shape ({n},)"
+        )
     consts = list(closed.consts)
     traced = [i for i, x in enumerate(consts) if not is_concrete(x)]
     floats = [i for i in traced if jnp.issubdtype(jnp.result_type(consts[i]), jnp.floating)]
@@ -193,7 +221,7 @@ def _hoist(field: Field, jump: Field | None, n: int, p: int, dtype: str) -> Hois
             offset += v.size
         return jax.core.eval_jaxpr(closed.jaxpr, full, t, y, p)
 
-    return Hoisted(fns, c, n, p, dtype, jump is not None)
+    return Hoisted(fns, c, n, p, dtype, maps[1] is not None, maps[2] is not None)
 
 
 def _inputs(n: int, p: int, pc: int, *extra: str) -> list[np.ndarray]:
@@ -235,8 +263,8 @@ def model_source(
     hoisted: Hoisted, unit: Sequence[tuple[int, int]], record: tuple[int, int] = (0, 0)
 ) -> str:
     """`struct Model` of `model.cc`: sizes, unit groups, the components `[R0, R0 + NR)` that
-    each jump records (`record`), `F` and `FT` (and the jump map `J` and `JT`, empty without
-    one) as C++."""
+    each jump records (`record`), `F` and `FT` (and the jump map `J` and `JT`, the step-end
+    map `E` and `ET`, empty without one) as C++."""
     n, p, pc = hoisted.n, hoisted.p, hoisted.c.shape[0]
     body_f, rates = _program(hoisted.forward, "k", "f", n, p, pc)
     # components whose rate is the constant 0 (a held command): the stages copy them
@@ -246,6 +274,9 @@ def model_source(
     jump = hoisted.jump_fn
     body_j = _program(hoisted.jaxpr(jump), "u", "j", n, p, pc)[0] if jumps else []
     body_jb = _cotangent_program(hoisted.jaxpr(jump, True), "jb", n, p, pc) if jumps else []
+    ends, end = hoisted.ends, hoisted.end_fn
+    body_e = _program(hoisted.jaxpr(end), "u", "e", n, p, pc)[0] if ends else []
+    body_eb = _cotangent_program(hoisted.jaxpr(end, True), "eb", n, p, pc) if ends else []
     units = ", ".join(f"{{{a}, {m}}}" for a, m in unit) or "{0, 0}"
     indent = "\n    "
     forward_args = "(T t, const T* y, const T* p, T* {}) {{\n    "
@@ -254,6 +285,7 @@ def model_source(
         "struct Model {\n"
         f"  static constexpr int N = {n}, P = {p + pc}, NU = {len(unit)};\n"
         f"  static constexpr bool kJump = {'true' if jumps else 'false'};\n"
+        f"  static constexpr bool kEnd = {'true' if ends else 'false'};\n"
         f"  static constexpr int R0 = {record[0]}, NR = {record[1]};\n"
         f"  static constexpr int unit[{max(len(unit), 1)}][2] = {{{units}}};\n"
         f"  static constexpr bool still[{n}] = {{{still}}};\n"
@@ -265,6 +297,8 @@ def model_source(
                 ("FT", backward_args, body_b),
                 ("J", forward_args.format("u"), body_j),
                 ("JT", backward_args, body_jb),
+                ("E", forward_args.format("u"), body_e),
+                ("ET", backward_args, body_eb),
             )
         )
         + "};\n"

@@ -9,7 +9,8 @@ The field is the model's own scalar program (`Hoisted.components`, the Diffrax p
 evaluated on `(BLOCK,)` register vectors, so a torque written in JAX runs inside the kernel.
 Same steps and arithmetic as the CPU kernel and the Diffrax path (`ExplicitRK(method)`):
 `n[k]` equal steps of size `h[k]` from `t0[k]` per output interval, stage `i` at
-`t0 + s h + c_i h`, each unit group divided by its norm after each step:
+`t0 + s h + c_i h`, each unit group divided by its norm after each step, then the model's
+step-end map, if any:
 
     z_i = y + h Σ_{l<i} a_il k_l,  k_i = f(t + c_i h, z_i, p),  u = y + h Σ_l b_l k_l
 
@@ -24,6 +25,7 @@ import functools
 import math
 import warnings
 from collections.abc import Callable
+from typing import cast
 
 import diffrax
 import jax
@@ -41,14 +43,35 @@ BLOCK = 128
 """Bodies per program: one per thread of a 4-warp GPU program."""
 
 Unit = tuple[tuple[int, int], ...]
+Steps = tuple[Int[Array, " K"], Float[Array, " K"], Float[Array, " K"]]
+"""`(n, h, t0)`: `n[k]` steps of size `h[k]` from `t0[k]` in output interval k."""
 
 
-def step(fn, tab: diffrax.ButcherTableau, unit: Unit, p, c, t, h, y: tuple) -> tuple:
+class Spec:
+    """What a kernel integrates: a model (`Hoisted`), its unit groups and the method (a type in
+    `tableau.METHODS`). Equal (and hashed, as the checks' caches key them) by the model's
+    jaxprs' text, sizes, unit groups, element type and method: the lowering depends on nothing
+    else (the constants' values are the checks' random ones)."""
+
+    def __init__(self, hoisted: Hoisted, unit: Unit, method: type[diffrax.AbstractERK]):
+        self.hoisted, self.unit, self.method = hoisted, unit, method
+        end = str(hoisted.jaxpr(hoisted.end_fn)) if hoisted.ends else None
+        self.text = (str(hoisted.forward), end, hoisted.n, hoisted.p, hoisted.c.shape, unit)
+        self.text += (hoisted.dtype.name, method)
+
+    def __hash__(self) -> int:
+        return hash(self.text)
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, Spec) and other.text == self.text
+
+
+def step(fn, tab: diffrax.ButcherTableau, unit: Unit, end, p, c, t, h, y: tuple) -> tuple:
     """One step of the tableau `tab` from `y` at time `t` (`ExplicitRK`'s stages; a stage that
     never reaches the solution, first-same-as-last, is left to the compiler to drop), each unit
     group renormalised: `q ← u_q · (1 / sqrt(u_q · u_q))`, as in the C++ kernel (in float64 on
     NVIDIA GPUs, IEEE `sqrt.rn` and `div.rn`; `rsqrt` would lower to the approximate
-    `rsqrt.approx.f64`)."""
+    `rsqrt.approx.f64`), then the step-end map `end` (`Hoisted.end_components`; None: none)."""
 
     def field(ts, inc):
         z = y if inc is None else tuple(a + b for a, b in zip(y, inc, strict=True))
@@ -60,10 +83,10 @@ def step(fn, tab: diffrax.ButcherTableau, unit: Unit, p, c, t, h, y: tuple) -> t
         r = 1 / jnp.sqrt(sum(u[j] * u[j] for j in range(a, a + m)))
         for j in range(a, a + m):
             u[j] = u[j] * r
-    return tuple(u)
+    return tuple(u) if end is None else end(t + h, tuple(u), p, c)
 
 
-def _kernel(fn, tab: diffrax.ButcherTableau, unit: Unit, K: int, N: int, P: int, Pc: int):
+def _kernel(fn, tab: diffrax.ButcherTableau, unit: Unit, end, K: int, N: int, P: int, Pc: int):
     """The kernel of one block: `K` intervals of `n[k]` steps of size `h[k]` from `t0[k]`, the
     state written at their ends."""
 
@@ -78,7 +101,7 @@ def _kernel(fn, tab: diffrax.ButcherTableau, unit: Unit, K: int, N: int, P: int,
             h, t0 = h_ref[k], t0_ref[k]
 
             def one(s, y):
-                return step(fn, tab, unit, p, c, t0 + s.astype(h.dtype) * h, h, y)
+                return step(fn, tab, unit, end, p, c, t0 + s.astype(h.dtype) * h, h, y)
 
             y = jax.lax.fori_loop(0, n_ref[k], one, y)
             for j in range(N):
@@ -91,25 +114,21 @@ def _kernel(fn, tab: diffrax.ButcherTableau, unit: Unit, K: int, N: int, P: int,
 
 
 def run(
-    hoisted: Hoisted,
-    unit: Unit,
-    method: type[diffrax.AbstractERK],
+    spec: Spec,
     y0: Float[Array, "B N"],
     p: Float[Array, "P Bc"],
-    n: Int[Array, " K"],
-    h: Float[Array, " K"],
-    t0: Float[Array, " K"],
+    steps: Steps,
     *,
     interpret: bool = False,
 ) -> Float[Array, "B T N"]:
-    """States `(B, K + 1, N)` of B bodies at the start and after each of K intervals of `n[k]`
-    steps of `method` (a type in `tableau.METHODS`) of size `h[k]` from `t0[k]`; `p (P + Pc, B
+    """States `(B, K + 1, N)` of B bodies at the start and after each of K intervals of
+    `steps` (`Steps`) of the model and method of `spec`; `p (P + Pc, B
     or 1)` holds the parameters and the lifted constants, as `model.run` takes them.
     `interpret=True` runs the kernel in Pallas' interpreter (any backend: the CPU tests). The
     batch is padded to whole blocks with copies of the first body. Under `jax.vmap` over the
     bodies (a sweep of one-body solves), the mapped bodies join one kernel call."""
-    call = functools.partial(_blocks, hoisted, unit, method, interpret=interpret)
-    return _joining(call, states=1, out_body_axes=(0,))(y0, p, n, h, t0)[0]
+    call = functools.partial(_blocks, spec, interpret=interpret)
+    return _joining(call, states=1, out_body_axes=(0,))(y0, p, *steps)[0]
 
 
 def _joining(call: Callable, states: int, out_body_axes: tuple[int, ...]) -> Callable:
@@ -156,19 +175,25 @@ def _padded(a: Array, Bp: int) -> Array:
     return jnp.concatenate([a, jnp.broadcast_to(a[..., :1], (*a.shape[:-1], Bp - a.shape[-1]))], -1)
 
 
-def _blocks(
-    hoisted: Hoisted, unit: Unit, method: type[diffrax.AbstractERK], *arrays: Array, interpret: bool
-) -> Float[Array, "B T N"]:
+def _parameters(p: Array, B: int, Bp: int, dtype) -> Array:
+    """The parameter rows of a call `(max(P, 1), Bp)`, padded as `_padded`: a model without
+    parameters gets one row of zeros, never read (a block cannot be empty)."""
+    p = jnp.broadcast_to(p.astype(dtype), (p.shape[0], B))
+    return _padded(jnp.concatenate([p, jnp.zeros((int(p.shape[0] == 0), B), dtype)]).T, Bp)
+
+
+def _blocks(spec: Spec, *arrays: Array, interpret: bool) -> Float[Array, "B T N"]:
     """`run` of one batch (`arrays`: its `y0, p, n, h, t0`): the `pallas_call` over its
     blocks."""
     y0, p, n, h, t0 = arrays
     B, N, K, dtype = y0.shape[0], y0.shape[1], h.shape[0], y0.dtype
-    P = hoisted.p
+    hoisted, P = spec.hoisted, spec.hoisted.p
     Bp = -(-B // BLOCK) * BLOCK
     x0 = _padded(y0, Bp)  # (N, Bp)
-    pp = _padded(jnp.broadcast_to(p.astype(dtype), (p.shape[0], B)).T, Bp)
+    pp = _parameters(p, B, Bp, dtype)
+    tab, end = _stages.tableau_of(spec.method()), hoisted.end_components
     out = pl.pallas_call(
-        _kernel(hoisted.components, _stages.tableau_of(method()), unit, K, N, P, p.shape[0] - P),
+        _kernel(hoisted.components, tab, spec.unit, end, K, N, P, p.shape[0] - P),
         out_shape=jax.ShapeDtypeStruct((K + 1, N, Bp), dtype),
         grid=(Bp // BLOCK,),
         in_specs=[
@@ -176,7 +201,7 @@ def _blocks(
             pl.BlockSpec((K,), lambda i: (0,)),
             pl.BlockSpec((K,), lambda i: (0,)),
             pl.BlockSpec((N, BLOCK), lambda i: (0, i)),
-            pl.BlockSpec((p.shape[0], BLOCK), lambda i: (0, i)),
+            pl.BlockSpec((pp.shape[0], BLOCK), lambda i: (0, i)),
         ],
         out_specs=pl.BlockSpec((K + 1, N, BLOCK), lambda i: (0, 0, i)),
         # Triton, one body per thread (Pallas' default on NVIDIA GPUs is Mosaic GPU)
@@ -187,15 +212,11 @@ def _blocks(
 
 
 def run_back(
-    hoisted: Hoisted,
-    unit: Unit,
-    method: type[diffrax.AbstractERK],
+    spec: Spec,
     ys: Float[Array, "B T N"],
     g: Float[Array, "B T N"],
     p: Float[Array, "P Bc"],
-    n: Int[Array, " K"],
-    h: Float[Array, " K"],
-    t0: Float[Array, " K"],
+    steps: Steps,
     *,
     longest: int,
     interpret: bool = False,
@@ -206,20 +227,12 @@ def run_back(
     `longest`: a bound on the steps of an interval (its states are recomputed from
     checkpoints √longest steps apart). Under `jax.vmap` the mapped bodies join one call."""
     L = max(1, math.isqrt(max(longest, 1) - 1) + 1)
-    call = functools.partial(
-        _back_blocks, hoisted, unit, method, L, -(-max(longest, 1) // L), interpret=interpret
-    )
-    return _joining(call, states=2, out_body_axes=(0, -1))(ys, g, p, n, h, t0)
+    call = functools.partial(_back_blocks, spec, L, -(-max(longest, 1) // L), interpret=interpret)
+    return _joining(call, states=2, out_body_axes=(0, -1))(ys, g, p, *steps)
 
 
 def _back_blocks(
-    hoisted: Hoisted,
-    unit: Unit,
-    method: type[diffrax.AbstractERK],
-    L: int,
-    C: int,
-    *arrays: Array,
-    interpret: bool,
+    spec: Spec, L: int, C: int, *arrays: Array, interpret: bool
 ) -> tuple[Array, Array]:
     """`run_back` of one batch (`arrays`: its `ys, g, p, n, h, t0`): the `pallas_call` over its
     blocks, with C checkpoints and L states of scratch per body."""
@@ -228,15 +241,16 @@ def _back_blocks(
     K, dtype, P = T - 1, ys.dtype, p.shape[0]
     Bp = -(-B // BLOCK) * BLOCK
 
-    pp = _padded(jnp.broadcast_to(p.astype(dtype), (P, B)).T, Bp)
-    kernel = _back_kernel(
-        hoisted.components, _stages.tableau_of(method()), unit, K, N, P, P - hoisted.p, L
-    )
+    pp = _parameters(p, B, Bp, dtype)
+    R = pp.shape[0]
+    hoisted = spec.hoisted
+    tab, end = _stages.tableau_of(spec.method()), hoisted.end_components
+    kernel = _back_kernel(hoisted.components, tab, spec.unit, end, K, N, P, P - hoisted.p, L)
     y0b, pb, _, _ = pl.pallas_call(
         kernel,
         out_shape=(
             jax.ShapeDtypeStruct((N, Bp), dtype),
-            jax.ShapeDtypeStruct((P, Bp), dtype),
+            jax.ShapeDtypeStruct((R, Bp), dtype),
             jax.ShapeDtypeStruct((C, N, Bp), dtype),  # scratch: checkpoints
             jax.ShapeDtypeStruct((L, N, Bp), dtype),  # scratch: a segment's states
         ),
@@ -247,11 +261,11 @@ def _back_blocks(
             pl.BlockSpec((K,), lambda i: (0,)),
             pl.BlockSpec((T, N, BLOCK), lambda i: (0, 0, i)),
             pl.BlockSpec((T, N, BLOCK), lambda i: (0, 0, i)),
-            pl.BlockSpec((P, BLOCK), lambda i: (0, i)),
+            pl.BlockSpec((R, BLOCK), lambda i: (0, i)),
         ],
         out_specs=(
             pl.BlockSpec((N, BLOCK), lambda i: (0, i)),
-            pl.BlockSpec((P, BLOCK), lambda i: (0, i)),
+            pl.BlockSpec((R, BLOCK), lambda i: (0, i)),
             pl.BlockSpec((C, N, BLOCK), lambda i: (0, 0, i)),
             pl.BlockSpec((L, N, BLOCK), lambda i: (0, 0, i)),
         ),
@@ -259,11 +273,11 @@ def _back_blocks(
         interpret=interpret,
     )(n.astype(jnp.int32), h.astype(dtype), t0.astype(dtype), _padded(ys.astype(dtype), Bp),
       _padded(g.astype(dtype), Bp), pp)  # fmt: skip
-    return y0b[:, :B].T, pb[:, :B]
+    return y0b[:, :B].T, pb[:P, :B]
 
 
 def _back_kernel(
-    fn, tab: diffrax.ButcherTableau, unit: Unit, K: int, N: int, P: int, Pc: int, L: int
+    fn, tab: diffrax.ButcherTableau, unit: Unit, end, K: int, N: int, P: int, Pc: int, L: int
 ):
     """The reverse mode of one block: from the states `y` at the K + 1 output times and the
     cotangents `g` there, the cotangents of the initial states and of the P parameters (the
@@ -291,7 +305,7 @@ def _back_kernel(
 
             def stepped(s, y, pc):  # step s of the interval (the parameters and constants pc)
                 t = t0 + s.astype(dtype) * h
-                return step(fn, tab, unit, pc[: P - Pc], pc[P - Pc :], t, h, y)
+                return step(fn, tab, unit, end, pc[: P - Pc], pc[P - Pc :], t, h, y)
 
             def advance(first, count, y, keep=None):
                 def one(m, y):
@@ -344,37 +358,21 @@ def serves(hoisted: Hoisted, unit: Unit, solver: diffrax.AbstractSolver) -> bool
         type(solver) in METHODS
         and jax.default_backend() == "gpu"
         and hoisted.dtype.name in DTYPES
-        and _checked(_Key(hoisted, unit), type(solver))
+        and _checked(Spec(hoisted, unit, cast(type[diffrax.AbstractERK], type(solver))))
     )
 
 
-def serves_back(hoisted: Hoisted, unit: Unit, method: type[diffrax.AbstractERK]) -> bool:
+def serves_back(spec: Spec) -> bool:
     """Whether the reverse-mode kernel (`run_back`) works here: checked once per model, method
     and element type as `serves` (the compiled kernel's cotangents against the interpreter's),
     else one warning and reverse mode through Diffrax."""
-    return _checked_back(_Key(hoisted, unit), method)
+    return _checked_back(spec)
 
 
-class _Key:
-    """A model as `_checked` caches it: by its jaxpr's text, sizes and unit groups (the
-    lowering depends on nothing else; the constants' values are the check's random ones)."""
-
-    def __init__(self, hoisted: Hoisted, unit: Unit):
-        self.hoisted, self.unit = hoisted, unit
-        self.text = (str(hoisted.forward), hoisted.n, hoisted.p, hoisted.c.shape, unit)
-        self.text += (hoisted.dtype.name,)
-
-    def __hash__(self) -> int:
-        return hash(self.text)
-
-    def __eq__(self, other) -> bool:
-        return isinstance(other, _Key) and other.text == self.text
-
-
-def _compare(what: str, key: _Key, method, fn, args) -> bool:
+def _compare(what: str, spec: Spec, fn, args) -> bool:
     """Whether `fn(*args, interpret=...)` compiled here agrees with Pallas' interpreter (relative
     1e-4 in float32, 1e-10 in float64); one warning naming `what` where not."""
-    dtype = key.hoisted.dtype
+    dtype, method = spec.hoisted.dtype, spec.method
     try:
         # compiled ahead and called: run at once, also where `simulate` is being traced
         got, want = (
@@ -400,35 +398,35 @@ def _compare(what: str, key: _Key, method, fn, args) -> bool:
     return True
 
 
-def _sample(key: _Key):
+def _sample(spec: Spec):
     """Two blocks of random states (unit groups normalised), parameters in [1, 2] and three
     intervals of 3, 0 and 5 steps: the checks' problem."""
-    hoisted, dtype = key.hoisted, key.hoisted.dtype
+    hoisted, dtype = spec.hoisted, spec.hoisted.dtype
     rng = np.random.default_rng(0)
     B = BLOCK + 3
     y = rng.normal(size=(B, hoisted.n))
-    for a, m in key.unit:
+    for a, m in spec.unit:
         y[:, a : a + m] /= np.linalg.norm(y[:, a : a + m], axis=1, keepdims=True)
     p = rng.uniform(1, 2, size=(hoisted.p + hoisted.c.shape[0], B)).astype(dtype)
     h, t0 = np.array([0.01, 0.02, 0.005], dtype), np.array([0.0, 0.03, 0.03], dtype)
-    return y.astype(dtype), p, np.array([3, 0, 5], np.int32), h, t0
+    return y.astype(dtype), p, (np.array([3, 0, 5], np.int32), h, t0)
 
 
 @functools.cache
-def _checked_back(key: _Key, method: type[diffrax.AbstractERK]) -> bool:
+def _checked_back(spec: Spec) -> bool:
     """Whether the compiled reverse-mode kernel agrees with the interpreter's on `_sample`."""
-    y, p, n, h, t0 = args = _sample(key)
-    forward = jax.jit(functools.partial(run, key.hoisted, key.unit, method, interpret=True))
+    y, p, steps = args = _sample(spec)
+    forward = jax.jit(functools.partial(run, spec, interpret=True))
     ys = np.asarray(forward.lower(*args).compile()(*args))  # run now, also under a trace
     g = np.random.default_rng(1).normal(size=ys.shape).astype(ys.dtype)
-    fn = functools.partial(run_back, key.hoisted, key.unit, method, longest=5)
-    return _compare("reverse-mode kernel", key, method, fn, (ys, g, p, n, h, t0))
+    fn = functools.partial(run_back, spec, longest=5)
+    return _compare("reverse-mode kernel", spec, fn, (ys, g, p, steps))
 
 
 @functools.cache
-def _checked(key: _Key, method: type[diffrax.AbstractERK]) -> bool:
+def _checked(spec: Spec) -> bool:
     """Whether the compiled kernel runs here and agrees with Pallas' interpreter on `_sample`
     (two blocks of bodies over three intervals)."""
-    y, p, n, h, t0 = _sample(key)
-    fn = functools.partial(run, key.hoisted, key.unit, method)
-    return _compare("kernel", key, method, fn, (y, p, n, h, t0))
+    y, p, steps = _sample(spec)
+    fn = functools.partial(run, spec)
+    return _compare("kernel", spec, fn, (y, p, steps))

@@ -18,7 +18,14 @@ from .._integrate import SolveKwargs, SolveOptions, solve_saved
 from ..models.solve import solve_tree
 from ..rotations import so3
 from ..solvers.rkmk import LieTerm
-from .formulations import AbstractKinematics, PoissonMatrix, Quaternion, check_omega, lookup
+from .formulations import (
+    AbstractKinematics,
+    PoissonMatrix,
+    Quaternion,
+    RotationVector,
+    check_omega,
+    lookup,
+)
 
 OmegaLike = Callable[[Array], Array] | diffrax.AbstractPath | tuple[ArrayLike, ArrayLike]
 
@@ -120,9 +127,11 @@ def darboux(
     RKMK-Dopri5 for `"geometric"`) with a PID controller at `rtol = atol = 1e-10` (1e-6 in
     float32). Steps end at every output time and the values at `ts` are step-end states
     (`solve_saved`). `return_state=True` also returns the native states at `ts` (normalised
-    quaternions, shadowed rotation vectors, ...). With a callable `omega`, `"quat"` and
-    `"matrix"` are a model (`rigidjax.models`): at fixed steps of an explicit Runge–Kutta
-    method they run on the CPU kernel written from the field, ω(t) included.
+    quaternions, shadowed rotation vectors, ...). With a callable `omega`, `"rotvec"`, `"quat"`
+    and `"matrix"` are a model (`rigidjax.models`): at fixed steps of an explicit Runge–Kutta
+    method they run on the CPU kernel written from the field, ω(t) and the shadow switch
+    included (`"euler"` and `"cayley_klein"` use indexed updates, host checks and complex
+    numbers, which the kernel cannot take).
     """
     options = SolveOptions.of(options, solve_kwargs)
     ts = check_times(as_float(ts, "ts"))
@@ -152,12 +161,15 @@ def darboux(
         term = diffrax.ODETerm(_KinematicsField(kin, w))
         y0 = kin.from_matrix(P0)
         to_matrix = jax.vmap(kin.to_matrix)
-        if type(kin) in (Quaternion, PoissonMatrix) and source is w:
+        if source is w and type(kin) in (Quaternion, PoissonMatrix, RotationVector):
             # a model (`solve_tree`): fixed explicit steps run on the CPU kernel written from
-            # the field, ω(t) included; the quaternion is renormalised after every step
+            # the field, ω(t) included; after every step the quaternion is renormalised, the
+            # rotation vector replaced by its shadow where |θ| > π
+            quaternion = type(kin) is Quaternion
+            plain = quaternion or type(kin) is PoissonMatrix
             ys, _, _ = solve_tree(
-                term.vector_field, ts, y0, (), options,
-                unit=(0,) if type(kin) is Quaternion else (), name="Darboux kinematics",
+                term.vector_field, ts, y0, (), options, unit=(0,) if quaternion else (),
+                end=None if plain else kin.step_end, name="Darboux kinematics",
             )  # fmt: skip
             P = to_matrix(ys)
             return (P, ys) if return_state else P

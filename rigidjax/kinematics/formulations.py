@@ -248,7 +248,7 @@ class EulerAngles(AbstractKinematics):
         turn = jnp.where(
             jnp.sum(q * q_new, -1) < 0, jnp.where(first < 0, 2 * jnp.pi, -2 * jnp.pi), 0
         )
-        new = new.at[..., 0].add(turn)
+        new = jnp.concatenate([new[..., :1] + turn[..., None], new[..., 1:]], axis=-1)
         mask = jnp.array([1.0, 0.0, 1.0], a.dtype)
         wrapped = (
             a

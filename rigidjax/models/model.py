@@ -19,9 +19,11 @@ Field = Callable[[Array, Array, Array], Array]
 
 class Model(eqx.Module):
     """One body's vector field `field(t, y (size,), p (params,)) -> ẏ (size,)`, with the state's
-    unit-norm groups `unit` (`(start, length)`: a quaternion, renormalised after every step) and
-    `name` for messages. The parameters `p` are per body (moments, masses); constants the field
-    closes over (torque gains) are the field's own and reach `jax.grad` as well."""
+    unit-norm groups `unit` (`(start, length)`: a quaternion, renormalised after every step), a
+    step-end map `end` (`y, changed ← end(y)` after every step and its normalisation: a shadow
+    or chart switch; `changed` says where it changed the state) and `name` for messages. The
+    parameters `p` are per body (moments, masses); constants the field closes over (torque
+    gains) are the field's own and reach `jax.grad` as well."""
 
     field: Field  # a PyTree where it holds arrays (a bound method of a module)
     size: int = eqx.field(static=True)
@@ -30,6 +32,7 @@ class Model(eqx.Module):
     name: str = eqx.field(static=True, default="model")
     jump: Field | None = None  # `y ← jump(t, y, p)` at flagged interval starts (a sample)
     record: tuple[int, int] = eqx.field(static=True, default=(0, 0))  # recorded after a jump
+    end: Callable[[Array], tuple[Array, Array]] | None = None  # after every step
 
 
 class TreeModel(eqx.Module):
@@ -46,6 +49,7 @@ class TreeModel(eqx.Module):
     name: str = eqx.field(static=True)
     jump_vf: Callable | None = None  # `jump(t, y, args) -> y` on the trees
     record: int | None = eqx.field(static=True, default=None)  # the leaf recorded after jumps
+    end_vf: Callable | None = None  # `end(y) -> (y, changed)` on the trees, after every step
 
     def model(self) -> Model:
         """The flat `Model` (one per tree model: see `tree_model`)."""
@@ -55,7 +59,8 @@ class TreeModel(eqx.Module):
         size, params = int(starts[-1]), sum(math.prod(s) for s in self.p_shapes)
         jump = None if self.jump_vf is None else self.jump
         record = (0, 0) if self.record is None else (int(starts[self.record]), sizes[self.record])
-        return Model(self.field, size, params, unit, self.name, jump, record)
+        end = None if self.end_vf is None else self.end
+        return Model(self.field, size, params, unit, self.name, jump, record, end)
 
     def unravel(self, flat: Array, which: str) -> Any:
         """The tree of a flat state (`which="y"`, last axis) or parameters (`"p"`)."""
@@ -70,11 +75,19 @@ class TreeModel(eqx.Module):
         return jax.tree_util.tree_unflatten(tree_def, out)
 
     def field(self, t, y, p):
-        return _joined(self.vf(t, self.unravel(y, "y"), self.unravel(p, "p")), y.dtype)
+        return self._on_trees(self.vf, t, y, p)
 
     def jump(self, t, y, p):
         assert self.jump_vf is not None
-        return _joined(self.jump_vf(t, self.unravel(y, "y"), self.unravel(p, "p")), y.dtype)
+        return self._on_trees(self.jump_vf, t, y, p)
+
+    def end(self, y):
+        assert self.end_vf is not None
+        out, changed = self.end_vf(self.unravel(y, "y"))
+        return _joined(out, y.dtype), changed
+
+    def _on_trees(self, fn: Callable, t, y, p):
+        return _joined(fn(t, self.unravel(y, "y"), self.unravel(p, "p")), y.dtype)
 
 
 def _joined(tree: Any, dtype) -> Array:
@@ -91,37 +104,13 @@ def ravel(tree: Any, dtype) -> Array:
     return jnp.concatenate([*leaves(tree, dtype), jnp.zeros((0,), dtype)])
 
 
-def tree_model(
-    vf: Callable,
-    y0: Any,
-    args: Any,
-    unit: tuple[int, ...] = (),
-    name: str = "model",
-    jump: Callable | None = None,
-    record: int | None = None,
-) -> tuple[TreeModel, Model]:
-    """The tree model of `vf(t, y, args)` (and of the jump map `jump(t, y, args) -> y`, if any,
-    recording the state's leaf `record` after each jump)
-    for the trees `y0` (one body's state) and `args` (its parameters), with its flat `Model`,
-    kept per field and tree structure (so that the field is traced once, as `jax.jit` traces a
-    function once)."""
-    y_leaves, y_def = jax.tree_util.tree_flatten(y0)
-    p_leaves, p_def = jax.tree_util.tree_flatten(args)
-    tm = TreeModel(
-        vf,
-        y_def,
-        tuple(tuple(jnp.shape(a)) for a in y_leaves),
-        p_def,
-        tuple(tuple(jnp.shape(a)) for a in p_leaves),
-        unit,
-        name,
-        jump,
-        record,
-    )
+def flat(tm: TreeModel) -> Model:
+    """The flat `Model` of `tm`, kept per field and tree structure (so that the field is traced
+    once, as `jax.jit` traces a function once)."""
     try:
-        return tm, _flat(tm)
+        return _flat(tm)
     except TypeError:  # an unhashable field
-        return tm, tm.model()
+        return tm.model()
 
 
 @functools.lru_cache(maxsize=64)

@@ -32,7 +32,7 @@ from ..kernels import model as model_kernel
 from ..kernels import model_pallas
 from ..kernels._scalar import Unsupported
 from ..solvers.explicit_rk import ExplicitRK
-from .model import Model, leaves, ravel, tree_model
+from .model import Model, TreeModel, flat, leaves, ravel
 
 
 class BatchMaxRMS(eqx.Module):
@@ -134,10 +134,13 @@ class _Components(eqx.Module):
         return tuple(jnp.moveaxis(jax.vmap(self.field, in_axes=(None, 0, 0))(t, ys, ps), -1, 0))
 
 
-class _NormalizeUnits(eqx.Module):
-    """Step-end map: each unit group of the component state divided by its norm."""
+class _StepEnd(eqx.Module):
+    """Step-end map of the component state: each unit group divided by its norm, then the
+    model's map `end(y) -> (y', changed)` on each body, if any (`changed` anywhere: the next
+    step re-evaluates a first-same-as-last stage)."""
 
     unit: tuple[tuple[int, int], ...] = eqx.field(static=True)
+    end: Callable | None
 
     def __call__(self, y):
         y = list(y)
@@ -145,13 +148,20 @@ class _NormalizeUnits(eqx.Module):
             r = jax.lax.rsqrt(sum(y[j] * y[j] for j in range(a, a + m)))
             for j in range(a, a + m):
                 y[j] = y[j] * r
-        return tuple(y), jnp.array(False)
+        if self.end is None:
+            return tuple(y), jnp.array(False)
+        stacked, end = jnp.stack(y, axis=-1), self.end
+        for _ in range(stacked.ndim - 1):  # the bodies' axes
+            end = jax.vmap(end)
+        out, changed = end(stacked)
+        return tuple(jnp.moveaxis(out, -1, 0)), jnp.any(changed)
 
 
 def _compile(model: Model, dtype):
     """The model's field hoisted (its float constants lifted), or the primitive it cannot take."""
     try:
-        return model_kernel.hoist(model.field, model.size, model.params, dtype, model.jump), None
+        fns = (model.jump, model.end)
+        return model_kernel.hoist(model.field, model.size, model.params, dtype, *fns), None
     except Unsupported as e:
         return None, e.primitive
 
@@ -338,7 +348,7 @@ def _diffrax(
         y_init,
         options,
         args=(comps(p), c),
-        step_end=_NormalizeUnits(model.unit) if model.unit else None,
+        step_end=_StepEnd(model.unit, model.end) if model.unit or model.end else None,
         norm=BatchMaxRMS(-1),
     )
     ys = jnp.stack(ys, axis=-1)  # (T, B, N) or (T, N)
@@ -367,9 +377,10 @@ def _gpu(
         n = fixed_step_count(width, jnp.asarray(options.dt0, ts.dtype))
         return jnp.minimum(n, options.max_steps).astype(jnp.int32), width / n, ts[:-1]
 
+    spec = model_pallas.Spec(hoisted, model.unit, type(method))
+
     def forward(y0, p, c, ts):
-        args = (hoisted, model.unit, type(method), y0, _packed(p, c), *steps(ts))
-        return model_pallas.run(*args, interpret=interpret)
+        return model_pallas.run(spec, y0, _packed(p, c), steps(ts), interpret=interpret)
 
     def through_diffrax(y0, p, c, ts):
         ys = _diffrax(model, hoisted, ts, y0, p, c, through, False)[0]
@@ -389,12 +400,12 @@ def _gpu(
         (y0, p, c, ts), ys = residuals
         if isinstance(g, jax.custom_derivatives.SymbolicZero):
             g = jnp.zeros_like(ys)
-        if not (interpret or model_pallas.serves_back(hoisted, model.unit, type(method))):
+        if not (interpret or model_pallas.serves_back(spec)):
             return jax.vjp(through_diffrax, y0, p, c, ts)[1](g)
         with jax.ensure_compile_time_eval():  # concrete steps where the times are known now
             n, h, t0 = steps(ts)
         longest = int(np.max(np.asarray(n), initial=1)) if is_concrete(n) else options.max_steps
-        args = (hoisted, model.unit, type(method), ys, g, _packed(p, c), n, h, t0)
+        args = (spec, ys, g, _packed(p, c), (n, h, t0))
         y0b, pb = model_pallas.run_back(*args, longest=longest, interpret=interpret)
         P = p.shape[1]
         pbar = pb[:P].T if p.shape[0] > 1 else jnp.sum(pb[:P], axis=1)[None]
@@ -419,15 +430,20 @@ def solve_tree(
     jumps: np.ndarray | None = None,
     keep: np.ndarray | None = None,
     record: int | None = None,
+    end: Callable | None = None,
 ) -> tuple[Any, dict[str, Array], diffrax.RESULTS]:
     """`solve_model` for one body whose state `y0` and parameters `args` are PyTrees and whose
     field is `vf(t, y, args)` (`unit`: the indices of the state's leaves that are unit
     quaternions; `jump(t, y, args) -> y` applied where `jumps` flags an interval, recording
     the state's leaf `record` after each jump in `stats["recorded"] (J, ...)`; `keep`: the
-    times whose states are returned); returns `(ys, stats, result)`, `ys` the state's tree with
-    a leading time axis. Under `jax.vmap` the mapped bodies join one kernel call."""
+    times whose states are returned; `end(y) -> (y', changed)`: a step-end map); returns
+    `(ys, stats, result)`, `ys` the state's tree with a leading time axis. Under `jax.vmap` the
+    mapped bodies join one kernel call."""
     dtype = ts.dtype
-    tm, model = tree_model(vf, y0, args, unit, name, jump, record)
+    (y_leaves, y_def), (p_leaves, p_def) = (jtu.tree_flatten(x) for x in (y0, args))
+    y_shapes, p_shapes = (tuple(jnp.shape(a) for a in xs) for xs in (y_leaves, p_leaves))
+    tm = TreeModel(vf, y_def, y_shapes, p_def, p_shapes, unit, name, jump, record, end)
+    model = flat(tm)
     p = [leaf[None] for leaf in leaves(args, dtype)]  # a block each
     y = ravel(y0, dtype)[None]
     ys, stats, result = solve_model(model, ts, y, p, options, single=True, jumps=jumps, keep=keep)

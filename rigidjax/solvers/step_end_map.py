@@ -24,7 +24,7 @@ class StepEndMap(diffrax.AbstractSolver[tuple[PyTree, Bool[Array, ""]]]):
     """
 
     solver: diffrax.AbstractSolver
-    fn: Callable[[Y], tuple[Y, Bool[Array, ""]]] = eqx.field(static=True)
+    fn: Callable[[Y], tuple[Y, Bool[Array, ""]]]  # a PyTree where it holds arrays
 
     @classmethod
     def wrap(

@@ -66,7 +66,9 @@ def test_kernel_equals_diffrax_path(method):
     want = rj.simulate(rj.RigidBody(I), w, q, ts=TS, solver=ExplicitRK(method()), **FIXED)
     model, hoisted = _free()
     y0 = jnp.concatenate([w, q], axis=1)
-    got = pk.run(hoisted, model.unit, method, y0, moments_params(I).T, *_steps(), interpret=True)
+    got = pk.run(
+        pk.Spec(hoisted, model.unit, method), y0, moments_params(I).T, _steps(), interpret=True
+    )
     # the same field and stages: equal but for 1 / sqrt against rsqrt (measured 4.4e-16)
     np.testing.assert_allclose(got[..., :3], want.omega, rtol=0, atol=2e-15)
     np.testing.assert_allclose(got[..., 3:], want.quat, rtol=0, atol=2e-15)
@@ -88,18 +90,24 @@ def test_shared_parameters_float32_and_vmap():
     p = moments_params(jnp.array([1.0, 2.0, 3.0]))[:, None]
     n, h, t0 = jnp.asarray([4, 0, 6], jnp.int32), jnp.asarray([0.05, 0.1, 0.02]), jnp.zeros(3)
     model, hoisted = _free()
-    run = functools.partial(pk.run, hoisted, model.unit, rj.RK4, interpret=True)
-    y64 = run(y0, p, n, h, t0)
+    run = functools.partial(pk.run, pk.Spec(hoisted, model.unit, rj.RK4), interpret=True)
+    y64 = run(y0, p, (n, h, t0))
     assert y64.shape == (7, 4, 7)
     np.testing.assert_array_equal(y64[:, 2], y64[:, 1])
     _, hoisted32 = _free(jnp.float32)
-    y32 = pk.run(hoisted32, model.unit, rj.RK4, y0.astype(jnp.float32), p, n, h, t0, interpret=True)
+    y32 = pk.run(
+        pk.Spec(hoisted32, model.unit, rj.RK4),
+        y0.astype(jnp.float32),
+        p,
+        (n, h, t0),
+        interpret=True,
+    )
     assert y32.dtype == jnp.float32
     np.testing.assert_allclose(y32, y64, rtol=0, atol=2e-6)
     hs = jnp.stack([h, 2 * h])
-    mapped = jax.vmap(lambda h: run(y0, p, n, h, t0))(hs)
+    mapped = jax.vmap(lambda h: run(y0, p, (n, h, t0)))(hs)
     for i in range(2):
-        np.testing.assert_allclose(mapped[i], run(y0, p, n, hs[i], t0), rtol=0, atol=1e-15)
+        np.testing.assert_allclose(mapped[i], run(y0, p, (n, hs[i], t0)), rtol=0, atol=1e-15)
 
 
 def _gravity_gradient(gain):
@@ -168,6 +176,30 @@ def test_heavy_top_through_gpu_kernel(on_gpu_kernel):
         np.testing.assert_allclose(mapped[i], one(coms[i], ExplicitRK(rj.RK4())), atol=2e-15)
 
 
+def test_darboux_rotation_vector_through_gpu_kernel(on_gpu_kernel):
+    """The Darboux rotation-vector model with its shadow switch (the step-end map, evaluated in
+    the kernel after every step) at 6 rad/s, where |θ| passes π: the Diffrax path's rotations,
+    and the reverse kernel's gradient w.r.t. a parameter of ω(t) equal to the Diffrax path's."""
+
+    def run(a, solver):
+        def omega(t):
+            return jnp.stack([a * jnp.cos(t), 6.0 * jnp.ones_like(t), a * jnp.sin(2.0 * t)])
+
+        return rj.darboux(omega, TS, method="rotvec", solver=solver, **FIXED)
+
+    assert "pallas_call" in str(jax.make_jaxpr(lambda a: run(a, rj.RK4()))(0.5))
+    fast, slow = run(0.5, rj.RK4()), run(0.5, ExplicitRK(rj.RK4()))
+    np.testing.assert_allclose(fast, slow, rtol=0, atol=1e-14)
+    theta = rj.so3.log(fast[-1])
+    assert 0.5 < np.linalg.norm(theta) < np.pi  # 2.1 rad of spin beyond π: shadowed
+
+    def loss(a, solver):
+        return jnp.sum(run(a, solver)[1:] * jnp.arange(9.0).reshape(3, 3))
+
+    got = jax.grad(loss)(0.5, rj.RK4())
+    np.testing.assert_allclose(got, jax.grad(loss)(0.5, ExplicitRK(rj.RK4())), rtol=1e-10)
+
+
 def test_gpu_kernel_reports_max_steps(on_gpu_kernel):
     """An interval with more steps than `max_steps` is the same clear error as on the
     Diffrax path."""
@@ -181,11 +213,11 @@ def test_served_only_where_checked(monkeypatch):
     states: a kernel that fails to lower, or gives other numbers, warns once and is not
     served."""
     model, hoisted = _free()
-    key = pk._Key(hoisted, model.unit)
+    spec = pk.Spec(hoisted, model.unit, rj.RK4)
     assert not pk.serves(hoisted, model.unit, rj.RK4())
     assert not pk.serves(hoisted, model.unit, ExplicitRK(rj.RK4()))
     with pytest.warns(RuntimeWarning, match="Pallas kernel for RK4 in float64"):
-        assert not pk._checked.__wrapped__(key, rj.RK4)  # Pallas can't compile for CPU
+        assert not pk._checked.__wrapped__(spec)  # Pallas can't compile for CPU
     run = pk.run
 
     def interpreted(*args, interpret=False, shift=0.0):
@@ -194,10 +226,10 @@ def test_served_only_where_checked(monkeypatch):
     monkeypatch.setattr(pk, "run", interpreted)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        assert pk._checked.__wrapped__(key, rj.RK4)
+        assert pk._checked.__wrapped__(spec)
     monkeypatch.setattr(pk, "run", lambda *a, **k: interpreted(*a, **k, shift=1e-6))
     with pytest.warns(RuntimeWarning, match="differ from Pallas' interpreter"):
-        assert not pk._checked.__wrapped__(key, rj.RK4)
+        assert not pk._checked.__wrapped__(spec)
 
 
 @pytest.fixture
@@ -236,10 +268,10 @@ def test_kernel_lowers_to_triton(triton_modules, dtype):
     y0 = jnp.concatenate([w, q], axis=1)
     p = moments_params(jnp.ones(3, dtype))[:, None]
     n, h, t0 = jnp.asarray([3, 4], jnp.int32), jnp.asarray([0.1, 0.2], dtype), jnp.zeros(2, dtype)
-    run = functools.partial(pk.run, hoisted, model.unit, rj.RK4)
-    vrun = jax.vmap(run, in_axes=(None, None, None, 0, None))
+    run = functools.partial(pk.run, pk.Spec(hoisted, model.unit, rj.RK4))
+    vrun = jax.vmap(run, in_axes=(None, None, (None, 0, None)))
     for f, hs in ((run, h), (vrun, h * h[:, None])):
-        text = jax.jit(f).trace(y0, p, n, hs, t0).lower(lowering_platforms=("cuda",)).as_text()
+        text = jax.jit(f).trace(y0, p, (n, hs, t0)).lower(lowering_platforms=("cuda",)).as_text()
         assert text.count("__gpu$xla.gpu.triton") == 1 and "num_warps = 4 " in text
         assert "stablehlo.while" not in text
     assert len(triton_modules) == 2
@@ -298,9 +330,9 @@ def test_reverse_kernel_lowers_to_triton(triton_modules):
     ys, g = jnp.ones((B, 3, 7), dtype), jnp.ones((B, 3, 7), dtype)
     p = jnp.concatenate([moments_params(jnp.ones(3, dtype)), hoisted.c.astype(dtype)])[:, None]
     n, h, t0 = jnp.asarray([3, 4], jnp.int32), jnp.asarray([0.1, 0.2], dtype), jnp.zeros(2, dtype)
-    back = functools.partial(pk.run_back, hoisted, model.unit, rj.RK4, longest=4)
-    vback = jax.vmap(back, in_axes=(0, 0, None, None, None, None))
+    back = functools.partial(pk.run_back, pk.Spec(hoisted, model.unit, rj.RK4), longest=4)
+    vback = jax.vmap(back, in_axes=(0, 0, None, None))
     for f, a in ((back, (ys, g)), (vback, (ys[None], g[None]))):
-        text = jax.jit(f).trace(*a, p, n, h, t0).lower(lowering_platforms=("cuda",)).as_text()
+        text = jax.jit(f).trace(*a, p, (n, h, t0)).lower(lowering_platforms=("cuda",)).as_text()
         assert text.count("__gpu$xla.gpu.triton") == 1 and "stablehlo.while" not in text
     assert len(triton_modules) == 2 and all("scf.for" in m for m in triton_modules)
