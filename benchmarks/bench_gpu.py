@@ -43,7 +43,7 @@ HERE = Path(__file__).resolve().parent
 DEFAULT_OUT = HERE / "results" / "gpu.json"
 THREADS = 128
 CUDA_MODELS = ("free_body", "damping", "gravity_gradient", "heavy_top", "sixdof", "satellite",
-               "gyrostat")  # fmt: skip
+               "gyrostat", "darboux_quat", "darboux_rotvec")  # fmt: skip
 """The models with a CUDA reference (models.cu); the closed loop has none (and takes the Diffrax
 path on a GPU: the Pallas kernel has no jump maps)."""
 

@@ -20,6 +20,11 @@ Problem
                       bounded at 0.1 N m): a rest-to-rest slew towards 90° about z
     gyrostat          ``jax.vmap(simulate)`` of a ``Gyrostat`` with constant rotor momentum
                       h = (0.1, 0.2, 0.3) (Zhukovsky–Volterra), a batch of bodies each
+    darboux_quat      ``jax.vmap(darboux)`` (frame "body", method "quat"): the attitude from
+                      the body angular velocity Ω(t) = (a sin t, 4 cos 2t, 3 + a t / 2) written
+                      in JAX, a ~ U(0.5, 1.5) per body (traced), from P0 = P(q0)
+    darboux_rotvec    the same with method "rotvec" (the default: θ̇ = Zᵀ(θ) Ω and the
+                      shadow switch after each step; bodies with |θ| near π switch)
 
 Parts (one run)
     speed     Each model on rigidjax's fast path (the kernel written from the JAX field) and its
@@ -89,6 +94,7 @@ def inputs(B: int, seed: int = 0) -> dict:
         w=rng.normal(size=(B, 3)),
         q=q / np.linalg.norm(q, axis=1, keepdims=True),
         com=0.1 * rng.normal(size=(B, 3)),
+        a=rng.uniform(0.5, 1.5, size=B),
     )
 
 
@@ -204,7 +210,22 @@ def models(B: int, steps: int, solver=None):
 
         return jax.vmap(one)(I, w, q)
 
+    def darboux(method):
+        def run(a, P0):
+            def one(a, P0):
+                def omega(t):
+                    return jnp.stack([a * jnp.sin(t), 4 * jnp.cos(2 * t), 3 + 0.5 * a * t])
+
+                _, y = rj.darboux(omega, ts, P0, "body", method, return_state=True, dt0=dt,
+                                  **fixed)  # fmt: skip
+                return y[-1]
+
+            return jax.vmap(one)(a, P0)
+
+        return run
+
     I, w, q, com = x["I"], x["w"], x["q"], x["com"]
+    P0 = np.asarray(jax.vmap(rj.quat.to_matrix)(q))
     ones = np.ones(B)
     wq = np.concatenate([w.T, q.T])
     small_w = 1e-3 * w
@@ -260,6 +281,9 @@ def models(B: int, steps: int, solver=None):
             dt,
         ),
     }
+    for method, to_state in (("quat", rj.quat.from_matrix), ("rotvec", rj.so3.log)):
+        state0 = np.asarray(jax.vmap(to_state)(P0)).T  # the kinematics' own initial states
+        out[f"darboux_{method}"] = (darboux(method), (x["a"], P0), state0, x["a"][None], dt)
     diffrax_path = {
         name: rigid(torque, rj.ExplicitRK(rj.RK4()))
         for name, torque in (("damping", damping), ("gravity_gradient", gravity_gradient))

@@ -1,7 +1,7 @@
 /* Reference kernels for benchmarks/bench_models.py: the models with torques that rigidjax's
  * model kernel runs, written by hand in C, classical RK4 at a fixed step, float64, for the CPU.
  *
- * Each model is its right-hand side `rhs_<model>(y, p, k)` on one body's scalars; one RK4
+ * Each model is its right-hand side `rhs_<model>(t, y, p, k)` on one body's scalars; one RK4
  * driver (RK4_MODEL) takes bodies in blocks of BLOCK that stay in L1 over all steps, with the
  * loop over a block's bodies the vectorised one (check with -fopt-info-vec-optimized; GCC
  * scalarises the small per-body arrays, which `omp simd` would privatise into memory) and
@@ -20,6 +20,8 @@
  *   satellite          y = (R, V, q, Ω)  p = (c, J, I, μ)     V̇ = −μR/r³, K = 3μ/r³ n × (I n),
  *                                                             n = PᵀR/r
  *   gyrostat           y = (Ω, q)        p = (c, J, h)        K = −Ω × h (constant rotor momentum)
+ *   Darboux quaternion y = q             p = a                q̇ = ½ q ∘ (0, Ω(t))
+ *   Darboux rotvec     y = θ             p = a                θ̇ = Zᵀ(θ) Ω(t), then its shadow
  * with c = ((I2 − I3)/I1, (I3 − I1)/I2, (I1 − I2)/I3), J = 1/I (principal axes).
  */
 #include <math.h>
@@ -29,9 +31,11 @@
 
 #include "models_rhs.h"
 
-/* `steps` RK4 steps of size h for the B bodies of `state` (N × B, in place), parameters
- * `par` (P × B): void <name>_rk4(double *state, const double *par, long B, long steps, double h). */
-#define RK4_MODEL(NAME, N, P, QO)                                                              \
+/* `steps` RK4 steps of size h from t = 0 for the B bodies of `state` (N × B, in place),
+ * parameters `par` (P × B), each step followed by END(y) (NO_END or the shadow):
+ * void <name>_rk4(double *state, const double *par, long B, long steps, double h). */
+#define NO_END(y) ((void)(y))
+#define RK4_MODEL(NAME, N, P, QO, END)                                                         \
     static void NAME##_block(long m, double (*x)[BLOCK], const double (*C)[BLOCK], long steps, \
                              double h)                                                         \
     {                                                                                          \
@@ -41,7 +45,8 @@
                 double y[N], p[P];                                                             \
                 for (int j = 0; j < N; j++) y[j] = x[j][i];                                    \
                 for (int j = 0; j < P; j++) p[j] = C[j][i];                                    \
-                RK4_STEP(NAME, N, QO, y, p, h);                                                \
+                RK4_STEP(NAME, N, QO, y, p, (double)s * h, h);                                 \
+                END(y);                                                                        \
                 for (int j = 0; j < N; j++) x[j][i] = y[j];                                    \
             }                                                                                  \
         }                                                                                      \
@@ -62,13 +67,15 @@
         }                                                                                      \
     }
 
-RK4_MODEL(free_body, 7, 6, 3)
-RK4_MODEL(damping, 7, 9, 3)
-RK4_MODEL(gravity_gradient, 7, 10, 3)
-RK4_MODEL(heavy_top, 10, 9, 6)
-RK4_MODEL(sixdof, 13, 13, 6)
-RK4_MODEL(satellite, 13, 10, 6)
-RK4_MODEL(gyrostat, 7, 9, 3)
+RK4_MODEL(free_body, 7, 6, 3, NO_END)
+RK4_MODEL(damping, 7, 9, 3, NO_END)
+RK4_MODEL(gravity_gradient, 7, 10, 3, NO_END)
+RK4_MODEL(heavy_top, 10, 9, 6, NO_END)
+RK4_MODEL(sixdof, 13, 13, 6, NO_END)
+RK4_MODEL(satellite, 13, 10, 6, NO_END)
+RK4_MODEL(gyrostat, 7, 9, 3, NO_END)
+RK4_MODEL(darboux_quat, 4, 1, 0, NO_END)
+RK4_MODEL(darboux_rotvec, 3, 1, -1, shadow)
 
 /* The closed loop (rhs_closed_loop, control_pd): `steps` RK4 steps of size h, the motor
  * torques u sampled every `every` steps and held; par (32 × B: the model's parameters, u
@@ -94,7 +101,7 @@ static void closed_loop_block(long m, double (*x)[BLOCK], double (*C)[BLOCK], co
              * (GCC unrolls at most 16 iterations by itself) */
             _Pragma("GCC unroll 32") for (int j = 0; j < 11; j++) y[j] = x[j][i];
             _Pragma("GCC unroll 32") for (int j = 0; j < 32; j++) p[j] = C[j][i];
-            RK4_STEP(closed_loop, 11, 3, y, p, h);
+            RK4_STEP(closed_loop, 11, 3, y, p, (double)s * h, h);
             for (int j = 0; j < 11; j++) x[j][i] = y[j];
         }
     }

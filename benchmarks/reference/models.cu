@@ -4,11 +4,14 @@
  * RawModule). The state and parameters are structure of arrays: N (P) arrays of B doubles.
  *
  *   <name>_rk4(double *state, const double *par, long B, long steps, double h)
+ *
+ * each step followed by END(y) (NO_END, or the rotation vector's shadow).
  */
 #define RJ_DEVICE __device__
 #include "models_rhs.h"
 
-#define RK4_MODEL(NAME, N, P, QO)                                                              \
+#define NO_END(y) ((void)(y))
+#define RK4_MODEL(NAME, N, P, QO, END)                                                         \
     extern "C" __global__ void NAME##_rk4(double *state, const double *par, long B, long steps,\
                                           double h)                                            \
     {                                                                                          \
@@ -17,14 +20,19 @@
         double y[N], p[P];                                                                     \
         for (int j = 0; j < N; j++) y[j] = state[j * B + i];                                   \
         for (int j = 0; j < P; j++) p[j] = par[j * B + i];                                     \
-        for (long s = 0; s < steps; s++) RK4_STEP(NAME, N, QO, y, p, h);                       \
+        for (long s = 0; s < steps; s++) {                                                     \
+            RK4_STEP(NAME, N, QO, y, p, (double)s * h, h);                                     \
+            END(y);                                                                            \
+        }                                                                                      \
         for (int j = 0; j < N; j++) state[j * B + i] = y[j];                                   \
     }
 
-RK4_MODEL(free_body, 7, 6, 3)
-RK4_MODEL(damping, 7, 9, 3)
-RK4_MODEL(gravity_gradient, 7, 10, 3)
-RK4_MODEL(heavy_top, 10, 9, 6)
-RK4_MODEL(sixdof, 13, 13, 6)
-RK4_MODEL(satellite, 13, 10, 6)
-RK4_MODEL(gyrostat, 7, 9, 3)
+RK4_MODEL(free_body, 7, 6, 3, NO_END)
+RK4_MODEL(damping, 7, 9, 3, NO_END)
+RK4_MODEL(gravity_gradient, 7, 10, 3, NO_END)
+RK4_MODEL(heavy_top, 10, 9, 6, NO_END)
+RK4_MODEL(sixdof, 13, 13, 6, NO_END)
+RK4_MODEL(satellite, 13, 10, 6, NO_END)
+RK4_MODEL(gyrostat, 7, 9, 3, NO_END)
+RK4_MODEL(darboux_quat, 4, 1, 0, NO_END)
+RK4_MODEL(darboux_rotvec, 3, 1, -1, shadow)

@@ -5,24 +5,27 @@
 #define RJ_DEVICE
 #endif
 
-/* One classical RK4 step of size h of the model NAME (N states, the unit quaternion at QO) on
- * the state y (in place) with parameters p, the quaternion renormalised after it: the step of
- * every reference (models.c, models.cu). */
-#define RK4_STEP(NAME, N, QO, y, p, h)                                                          \
+/* One classical RK4 step of size h at time t of the model NAME (N states, the unit quaternion
+ * at QO, none where QO < 0) on the state y (in place) with parameters p, the quaternion
+ * renormalised after it: the step of every reference (models.c, models.cu). */
+#define RK4_STEP(NAME, N, QO, y, p, t, h)                                                       \
     do {                                                                                        \
         double z_[N], k1_[N], k2_[N], k3_[N], k4_[N];                                           \
-        rhs_##NAME(y, p, k1_);                                                                  \
+        rhs_##NAME(t, y, p, k1_);                                                               \
         for (int j_ = 0; j_ < N; j_++) z_[j_] = y[j_] + 0.5 * (h) * k1_[j_];                    \
-        rhs_##NAME(z_, p, k2_);                                                                 \
+        rhs_##NAME((t) + 0.5 * (h), z_, p, k2_);                                                \
         for (int j_ = 0; j_ < N; j_++) z_[j_] = y[j_] + 0.5 * (h) * k2_[j_];                    \
-        rhs_##NAME(z_, p, k3_);                                                                 \
+        rhs_##NAME((t) + 0.5 * (h), z_, p, k3_);                                                \
         for (int j_ = 0; j_ < N; j_++) z_[j_] = y[j_] + (h) * k3_[j_];                          \
-        rhs_##NAME(z_, p, k4_);                                                                 \
+        rhs_##NAME((t) + (h), z_, p, k4_);                                                      \
         for (int j_ = 0; j_ < N; j_++)                                                          \
             y[j_] += (h) * (k1_[j_] / 6 + k2_[j_] / 3 + k3_[j_] / 3 + k4_[j_] / 6);             \
-        const double r_ = 1.0 / sqrt(y[QO] * y[QO] + y[QO + 1] * y[QO + 1] +                    \
-                                     y[QO + 2] * y[QO + 2] + y[QO + 3] * y[QO + 3]);            \
-        for (int j_ = QO; j_ < QO + 4; j_++) y[j_] *= r_;                                       \
+        if ((QO) >= 0) {                                                                        \
+            const int o_ = (QO) >= 0 ? (QO) : 0;                                                \
+            const double r_ = 1.0 / sqrt(y[o_] * y[o_] + y[o_ + 1] * y[o_ + 1] +                \
+                                         y[o_ + 2] * y[o_ + 2] + y[o_ + 3] * y[o_ + 3]);        \
+            for (int j_ = o_; j_ < o_ + 4; j_++) y[j_] *= r_;                                   \
+        }                                                                                       \
     } while (0)
 
 RJ_DEVICE static inline void quat_rates(const double *w, const double *q, double *dq)
@@ -57,7 +60,7 @@ RJ_DEVICE static inline void cross(const double *a, const double *b, double *out
     out[2] = a[0] * b[1] - a[1] * b[0];
 }
 
-RJ_DEVICE static inline void rhs_free_body(const double *y, const double *p, double *k)
+RJ_DEVICE static inline void rhs_free_body(double t, const double *y, const double *p, double *k)
 {
     k[0] = p[0] * y[1] * y[2];
     k[1] = p[1] * y[2] * y[0];
@@ -65,14 +68,14 @@ RJ_DEVICE static inline void rhs_free_body(const double *y, const double *p, dou
     quat_rates(y, y + 3, k + 3);
 }
 
-RJ_DEVICE static inline void rhs_damping(const double *y, const double *p, double *k)
+RJ_DEVICE static inline void rhs_damping(double t, const double *y, const double *p, double *k)
 {
     const double K[3] = {-p[6] * y[0], -p[7] * y[1], -p[8] * y[2]};
     euler(y, p, K, k);
     quat_rates(y, y + 3, k + 3);
 }
 
-RJ_DEVICE static inline void rhs_gravity_gradient(const double *y, const double *p, double *k)
+RJ_DEVICE static inline void rhs_gravity_gradient(double t, const double *y, const double *p, double *k)
 {
     const double *q = y + 3;
     const double c[3] = {2 * (q[1] * q[3] - q[0] * q[2]), 2 * (q[2] * q[3] + q[0] * q[1]),
@@ -85,7 +88,7 @@ RJ_DEVICE static inline void rhs_gravity_gradient(const double *y, const double 
     quat_rates(y, q, k + 3);
 }
 
-RJ_DEVICE static inline void rhs_heavy_top(const double *y, const double *p, double *k)
+RJ_DEVICE static inline void rhs_heavy_top(double t, const double *y, const double *p, double *k)
 {
     double K[3];
     cross(y + 3, p + 6, K);
@@ -94,7 +97,7 @@ RJ_DEVICE static inline void rhs_heavy_top(const double *y, const double *p, dou
     quat_rates(y, y + 6, k + 6);
 }
 
-RJ_DEVICE static inline void rhs_sixdof(const double *y, const double *p, double *k)
+RJ_DEVICE static inline void rhs_sixdof(double t, const double *y, const double *p, double *k)
 {
     const double *F = p + 7, *a = p + 10, *w = y + 10;
     /* the load sees the unit quaternion, as simulate_6dof's does */
@@ -108,7 +111,7 @@ RJ_DEVICE static inline void rhs_sixdof(const double *y, const double *p, double
     euler(w, p, K, k + 10);
 }
 
-RJ_DEVICE static inline void rhs_satellite(const double *y, const double *p, double *k)
+RJ_DEVICE static inline void rhs_satellite(double t, const double *y, const double *p, double *k)
 {
     const double *R = y, *q = y + 6, *w = y + 10, mu = p[9];
     const double r2 = R[0] * R[0] + R[1] * R[1] + R[2] * R[2], r = sqrt(r2);
@@ -122,7 +125,7 @@ RJ_DEVICE static inline void rhs_satellite(const double *y, const double *p, dou
     euler(w, p, K, k + 10);
 }
 
-RJ_DEVICE static inline void rhs_gyrostat(const double *y, const double *p, double *k)
+RJ_DEVICE static inline void rhs_gyrostat(double t, const double *y, const double *p, double *k)
 {
     double K[3];
     cross(y, p + 6, K);
@@ -135,7 +138,7 @@ RJ_DEVICE static inline void rhs_gyrostat(const double *y, const double *p, doub
  * (p[0..2]), M⁻¹ = (I − A J Aᵀ)⁻¹ (p[3..11], row-major), spin axes A (p[12..23], 3 × 4
  * row-major), wheel inertias J (p[24..27]), and the held motor torques u (p[28..31]):
  *   Ω̇ = M⁻¹ (−A u − Ω × (I Ω + A J ω_w)),  q̇ = ½ q ∘ (0, Ω),  ω̇_w = u / J − Aᵀ Ω̇. */
-RJ_DEVICE static inline void rhs_closed_loop(const double *y, const double *p, double *k)
+RJ_DEVICE static inline void rhs_closed_loop(double t, const double *y, const double *p, double *k)
 {
     const double *w = y, *ws = y + 7, *M = p + 3, *A = p + 12, *J = p + 24, *u = p + 28;
     double L[3], r[3], c[3];
@@ -169,4 +172,44 @@ RJ_DEVICE static inline void control_pd(const double *y, const double *c, double
         const double v = c[6 + 3 * j] * tau[0] + c[7 + 3 * j] * tau[1] + c[8 + 3 * j] * tau[2];
         u[j] = v > umax ? umax : (v < -umax ? -umax : v);
     }
+}
+
+/* Darboux kinematics in the body frame: the attitude from a given body angular velocity
+ * Ω(t) = (a sin t, 4 cos 2t, 3 + a t / 2), a = p[0]. The quaternion: q̇ = ½ q ∘ (0, Ω). The
+ * rotation vector: θ̇ = Zᵀ(θ) Ω = Ω + ½ θ × Ω + d θ × (θ × Ω), d = (1 − (θ/2) cot(θ/2)) / θ²
+ * (Zhilin 3.14.22; Taylor series below θ² = 0.01), replaced by its shadow θ (1 − 2πk/|θ|),
+ * k = round(|θ|/2π), after a step that leaves |θ| > π (shadow). */
+RJ_DEVICE static inline void darboux_omega(double t, const double *p, double *w)
+{
+    w[0] = p[0] * sin(t);
+    w[1] = 4 * cos(2 * t);
+    w[2] = 3 + 0.5 * p[0] * t;
+}
+
+RJ_DEVICE static inline void rhs_darboux_quat(double t, const double *y, const double *p, double *k)
+{
+    double w[3];
+    darboux_omega(t, p, w);
+    quat_rates(w, y, k);
+}
+
+RJ_DEVICE static inline void rhs_darboux_rotvec(double t, const double *y, const double *p,
+                                                double *k)
+{
+    const double x2 = y[0] * y[0] + y[1] * y[1] + y[2] * y[2], hx = 0.5 * sqrt(x2);
+    const double d = x2 < 1e-2 ? 1.0 / 12 + x2 * (1.0 / 720 + x2 * (1.0 / 30240 + x2 / 1209600))
+                               : (1 - hx * cos(hx) / sin(hx)) / x2;
+    double w[3], a[3], b[3];
+    darboux_omega(t, p, w);
+    cross(y, w, a);
+    cross(y, a, b);
+    for (int i = 0; i < 3; i++) k[i] = w[i] + 0.5 * a[i] + d * b[i];
+}
+
+RJ_DEVICE static inline void shadow(double *y)
+{
+    const double two_pi = 6.283185307179586, x2 = y[0] * y[0] + y[1] * y[1] + y[2] * y[2];
+    const double n = sqrt(x2 > two_pi * two_pi / 4 ? x2 : 1.0);
+    const double s = x2 > two_pi * two_pi / 4 ? 1 - two_pi * round(n / two_pi) / n : 1.0;
+    for (int i = 0; i < 3; i++) y[i] *= s;
 }

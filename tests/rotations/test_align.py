@@ -229,7 +229,6 @@ def test_vmap_over_problems():
         np.testing.assert_allclose(rssd[k], rk, atol=1e-14)
 
 
-@pytest.mark.slow
 def _dominant_problem(seed, near):
     """Two pairs, weights (1e10, 1), the primary vectors `near` from antiparallel."""
     rng = np.random.default_rng(seed)
