@@ -23,7 +23,7 @@ Parts (one run, on the default JAX backend: a GPU)
 
 Usage
     python benchmarks/bench_gpu.py [--bodies 1000000] [--steps 1000] [--repeats 5]
-        [--parts first,speed,gradient] [--out benchmarks/results/gpu.json]
+        [--parts first,speed,gradient] [--models all] [--out benchmarks/results/gpu.json]
 """
 
 from __future__ import annotations
@@ -78,12 +78,14 @@ class Cuda:
         return run
 
 
-def speed(B: int, steps: int, repeats: int, log) -> tuple[dict, dict]:
+def speed(B: int, steps: int, repeats: int, log, names: str = "all") -> tuple[dict, dict]:
     import jax
 
     import rigidjax as rj
 
     table, _ = models(B, steps)
+    if names != "all":  # a comma-separated subset
+        table = {k: v for k, v in table.items() if k in names.split(",")}
     slow, _ = models(B, steps, rj.ExplicitRK(rj.RK4()))
     try:
         cuda, note = Cuda(), None
@@ -225,6 +227,7 @@ def main(argv=None) -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
     parser.add_argument("--parts", default="first,speed,gradient", help="comma-separated")
+    parser.add_argument("--models", default="all", help="the speed part's, comma-separated")
     args = parser.parse_args(argv)
     import jax
 
@@ -242,7 +245,7 @@ def main(argv=None) -> None:
     if "first" in parts:
         out["first_call"] = first_call(log)
     if "speed" in parts:
-        out["speed"] = speed(args.bodies, args.steps, args.repeats, log)[0]
+        out["speed"] = speed(args.bodies, args.steps, args.repeats, log, args.models)[0]
     if "gradient" in parts:
         out["gradient"] = gradient(args.bodies, args.steps, args.repeats, log)
     out["load_average_start"] = load_start

@@ -41,8 +41,22 @@ class Components:
         if name == "convert_element_type":
             return jax.lax.convert_element_type(xs[0], params["new_dtype"])
         if name == "round":
-            return jax.lax.round(xs[0], params.get("rounding_method", 0))
+            return _round(xs[0], int(params.get("rounding_method", 0)))
         return _LAX[name](*xs) if name in _LAX else getattr(jax.lax, name)(*xs)
+
+
+def _round(x, method: int):
+    """`lax.round(x, method)` (0: halves away from zero, 1: to even) built from `floor`, equal
+    for every float (Pallas' Triton lowering has no `round`): `f = ⌊|x|⌋`, `d = |x| − f` exact,
+    `f` raised by 1 where `d > ½`, or `d = ½` and (away from zero, or `f` odd); the sign of `x`
+    restored."""
+    a = jnp.abs(x)
+    f = jnp.floor(a)
+    d = a - f
+    odd = f - 2 * jnp.floor(0.5 * f) == 1
+    up = (d > 0.5) | ((d == 0.5) & (odd if method == 1 else True))
+    r = jnp.where(up, f + 1, f)
+    return jnp.where(x < 0, -r, jnp.where(x > 0, r, 0 * x))  # ±0 (and ±denormals, NaN)
 
 
 _LAX: dict[str, Callable] = {

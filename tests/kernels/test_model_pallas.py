@@ -17,6 +17,7 @@ import pytest
 import rigidjax as rj
 from rigidjax.kernels import model as model_kernel
 from rigidjax.kernels import model_pallas as pk
+from rigidjax.kinematics.formulations import lookup
 from rigidjax.mechanics import heavy_top as ht
 from rigidjax.mechanics._rigid_model import moments_params, rigid_body_model
 from rigidjax.solvers import ExplicitRK
@@ -336,3 +337,25 @@ def test_reverse_kernel_lowers_to_triton(triton_modules):
         text = jax.jit(f).trace(*a, p, (n, h, t0)).lower(lowering_platforms=("cuda",)).as_text()
         assert text.count("__gpu$xla.gpu.triton") == 1 and "stablehlo.while" not in text
     assert len(triton_modules) == 2 and all("scf.for" in m for m in triton_modules)
+
+
+def test_step_end_map_lowers_to_triton(triton_modules):
+    """The rotation vector's shadow switch (a step-end map whose `round` Pallas' Triton lowering
+    lacks: the scalar program builds it from `floor`) lowers for CUDA inside the forward and
+    the reverse kernel; a model without parameters takes one row of zeros (a block cannot be
+    empty)."""
+    kin = lookup("rotvec", "space")
+
+    def field(t, y, p):
+        return kin.vector_field(y, jnp.stack([jnp.sin(t), 2.0 * jnp.ones_like(t), 3.0]))
+
+    hoisted = model_kernel.hoist(field, 3, 0, jnp.float64, end=kin.step_end)
+    spec = pk.Spec(hoisted, (), rj.RK4)
+    ys, p = jnp.ones((pk.BLOCK, 3, 3)), jnp.zeros((0, 1))  # (3 states: the output times')
+    steps = (jnp.asarray([3, 4], jnp.int32), jnp.asarray([0.1, 0.2]), jnp.zeros(2))
+    forward = functools.partial(pk.run, spec)
+    back = functools.partial(pk.run_back, spec, longest=4)
+    for f, args in ((forward, (ys[:, 0], p, steps)), (back, (ys, ys, p, steps))):
+        text = jax.jit(f).trace(*args).lower(lowering_platforms=("cuda",)).as_text()
+        assert text.count("__gpu$xla.gpu.triton") == 1
+    assert len(triton_modules) == 2 and all("__nv_floor" in m for m in triton_modules)
