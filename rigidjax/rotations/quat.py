@@ -238,6 +238,23 @@ def _polar(P: Mat33) -> Mat33:
     return jax.lax.fori_loop(0, 8, _polar_step, P)
 
 
+def _polar_value(P: Mat33) -> Mat33:
+    """`_polar(P)`'s value, its iteration stopped once a step moves no entry by more than 8 eps
+    (the entries of the limit are at most 1; at most 8 steps, as `_polar`): a matrix orthogonal
+    to rounding takes one step, one off by 1e-6 three. Not differentiable (a `while_loop`):
+    derivatives are `_polar`'s."""
+
+    def moving(c: tuple) -> Array:
+        return (c[0] < 8) & c[2]
+
+    def step(c: tuple) -> tuple:
+        k, X, _ = c
+        Y = _polar_step(k, X)
+        return k + 1, Y, jnp.any(jnp.abs(Y - X) > 8 * jnp.finfo(X.dtype).eps)
+
+    return jax.lax.while_loop(moving, step, (0, P, jnp.array(True)))[1]
+
+
 def _polar_step(_: Any, X: Mat33) -> Mat33:
     C, det = cofactors(X)
     d = det[..., None, None]
@@ -257,7 +274,8 @@ def _orthogonalised(P: Mat33) -> Mat33:
     `Rotation.from_matrix`, which takes the SVD `U Vᵀ`). The derivative is always that of the
     polar factor (at a rotation: the projection of `dP` on the tangent space), consistent with the
     value off SO(3)."""
-    return jnp.where(_is_orthogonal(jnp, jax.lax.stop_gradient(P))[..., None, None], P, _polar(P))
+    orthogonal = _is_orthogonal(jnp, jax.lax.stop_gradient(P))[..., None, None]
+    return jnp.where(orthogonal, P, _polar_value(jax.lax.stop_gradient(P)))
 
 
 @_orthogonalised.defjvp
