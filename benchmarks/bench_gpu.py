@@ -134,7 +134,7 @@ def speed(B: int, steps: int, repeats: int, log, names: str = "all") -> tuple[di
     return dict(models=rows, cuda_note=note), table
 
 
-def gradient(B: int, steps: int, repeats: int, log) -> dict:
+def gradient(B: int, steps: int, repeats: int, log, only: str = "all") -> dict:
     """value-and-grad over forward w.r.t. the moments: the Pallas kernel's own adjoint, and the
     same steps through Diffrax (``ExplicitRK(RK4())``), whose gradients it must equal."""
     import jax
@@ -142,7 +142,11 @@ def gradient(B: int, steps: int, repeats: int, log) -> dict:
 
     import rigidjax as rj
 
-    names = ("damping", "gravity_gradient", "heavy_top")
+    names = [
+        n
+        for n in ("damping", "gravity_gradient", "heavy_top")
+        if only == "all" or n in only.split(",")
+    ]
     table = {k: v for k, v in models(B, steps)[0].items() if k in names}
     slow = models(B, steps, rj.ExplicitRK(rj.RK4()))[0]
     out = {}
@@ -227,7 +231,7 @@ def main(argv=None) -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
     parser.add_argument("--parts", default="first,speed,gradient", help="comma-separated")
-    parser.add_argument("--models", default="all", help="the speed part's, comma-separated")
+    parser.add_argument("--models", default="all", help="comma-separated (speed, gradient)")
     args = parser.parse_args(argv)
     import jax
 
@@ -247,7 +251,7 @@ def main(argv=None) -> None:
     if "speed" in parts:
         out["speed"] = speed(args.bodies, args.steps, args.repeats, log, args.models)[0]
     if "gradient" in parts:
-        out["gradient"] = gradient(args.bodies, args.steps, args.repeats, log)
+        out["gradient"] = gradient(args.bodies, args.steps, args.repeats, log, args.models)
     out["load_average_start"] = load_start
     finish(out, args.out, start)
 

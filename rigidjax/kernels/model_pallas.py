@@ -86,11 +86,24 @@ def step(fn, tab: diffrax.ButcherTableau, unit: Unit, end, p, c, t, h, y: tuple)
     return tuple(u) if end is None else end(t + h, tuple(u), p, c)
 
 
-def _kernel(fn, tab: diffrax.ButcherTableau, unit: Unit, end, K: int, N: int, P: int, Pc: int):
+def _kernel(
+    fn,
+    tab: diffrax.ButcherTableau,
+    unit: Unit,
+    end,
+    K: int,
+    N: int,
+    P: int,
+    Pc: int,
+    L: int,
+    C: int,
+):
     """The kernel of one block: `K` intervals of `n[k]` steps of size `h[k]` from `t0[k]`, the
-    state written at their ends."""
+    state written at their ends; with `L > 0` also the state every L steps of each interval
+    into its C slots of `ck_ref` (the reverse mode's checkpoints: the steps and their order
+    unchanged; every slot written, so that the compiled kernel's output is defined)."""
 
-    def kernel(n_ref, h_ref, t0_ref, x0_ref, p_ref, out_ref):
+    def kernel(n_ref, h_ref, t0_ref, x0_ref, p_ref, out_ref, *ck_ref):
         p = tuple(p_ref[j] for j in range(P))
         c = tuple(p_ref[P + j] for j in range(Pc))
         y = tuple(x0_ref[j] for j in range(N))
@@ -98,12 +111,26 @@ def _kernel(fn, tab: diffrax.ButcherTableau, unit: Unit, end, K: int, N: int, P:
             out_ref[0, j] = y[j]
 
         def interval(k, y):
-            h, t0 = h_ref[k], t0_ref[k]
+            h, t0, n = h_ref[k], t0_ref[k], n_ref[k]
 
             def one(s, y):
                 return step(fn, tab, unit, end, p, c, t0 + s.astype(h.dtype) * h, h, y)
 
-            y = jax.lax.fori_loop(0, n_ref[k], one, y)
+            def segment(s, y):
+                for j in range(N):
+                    ck_ref[0][k, s, j] = y[j]
+                return jax.lax.fori_loop(s * L, jnp.minimum(s * L + L, n), one, y)
+
+            def unused(s, y):  # the slots after the interval's last segment: its end state
+                for j in range(N):
+                    ck_ref[0][k, s, j] = y[j]
+                return y
+
+            if L:
+                y = jax.lax.fori_loop(0, (n + L - 1) // L, segment, y)
+                y = jax.lax.fori_loop((n + L - 1) // L, C, unused, y)
+            else:
+                y = jax.lax.fori_loop(0, n, one, y)
             for j in range(N):
                 out_ref[k + 1, j] = y[j]
             return y
@@ -120,15 +147,30 @@ def run(
     steps: Steps,
     *,
     interpret: bool = False,
-) -> Float[Array, "B T N"]:
+    longest: int = 0,
+) -> Float[Array, "B T N"] | tuple[Float[Array, "B T N"], Float[Array, "B K C N"]]:
     """States `(B, K + 1, N)` of B bodies at the start and after each of K intervals of
     `steps` (`Steps`) of the model and method of `spec`; `p (P + Pc, B
     or 1)` holds the parameters and the lifted constants, as `model.run` takes them.
     `interpret=True` runs the kernel in Pallas' interpreter (any backend: the CPU tests). The
     batch is padded to whole blocks with copies of the first body. Under `jax.vmap` over the
-    bodies (a sweep of one-body solves), the mapped bodies join one kernel call."""
-    call = functools.partial(_blocks, spec, interpret=interpret)
-    return _joining(call, states=1, out_body_axes=(0,))(y0, p, *steps)[0]
+    bodies (a sweep of one-body solves), the mapped bodies join one kernel call. With
+    `longest` (a bound on the steps of an interval), also `run_back`'s checkpoints: each
+    interval's states every L ≈ √longest steps, `(B, K, C, N)` (`checkpoints`)."""
+    L, C = checkpoints(longest)
+    call = functools.partial(_blocks, spec, L, C, interpret=interpret)
+    out = _joining(call, states=1, out_body_axes=(0, 0) if L else (0,))(y0, p, *steps)
+    return out if L else out[0]
+
+
+def checkpoints(longest: int) -> tuple[int, int]:
+    """`(L, C)`: checkpoints L ≈ √longest steps apart, at most C per interval, for intervals of at
+    most `longest` steps (`(0, 0)` for none); two-level checkpointing (Griewank & Walther,
+    *Evaluating Derivatives*, 2nd ed., ch. 12)."""
+    if longest <= 0:
+        return 0, 0
+    L = math.isqrt(longest - 1) + 1
+    return L, -(-longest // L)
 
 
 def _joining(call: Callable, states: int, out_body_axes: tuple[int, ...]) -> Callable:
@@ -182,9 +224,9 @@ def _parameters(p: Array, B: int, Bp: int, dtype) -> Array:
     return _padded(jnp.concatenate([p, jnp.zeros((int(p.shape[0] == 0), B), dtype)]).T, Bp)
 
 
-def _blocks(spec: Spec, *arrays: Array, interpret: bool) -> Float[Array, "B T N"]:
+def _blocks(spec: Spec, L: int, C: int, *arrays: Array, interpret: bool) -> tuple[Array, ...]:
     """`run` of one batch (`arrays`: its `y0, p, n, h, t0`): the `pallas_call` over its
-    blocks."""
+    blocks; the states `(B, T, N)` and, with `L`, the checkpoints `(B, K, C, N)`."""
     y0, p, n, h, t0 = arrays
     B, N, K, dtype = y0.shape[0], y0.shape[1], h.shape[0], y0.dtype
     hoisted, P = spec.hoisted, spec.hoisted.p
@@ -192,9 +234,14 @@ def _blocks(spec: Spec, *arrays: Array, interpret: bool) -> Float[Array, "B T N"
     x0 = _padded(y0, Bp)  # (N, Bp)
     pp = _parameters(p, B, Bp, dtype)
     tab, end = _stages.tableau_of(spec.method()), hoisted.end_components
-    out = pl.pallas_call(
-        _kernel(hoisted.components, tab, spec.unit, end, K, N, P, p.shape[0] - P),
-        out_shape=jax.ShapeDtypeStruct((K + 1, N, Bp), dtype),
+    shapes: list[tuple[int, ...]] = [(K + 1, N)]
+    specs = [pl.BlockSpec((K + 1, N, BLOCK), lambda i: (0, 0, i))]
+    if L:
+        shapes.append((K, C, N))
+        specs.append(pl.BlockSpec((K, C, N, BLOCK), lambda i: (0, 0, 0, i)))
+    outs = pl.pallas_call(
+        _kernel(hoisted.components, tab, spec.unit, end, K, N, P, p.shape[0] - P, L, C),
+        out_shape=[jax.ShapeDtypeStruct((*shape, Bp), dtype) for shape in shapes],
         grid=(Bp // BLOCK,),
         in_specs=[
             pl.BlockSpec((K,), lambda i: (0,)),
@@ -203,17 +250,17 @@ def _blocks(spec: Spec, *arrays: Array, interpret: bool) -> Float[Array, "B T N"
             pl.BlockSpec((N, BLOCK), lambda i: (0, i)),
             pl.BlockSpec((pp.shape[0], BLOCK), lambda i: (0, i)),
         ],
-        out_specs=pl.BlockSpec((K + 1, N, BLOCK), lambda i: (0, 0, i)),
+        out_specs=specs,
         # Triton, one body per thread (Pallas' default on NVIDIA GPUs is Mosaic GPU)
         compiler_params=pltriton.CompilerParams(num_warps=BLOCK // 32, num_stages=1),
         interpret=interpret,
     )(n.astype(jnp.int32), h.astype(dtype), t0.astype(dtype), x0, pp)
-    return jnp.moveaxis(out[:, :, :B], 2, 0)  # (B, T, N)
+    return tuple(jnp.moveaxis(o[..., :B], -1, 0) for o in outs)  # bodies first
 
 
 def run_back(
     spec: Spec,
-    ys: Float[Array, "B T N"],
+    ck: Float[Array, "B K C N"],
     g: Float[Array, "B T N"],
     p: Float[Array, "P Bc"],
     steps: Steps,
@@ -221,24 +268,21 @@ def run_back(
     longest: int,
     interpret: bool = False,
 ) -> tuple[Float[Array, "B N"], Float[Array, "P B"]]:
-    """The reverse mode of `run`: from its states `ys (B, K + 1, N)` and their cotangents `g`,
-    the cotangents of `y0 (B, N)` and of the parameters and lifted constants `(P + Pc, B)`, per
-    body (the steps' sizes and start times get none: their cotangents go through Diffrax).
-    `longest`: a bound on the steps of an interval (its states are recomputed from
-    checkpoints √longest steps apart). Under `jax.vmap` the mapped bodies join one call."""
-    L = max(1, math.isqrt(max(longest, 1) - 1) + 1)
-    call = functools.partial(_back_blocks, spec, L, -(-max(longest, 1) // L), interpret=interpret)
-    return _joining(call, states=2, out_body_axes=(0, -1))(ys, g, p, *steps)
+    """The reverse mode of `run`: from the checkpoints `ck` of its forward run (`run(...,
+    longest=longest)`) and the cotangents `g (B, K + 1, N)` of its states, the cotangents of
+    `y0 (B, N)` and of the parameters and lifted constants `(P + Pc, B)`, per body (the steps'
+    sizes and start times get none: their cotangents go through Diffrax). Under `jax.vmap` the
+    mapped bodies join one call."""
+    call = functools.partial(_back_blocks, spec, checkpoints(longest)[0], interpret=interpret)
+    return _joining(call, states=2, out_body_axes=(0, -1))(ck, g, p, *steps)
 
 
-def _back_blocks(
-    spec: Spec, L: int, C: int, *arrays: Array, interpret: bool
-) -> tuple[Array, Array]:
-    """`run_back` of one batch (`arrays`: its `ys, g, p, n, h, t0`): the `pallas_call` over its
-    blocks, with C checkpoints and L states of scratch per body."""
-    ys, g, p, n, h, t0 = arrays
-    B, T, N = ys.shape
-    K, dtype, P = T - 1, ys.dtype, p.shape[0]
+def _back_blocks(spec: Spec, L: int, *arrays: Array, interpret: bool) -> tuple[Array, Array]:
+    """`run_back` of one batch (`arrays`: its `ck, g, p, n, h, t0`): the `pallas_call` over its
+    blocks, with L states of scratch per body."""
+    ck, g, p, n, h, t0 = arrays
+    B, T, N = g.shape
+    K, C, dtype, P = T - 1, ck.shape[2], g.dtype, p.shape[0]
     Bp = -(-B // BLOCK) * BLOCK
 
     pp = _parameters(p, B, Bp, dtype)
@@ -246,12 +290,11 @@ def _back_blocks(
     hoisted = spec.hoisted
     tab, end = _stages.tableau_of(spec.method()), hoisted.end_components
     kernel = _back_kernel(hoisted.components, tab, spec.unit, end, K, N, P, P - hoisted.p, L)
-    y0b, pb, _, _ = pl.pallas_call(
+    y0b, pb, _ = pl.pallas_call(
         kernel,
         out_shape=(
             jax.ShapeDtypeStruct((N, Bp), dtype),
             jax.ShapeDtypeStruct((R, Bp), dtype),
-            jax.ShapeDtypeStruct((C, N, Bp), dtype),  # scratch: checkpoints
             jax.ShapeDtypeStruct((L, N, Bp), dtype),  # scratch: a segment's states
         ),
         grid=(Bp // BLOCK,),
@@ -259,19 +302,18 @@ def _back_blocks(
             pl.BlockSpec((K,), lambda i: (0,)),
             pl.BlockSpec((K,), lambda i: (0,)),
             pl.BlockSpec((K,), lambda i: (0,)),
-            pl.BlockSpec((T, N, BLOCK), lambda i: (0, 0, i)),
+            pl.BlockSpec((K, C, N, BLOCK), lambda i: (0, 0, 0, i)),
             pl.BlockSpec((T, N, BLOCK), lambda i: (0, 0, i)),
             pl.BlockSpec((R, BLOCK), lambda i: (0, i)),
         ],
         out_specs=(
             pl.BlockSpec((N, BLOCK), lambda i: (0, i)),
             pl.BlockSpec((R, BLOCK), lambda i: (0, i)),
-            pl.BlockSpec((C, N, BLOCK), lambda i: (0, 0, i)),
             pl.BlockSpec((L, N, BLOCK), lambda i: (0, 0, i)),
         ),
         compiler_params=pltriton.CompilerParams(num_warps=BLOCK // 32, num_stages=1),
         interpret=interpret,
-    )(n.astype(jnp.int32), h.astype(dtype), t0.astype(dtype), _padded(ys.astype(dtype), Bp),
+    )(n.astype(jnp.int32), h.astype(dtype), t0.astype(dtype), _padded(ck.astype(dtype), Bp),
       _padded(g.astype(dtype), Bp), pp)  # fmt: skip
     return y0b[:, :B].T, pb[:P, :B]
 
@@ -279,20 +321,19 @@ def _back_blocks(
 def _back_kernel(
     fn, tab: diffrax.ButcherTableau, unit: Unit, end, K: int, N: int, P: int, Pc: int, L: int
 ):
-    """The reverse mode of one block: from the states `y` at the K + 1 output times and the
-    cotangents `g` there, the cotangents of the initial states and of the P parameters (the
-    lifted constants included). Interval by interval backwards, its states are recomputed
-    from its start: checkpoints every L steps into `ck`, then each segment's L states into
-    `seg` (two-level checkpointing, L ≈ √n: Griewank & Walther, *Evaluating Derivatives*, 2nd
-    ed., ch. 12), and the steps reversed through `jax.vjp` of the same step (the discrete
-    adjoint of the forward kernel's arithmetic)."""
+    """The reverse mode of one block: from the forward run's checkpoints `ck` (each interval's
+    states every L steps) and the cotangents `g` of the states at the K + 1 output times, the
+    cotangents of the initial states and of the P parameters (the lifted constants included).
+    Interval by interval and segment by segment backwards, the segment's L states are
+    recomputed from its checkpoint into `seg` (`checkpoints`) and its steps reversed through
+    `jax.vjp` of the same step (the discrete adjoint of the forward kernel's arithmetic)."""
 
-    def kernel(n_ref, h_ref, t0_ref, y_ref, g_ref, p_ref, y0b_ref, pb_ref, ck_ref, seg_ref):
+    def kernel(n_ref, h_ref, t0_ref, ck_ref, g_ref, p_ref, y0b_ref, pb_ref, seg_ref):
         pc = tuple(p_ref[j] for j in range(P))
-        dtype = y_ref.dtype
+        dtype = g_ref.dtype
 
-        def at(ref, i):
-            return tuple(ref[i, j] for j in range(N))
+        def at(ref, *i):
+            return tuple(ref[(*i, j)] for j in range(N))
 
         def put(ref, i, y):
             for j in range(N):
@@ -315,16 +356,10 @@ def _back_kernel(
 
                 return jax.lax.fori_loop(0, count, one, y)
 
-            def checkpoint(s, y):
-                put(ck_ref, s, y)
-                return advance(s * L, jnp.minimum(L, n - s * L), y)
-
-            jax.lax.fori_loop(0, segments, checkpoint, at(y_ref, k))
-
             def segment(i2, carry):
                 s = segments - 1 - i2
                 first, count = s * L, jnp.minimum(L, n - s * L)
-                advance(first, count, at(ck_ref, s), keep=seg_ref)
+                advance(first, count, at(ck_ref, k, s), keep=seg_ref)
 
                 def back(i3, carry):
                     m = count - 1 - i3
@@ -338,7 +373,7 @@ def _back_kernel(
             lam, pbar = jax.lax.fori_loop(0, segments, segment, carry)
             return tuple(a + b for a, b in zip(lam, at(g_ref, k), strict=True)), pbar
 
-        zero = jnp.zeros_like(y_ref[0, 0])
+        zero = jnp.zeros_like(g_ref[0, 0])
         init = (at(g_ref, K), tuple(zero for _ in range(P)))
         lam, pbar = jax.lax.fori_loop(0, K, interval, init)
         for j in range(N):
@@ -416,11 +451,14 @@ def _sample(spec: Spec):
 def _checked_back(spec: Spec) -> bool:
     """Whether the compiled reverse-mode kernel agrees with the interpreter's on `_sample`."""
     y, p, steps = args = _sample(spec)
-    forward = jax.jit(functools.partial(run, spec, interpret=True))
-    ys = np.asarray(forward.lower(*args).compile()(*args))  # run now, also under a trace
+    forward = functools.partial(run, spec, longest=5)
+    if not _compare("kernel with checkpoints", spec, forward, args):
+        return False
+    interpreted = jax.jit(functools.partial(forward, interpret=True))
+    ys, ck = (np.asarray(a) for a in interpreted.lower(*args).compile()(*args))  # now
     g = np.random.default_rng(1).normal(size=ys.shape).astype(ys.dtype)
     fn = functools.partial(run_back, spec, longest=5)
-    return _compare("reverse-mode kernel", spec, fn, (ys, g, p, steps))
+    return _compare("reverse-mode kernel", spec, fn, (ck, g, p, steps))
 
 
 @functools.cache

@@ -386,26 +386,34 @@ def _gpu(
         ys = _diffrax(model, hoisted, ts, y0, p, c, through, False)[0]
         return jnp.moveaxis(ys, 0, 1)
 
+    def schedule(ts) -> tuple[tuple[Array, Array, Array], int]:
+        """The steps, and a bound on an interval's (static: the checkpoints' shape)."""
+        with jax.ensure_compile_time_eval():  # concrete steps where the times are known now
+            n, h, t0 = steps(ts)
+        longest = int(np.max(np.asarray(n), initial=1)) if is_concrete(n) else options.max_steps
+        return (n, h, t0), longest
+
     def fwd(y0, p, c, ts):
         args = (y0.value, p.value, c.value, ts.value)
-        if ts.perturbed:
+        if ts.perturbed or not (interpret or model_pallas.serves_back(spec)):
             ys, pullback = jax.vjp(through_diffrax, *args)
             return ys, (pullback, None)
-        ys = forward(*args)
-        return ys, (args, ys)
+        y0, p, c, ts = args
+        stepped, longest = schedule(ts)
+        # the states, and the reverse mode's checkpoints (the same steps)
+        ys, ck = model_pallas.run(
+            spec, y0, _packed(p, c), stepped, interpret=interpret, longest=longest
+        )
+        return ys, ((ck, p, c, ts), ys)
 
     def bwd(residuals, g):
         if residuals[1] is None:
             return residuals[0](g)
-        (y0, p, c, ts), ys = residuals
+        (ck, p, c, ts), ys = residuals
         if isinstance(g, jax.custom_derivatives.SymbolicZero):
             g = jnp.zeros_like(ys)
-        if not (interpret or model_pallas.serves_back(spec)):
-            return jax.vjp(through_diffrax, y0, p, c, ts)[1](g)
-        with jax.ensure_compile_time_eval():  # concrete steps where the times are known now
-            n, h, t0 = steps(ts)
-        longest = int(np.max(np.asarray(n), initial=1)) if is_concrete(n) else options.max_steps
-        args = (spec, ys, g, _packed(p, c), (n, h, t0))
+        stepped, longest = schedule(ts)
+        args = (spec, ck, g, _packed(p, c), stepped)
         y0b, pb = model_pallas.run_back(*args, longest=longest, interpret=interpret)
         P = p.shape[1]
         pbar = pb[:P].T if p.shape[0] > 1 else jnp.sum(pb[:P], axis=1)[None]

@@ -321,22 +321,27 @@ def test_gpu_kernel_adjoint(on_gpu_kernel):
 
 
 def test_reverse_kernel_lowers_to_triton(triton_modules):
-    """The reverse-mode kernel (`run_back`) of the same attitude-torque model, lowered for CUDA
-    without a GPU: one Triton call holding the whole reversed time loop (no loop of XLA's),
-    also under `jax.vmap`; its numbers on a GPU are checked by `serves_back` before use."""
+    """The reverse-mode kernel (`run_back`) of the same attitude-torque model, and the forward
+    kernel that writes its checkpoints, lowered for CUDA without a GPU: one Triton call each
+    holding the whole (reversed) time loop (no loop of XLA's), also under `jax.vmap`; their
+    numbers on a GPU are checked by `serves_back` before use."""
     dtype = jnp.float64
     model = rigid_body_model(_gravity_gradient(0.3))
     hoisted = model_kernel.hoist(model.field, model.size, model.params, dtype)
     B = pk.BLOCK + 5
-    ys, g = jnp.ones((B, 3, 7), dtype), jnp.ones((B, 3, 7), dtype)
+    spec = pk.Spec(hoisted, model.unit, rj.RK4)
+    # 2 intervals of at most 4 steps: checkpoints 2 steps apart, 2 per interval
+    ck, g = jnp.ones((B, 2, 2, 7), dtype), jnp.ones((B, 3, 7), dtype)
     p = jnp.concatenate([moments_params(jnp.ones(3, dtype)), hoisted.c.astype(dtype)])[:, None]
     n, h, t0 = jnp.asarray([3, 4], jnp.int32), jnp.asarray([0.1, 0.2], dtype), jnp.zeros(2, dtype)
-    back = functools.partial(pk.run_back, pk.Spec(hoisted, model.unit, rj.RK4), longest=4)
+    back = functools.partial(pk.run_back, spec, longest=4)
     vback = jax.vmap(back, in_axes=(0, 0, None, None))
-    for f, a in ((back, (ys, g)), (vback, (ys[None], g[None]))):
+    forward = functools.partial(pk.run, spec, longest=4)
+    cases = ((back, (ck, g)), (vback, (ck[None], g[None])), (forward, (g[:, 0],)))
+    for f, a in cases:
         text = jax.jit(f).trace(*a, p, (n, h, t0)).lower(lowering_platforms=("cuda",)).as_text()
         assert text.count("__gpu$xla.gpu.triton") == 1 and "stablehlo.while" not in text
-    assert len(triton_modules) == 2 and all("scf.for" in m for m in triton_modules)
+    assert len(triton_modules) == 3 and all("scf.for" in m for m in triton_modules)
 
 
 def test_step_end_map_lowers_to_triton(triton_modules):
@@ -352,10 +357,11 @@ def test_step_end_map_lowers_to_triton(triton_modules):
     hoisted = model_kernel.hoist(field, 3, 0, jnp.float64, end=kin.step_end)
     spec = pk.Spec(hoisted, (), rj.RK4)
     ys, p = jnp.ones((pk.BLOCK, 3, 3)), jnp.zeros((0, 1))  # (3 states: the output times')
+    ck = jnp.ones((pk.BLOCK, 2, 2, 3))  # (the checkpoints of 2 intervals of at most 4 steps)
     steps = (jnp.asarray([3, 4], jnp.int32), jnp.asarray([0.1, 0.2]), jnp.zeros(2))
     forward = functools.partial(pk.run, spec)
     back = functools.partial(pk.run_back, spec, longest=4)
-    for f, args in ((forward, (ys[:, 0], p, steps)), (back, (ys, ys, p, steps))):
+    for f, args in ((forward, (ys[:, 0], p, steps)), (back, (ck, ys, p, steps))):
         text = jax.jit(f).trace(*args).lower(lowering_platforms=("cuda",)).as_text()
         assert text.count("__gpu$xla.gpu.triton") == 1
     assert len(triton_modules) == 2 and all("__nv_floor" in m for m in triton_modules)
