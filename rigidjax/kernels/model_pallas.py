@@ -15,8 +15,9 @@ step-end map, if any:
     z_i = y + h Σ_{l<i} a_il k_l,  k_i = f(t + c_i h, z_i, p),  u = y + h Σ_l b_l k_l
 
 Its reverse mode (`run_back`) is a second kernel of the same layout: interval by interval
-backwards, the states are recomputed from checkpoints √n steps apart and each step is reversed
-through `jax.vjp` of the same step on register vectors (the discrete adjoint).
+backwards, the states are recomputed from checkpoints √n steps apart (written by the forward
+kernel of a differentiated solve) and each step is reversed through `jax.vjp` of the same step
+on register vectors (the discrete adjoint).
 """
 
 from __future__ import annotations
