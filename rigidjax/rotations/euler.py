@@ -20,7 +20,10 @@ gradients stay finite there.
 
 from __future__ import annotations
 
-from typing import Any
+import functools
+import operator
+from collections.abc import Sequence
+from typing import Any, TypeAlias
 
 import jax
 import jax.numpy as jnp
@@ -106,8 +109,13 @@ def gimbal_tol(dtype: DTypeLike) -> float:
     return 1e-7 if jnp.finfo(dtype).eps < 1e-10 else 1e-5
 
 
-def _basis(k: int, dtype: DTypeLike) -> Float[Array, "3"]:
-    return jnp.zeros(3, dtype).at[k].set(1)
+Axis: TypeAlias = Vec3 | np.ndarray
+"""A unit axis: traced or given as an array (Davenport), or a NumPy constant (a basis axis)."""
+
+
+def _basis(k: int, dtype: DTypeLike) -> np.ndarray:
+    """Basis vector `e_k`, a NumPy constant (known when tracing: `_angles` folds it)."""
+    return np.eye(3, dtype=np.dtype(dtype))[k]
 
 
 def _axis_quat(n: Vec3, t: Scalar) -> Quat:
@@ -139,26 +147,30 @@ def _wrap(x: Scalar) -> Scalar:
     return jnp.where(x < -jnp.pi, x + two_pi, jnp.where(x > jnp.pi, x - two_pi, x))
 
 
-def _angles(q: Quat, n1: Vec3, n2: Vec3, n3: Vec3, intrinsic: bool) -> Vec3:
+def _angles(q: Quat, n1: Axis, n2: Axis, n3: Axis, intrinsic: bool) -> Vec3:
     """Bernardes & Viollet (2022) for `q = Q(ψ3 n3) Q(ψ2 n2) Q(ψ1 n1)` (extrinsic order n1, n2, n3,
     unit axes with n2 ⟂ n1, n3). Returns `(ψ1, ψ2, ψ3)`, or `(ψ3, ψ2, ψ1)` if `intrinsic`.
 
     `λ` is the angle from n1 to n3 about n2; the rotation `Q(λ n2)` turns the problem into a
     proper-Euler one, whose half sum/difference angles are `atan2(b, a)`, `atan2(d, c)`.
-    Double-`where` guards keep the gradients finite at gimbal lock.
+    Double-`where` guards keep the gradients finite at gimbal lock. Axes given as NumPy arrays
+    (a sequence's basis axes) are folded while tracing (`_fixed_axes`).
     """
-    n12 = jnp.cross(n1, n2)
-    lam = jnp.arctan2(jnp.sum(n3 * n12, -1), jnp.sum(n3 * n1, -1))
-    flip = lam < 0
-    n2 = jnp.where(flip[..., None], -n2, n2)
-    n12 = jnp.where(flip[..., None], -n12, n12)
-    lam = jnp.abs(lam)
-    qt = quat.mul(_axis_quat(n2, lam), q)
-    v = qt[..., 1:]
-    a = qt[..., 0]
-    b = jnp.sum(v * n1, -1)
-    c = jnp.sum(v * n2, -1)
-    d = jnp.sum(v * n12, -1)
+    if isinstance(n1, np.ndarray) and isinstance(n2, np.ndarray) and isinstance(n3, np.ndarray):
+        lam, flip, (a, b, c, d) = _fixed_axes(q, n1, n2, n3)
+    else:
+        n12 = jnp.cross(n1, n2)
+        lam = jnp.arctan2(jnp.sum(n3 * n12, -1), jnp.sum(n3 * n1, -1))
+        flip = lam < 0
+        n2 = jnp.where(flip[..., None], -n2, n2)
+        n12 = jnp.where(flip[..., None], -n12, n12)
+        lam = jnp.abs(lam)
+        qt = quat.mul(_axis_quat(n2, lam), q)
+        v = qt[..., 1:]
+        a = qt[..., 0]
+        b = jnp.sum(v * n1, -1)
+        c = jnp.sum(v * n2, -1)
+        d = jnp.sum(v * n12, -1)
 
     mid = 2 * jnp.arctan2(_safe_norm(c, d), _safe_norm(a, b))
     tol = gimbal_tol(q.dtype)
@@ -182,6 +194,28 @@ def _angles(q: Quat, n1: Vec3, n2: Vec3, n3: Vec3, intrinsic: bool) -> Vec3:
     return jnp.stack([_wrap(x) for x in out], axis=-1)
 
 
+def _fixed_axes(q: Quat, n1: np.ndarray, n2: np.ndarray, n3: np.ndarray) -> tuple:
+    """`_angles`' λ, its sign and `(a, b, c, d)` for axes known when tracing: λ, the turn
+    `Q(λ n2)` and the projections computed in NumPy, so that only the products with q's
+    components are traced (a basis axis picks a component: no cross products or sums)."""
+    n12 = np.cross(n1, n2)
+    lam = float(np.arctan2(n3 @ n12, n3 @ n1))
+    flip = lam < 0
+    n2, n12, lam = (-n2, -n12, -lam) if flip else (n2, n12, lam)
+    qs: list[Array | None] = list(jnp.unstack(q, axis=-1))
+    if lam != 0:  # proper Euler angles: λ = 0, the turn is the identity
+        turn = [np.cos(lam / 2), *(np.sin(lam / 2) * n2)]
+        qs = _mul_components([float(x) if x else None for x in turn], qs)
+
+    def dot(n: np.ndarray) -> Array:  # Σ n_i v_i over n_i ≠ 0, v = qt[1:]
+        terms = [(x if n[i] == 1 else -x if n[i] == -1 else float(n[i]) * x)
+                 for i, x in enumerate(qs[1:]) if n[i] and x is not None]  # fmt: skip
+        return functools.reduce(operator.add, terms)
+
+    assert qs[0] is not None
+    return lam, flip, (qs[0], dot(n1), dot(n2), dot(n12))
+
+
 # Hamilton product (a ∘ b)_r = Σ sign a_i b_j over the (sign, i, j) of row r
 _HAMILTON = (
     ((1, 0, 0), (-1, 1, 1), (-1, 2, 2), (-1, 3, 3)),
@@ -191,10 +225,13 @@ _HAMILTON = (
 )
 
 
-def _mul_components(a: list[Array | None], b: list[Array | None]) -> list[Array | None]:
-    """Hamilton product of quaternions given as four components, `None` for an exact zero (the
-    zero terms of basis-axis factors are skipped, not multiplied)."""
-    out: list[Array | None] = []
+def _mul_components(
+    a: Sequence[Array | float | None], b: Sequence[Array | float | None]
+) -> list[Any]:
+    """Hamilton product of quaternions given as four components (arrays, or Python numbers
+    for constants), `None` for an exact zero (the zero terms of basis-axis factors are skipped,
+    not multiplied)."""
+    out: list[Any] = []
     for row in _HAMILTON:
         acc = None
         for sign, i, j in row:
@@ -207,7 +244,9 @@ def _mul_components(a: list[Array | None], b: list[Array | None]) -> list[Array 
     return out
 
 
-def _seq_axes(seq: EulerSeq, dtype: DTypeLike) -> tuple[tuple[Array, Array, Array], bool]:
+def _seq_axes(
+    seq: EulerSeq, dtype: DTypeLike
+) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], bool]:
     (i, j, k), intrinsic = _parse_seq(seq)
     return (_basis(i, dtype), _basis(j, dtype), _basis(k, dtype)), intrinsic
 

@@ -17,7 +17,11 @@ from ._compiled import compiled
 
 
 def _from_unit_quat(q: Quat) -> Vec3:
-    q = quat.canonical(q)
+    return _from_canonical(quat.canonical(q))
+
+
+def _from_canonical(q: Quat) -> Vec3:
+    """`λ/(1 + λ0)` of a unit quaternion with λ0 ≥ 0."""
     return q[..., 1:] / (1 + q[..., :1])
 
 
@@ -46,7 +50,7 @@ def from_matrix(P: Mat33Like) -> Vec3:
 
 @compiled(2)
 def _from_matrix(P: Mat33, mode: str) -> Vec3:
-    return _from_unit_quat(quat._quat_of_matrix(P, "P", mode))
+    return _from_canonical(quat._quat_of_matrix(P, "P", mode))  # (canonical already)
 
 
 def to_matrix(p: Vec3Like) -> Mat33:

@@ -286,18 +286,22 @@ def _orthogonalised_jvp(primals, tangents):
 
 
 @jax.custom_jvp
-def _rotation(P: Mat33) -> Mat33:
-    """`_orthogonalised` of matrices known to be orthogonal to rounding: `P`, with the derivative
-    of the polar factor at a rotation, `dU = P skew(Pᵀ dP)` (`skew A = (A − Aᵀ)/2`; one Newton
-    step of `_polar` gives it, the others keep it), without compiling the Newton iteration."""
-    return P
+def _quat_of_rotation(P: Mat33) -> Quat:
+    """`_from_orthogonal` of matrices known to be orthogonal to rounding, with the derivative of
+    the quaternion on SO(3): for the projection `P Ω×` of `dP` on the tangent space (that of the
+    polar factor at a rotation, `Ω× = skew(Pᵀ dP)`), `dq = ½ q ∘ (0, Ω)` (the body-frame
+    kinematics, Borisov–Mamaev 001), without tracing the construction's derivative."""
+    return _from_orthogonal(P)
 
 
-@_rotation.defjvp
-def _rotation_jvp(primals, tangents):
+@_quat_of_rotation.defjvp
+def _quat_of_rotation_jvp(primals, tangents):
     (P,), (dP,) = primals, tangents
+    q = _quat_of_rotation(P)
     A = jnp.swapaxes(P, -1, -2) @ dP
-    return P, P @ (A - jnp.swapaxes(A, -1, -2)) / 2
+    a = jnp.unstack(A.reshape(*A.shape[:-2], 9), axis=-1)
+    half_omega = 0.25 * jnp.stack([a[7] - a[5], a[2] - a[6], a[3] - a[1]], axis=-1)
+    return q, mul(q, jnp.concatenate([jnp.zeros_like(half_omega[..., :1]), half_omega], -1))
 
 
 def _matrix_mode(P: Mat33, name: str) -> str:
@@ -309,7 +313,7 @@ def _matrix_mode(P: Mat33, name: str) -> str:
     if Pn is None:
         return "traced"
     _v.check_matrix(P, name)
-    # `_rotation`'s tangent is the polar factor's first derivative only: higher derivatives
+    # `_quat_of_rotation`'s tangent holds the first derivative only: higher derivatives
     # (the tracer of a tracer, e.g. `jax.hessian`) go through the Newton iteration
     first_order = is_concrete(getattr(P, "primal", P))
     return "rotation" if first_order and np.all(_is_orthogonal(np, Pn)) else "orthogonalise"
@@ -321,7 +325,7 @@ def _quat_of_matrix(P: Mat33, name: str, mode: str) -> Quat:
     if mode == "assume_valid":
         return _from_orthogonal(P)
     if mode == "rotation":
-        return _from_orthogonal(_rotation(P))
+        return _quat_of_rotation(P)
     if mode == "traced":
         P = _v.check_matrix(P, name)
     return _from_orthogonal(_orthogonalised(P))

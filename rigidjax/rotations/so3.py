@@ -201,6 +201,10 @@ def distance(P1: Mat33Like, P2: Mat33Like) -> Scalar:
 
 @compiled(2, 2)
 def _distance(P1: Mat33, P2: Mat33, mode1: str, mode2: str) -> Scalar:
+    if mode1 == mode2 == "rotation":  # both orthogonal to rounding: the relative rotation's
+        # angle, one conversion (the same derivative: that of the projections on SO(3))
+        M = jnp.swapaxes(P1, -1, -2) @ P2
+        return quat._angle(quat._quat_of_matrix(M, "P1ᵀ P2", "rotation"))
     q1 = quat._quat_of_matrix(P1, "P1", mode1)
     q2 = quat._quat_of_matrix(P2, "P2", mode2)
     return quat._angle(quat.mul(quat.conj(q1), q2))
