@@ -34,7 +34,6 @@
 /* `steps` RK4 steps of size h from t = 0 for the B bodies of `state` (N × B, in place),
  * parameters `par` (P × B), each step followed by END(y) (NO_END or the shadow):
  * void <name>_rk4(double *state, const double *par, long B, long steps, double h). */
-#define NO_END(y) ((void)(y))
 #define RK4_MODEL(NAME, N, P, QO, END)                                                         \
     static void NAME##_block(long m, double (*x)[BLOCK], const double (*C)[BLOCK], long steps, \
                              double h)                                                         \
@@ -67,15 +66,7 @@
         }                                                                                      \
     }
 
-RK4_MODEL(free_body, 7, 6, 3, NO_END)
-RK4_MODEL(damping, 7, 9, 3, NO_END)
-RK4_MODEL(gravity_gradient, 7, 10, 3, NO_END)
-RK4_MODEL(heavy_top, 10, 9, 6, NO_END)
-RK4_MODEL(sixdof, 13, 13, 6, NO_END)
-RK4_MODEL(satellite, 13, 10, 6, NO_END)
-RK4_MODEL(gyrostat, 7, 9, 3, NO_END)
-RK4_MODEL(darboux_quat, 4, 1, 0, NO_END)
-RK4_MODEL(darboux_rotvec, 3, 1, -1, shadow)
+RJ_MODELS(RK4_MODEL)
 
 /* The closed loop (rhs_closed_loop, control_pd): `steps` RK4 steps of size h, the motor
  * torques u sampled every `every` steps and held; par (32 × B: the model's parameters, u

@@ -10,7 +10,6 @@
 #define RJ_DEVICE __device__
 #include "models_rhs.h"
 
-#define NO_END(y) ((void)(y))
 #define RK4_MODEL(NAME, N, P, QO, END)                                                         \
     extern "C" __global__ void NAME##_rk4(double *state, const double *par, long B, long steps,\
                                           double h)                                            \
@@ -27,12 +26,4 @@
         for (int j = 0; j < N; j++) state[j * B + i] = y[j];                                   \
     }
 
-RK4_MODEL(free_body, 7, 6, 3, NO_END)
-RK4_MODEL(damping, 7, 9, 3, NO_END)
-RK4_MODEL(gravity_gradient, 7, 10, 3, NO_END)
-RK4_MODEL(heavy_top, 10, 9, 6, NO_END)
-RK4_MODEL(sixdof, 13, 13, 6, NO_END)
-RK4_MODEL(satellite, 13, 10, 6, NO_END)
-RK4_MODEL(gyrostat, 7, 9, 3, NO_END)
-RK4_MODEL(darboux_quat, 4, 1, 0, NO_END)
-RK4_MODEL(darboux_rotvec, 3, 1, -1, shadow)
+RJ_MODELS(RK4_MODEL)

@@ -213,3 +213,17 @@ RJ_DEVICE static inline void shadow(double *y)
     const double s = x2 > two_pi * two_pi / 4 ? 1 - two_pi * round(n / two_pi) / n : 1.0;
     for (int i = 0; i < 3; i++) y[i] *= s;
 }
+
+/* The models with a reference of their own loop (not the closed loop), as an X-macro:
+ * X(NAME, N states, P parameters, quaternion offset QO (−1: none), step-end map END). */
+#define NO_END(y) ((void)(y))
+#define RJ_MODELS(X)                    \
+    X(free_body, 7, 6, 3, NO_END)       \
+    X(damping, 7, 9, 3, NO_END)         \
+    X(gravity_gradient, 7, 10, 3, NO_END) \
+    X(heavy_top, 10, 9, 6, NO_END)      \
+    X(sixdof, 13, 13, 6, NO_END)        \
+    X(satellite, 13, 10, 6, NO_END)     \
+    X(gyrostat, 7, 9, 3, NO_END)        \
+    X(darboux_quat, 4, 1, 0, NO_END)    \
+    X(darboux_rotvec, 3, 1, -1, shadow)
