@@ -399,21 +399,24 @@ def _gpu(
             ys, pullback = jax.vjp(through_diffrax, *args)
             return ys, (pullback, None)
         y0, p, c, ts = args
-        stepped, longest = schedule(ts)
-        # the states, and the reverse mode's checkpoints (the same steps)
-        ys, ck = model_pallas.run(
-            spec, y0, _packed(p, c), stepped, interpret=interpret, longest=longest
-        )
-        return ys, ((ck, p, c, ts), ys)
+        (n, h, t0), longest = schedule(ts)
+        if is_concrete(n) and model_pallas.stores_checkpoints(np.asarray(n), longest):
+            # the states, and the reverse mode's checkpoints (the same steps)
+            ys, src = model_pallas.run(
+                spec, y0, _packed(p, c), (n, h, t0), interpret=interpret, longest=longest
+            )
+        else:  # the reverse mode recomputes them from the states
+            ys = src = forward(y0, p, c, ts)
+        return ys, ((src, p, c, ts), ys)
 
     def bwd(residuals, g):
         if residuals[1] is None:
             return residuals[0](g)
-        (ck, p, c, ts), ys = residuals
+        (src, p, c, ts), ys = residuals
         if isinstance(g, jax.custom_derivatives.SymbolicZero):
             g = jnp.zeros_like(ys)
         stepped, longest = schedule(ts)
-        args = (spec, ck, g, _packed(p, c), stepped)
+        args = (spec, src, g, _packed(p, c), stepped)
         y0b, pb = model_pallas.run_back(*args, longest=longest, interpret=interpret)
         P = p.shape[1]
         pbar = pb[:P].T if p.shape[0] > 1 else jnp.sum(pb[:P], axis=1)[None]

@@ -287,8 +287,10 @@ def test_gpu_kernel_adjoint(on_gpu_kernel):
     """Reverse mode through the GPU kernel's own adjoint (a second Pallas kernel that reverses
     the same steps, recomputed from checkpoints) where the output times are not
     differentiated: gradients w.r.t. the moments, a traced gain and the initial state equal the
-    Diffrax path's, and central differences of the gain's; under `jax.vmap` of a one-body
-    gradient (per-member gains) the members' gradients are their own."""
+    Diffrax path's, and central differences of the gain's; under `jax.jit` with the output
+    times traced (step counts unknown when tracing: the reverse kernel recomputes the
+    checkpoints from the states) the same gradients; under `jax.vmap` of a one-body gradient
+    (per-member gains) the members' gradients are their own."""
     w, q = _inputs(3)
 
     def loss(I, g, w, solver, ts=TS):
@@ -310,6 +312,11 @@ def test_gpu_kernel_adjoint(on_gpu_kernel):
         2 * eps
     )
     np.testing.assert_allclose(got[1], fd, rtol=1e-7)
+    traced = jax.jit(lambda I, g, w, ts: grad(I, g, w, rj.RK4(), ts))
+    assert not pk.stores_checkpoints(np.array([1, 1, 100]), 100)  # (uneven: recomputed)
+    assert str(jax.make_jaxpr(traced)(*args, TS)).count("pallas_call") == 2
+    for g, r in zip(traced(*args, TS), want, strict=True):
+        np.testing.assert_allclose(g, r, rtol=1e-10, atol=1e-12)
 
     def one(g, solver):
         return jax.grad(lambda g: loss(args[0], g, w[:1], solver, TS[:3]))(g)
