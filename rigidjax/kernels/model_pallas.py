@@ -56,6 +56,7 @@ class Spec:
 
     def __init__(self, hoisted: Hoisted, unit: Unit, method: type[diffrax.AbstractERK]):
         self.hoisted, self.unit, self.method = hoisted, unit, method
+        self.tab = _stages.tableau_of(method())
         end = str(hoisted.jaxpr(hoisted.end_fn)) if hoisted.ends else None
         self.text = (str(hoisted.forward), end, hoisted.n, hoisted.p, hoisted.c.shape, unit)
         self.text += (hoisted.dtype.name, method)
@@ -67,38 +68,29 @@ class Spec:
         return isinstance(other, Spec) and other.text == self.text
 
 
-def step(fn, tab: diffrax.ButcherTableau, unit: Unit, end, p, c, t, h, y: tuple) -> tuple:
-    """One step of the tableau `tab` from `y` at time `t` (`ExplicitRK`'s stages; a stage that
+def step(spec: Spec, p, c, t, h, y: tuple) -> tuple:
+    """One step of the model and tableau of `spec` from `y` at time `t` (`ExplicitRK`'s stages,
+    the field `Hoisted.components` with the parameters `p` and constants `c`; a stage that
     never reaches the solution, first-same-as-last, is left to the compiler to drop), each unit
     group renormalised: `q ← u_q · (1 / sqrt(u_q · u_q))`, as in the C++ kernel (in float64 on
     NVIDIA GPUs, IEEE `sqrt.rn` and `div.rn`; `rsqrt` would lower to the approximate
-    `rsqrt.approx.f64`), then the step-end map `end` (`Hoisted.end_components`; None: none)."""
+    `rsqrt.approx.f64`), then the step-end map (`Hoisted.end_components`; None: none)."""
+    fn, end = spec.hoisted.components, spec.hoisted.end_components
 
     def field(ts, inc):
         z = y if inc is None else tuple(a + b for a, b in zip(y, inc, strict=True))
         return fn(ts, z, p, c)
 
-    ks = _stages.stages(tab, t, h, field)
-    u = [a + b for a, b in zip(y, _stages.increment(h, tab.b_sol, ks), strict=True)]
-    for a, m in unit:
+    ks = _stages.stages(spec.tab, t, h, field)
+    u = [a + b for a, b in zip(y, _stages.increment(h, spec.tab.b_sol, ks), strict=True)]
+    for a, m in spec.unit:
         r = 1 / jnp.sqrt(sum(u[j] * u[j] for j in range(a, a + m)))
         for j in range(a, a + m):
             u[j] = u[j] * r
     return tuple(u) if end is None else end(t + h, tuple(u), p, c)
 
 
-def _kernel(
-    fn,
-    tab: diffrax.ButcherTableau,
-    unit: Unit,
-    end,
-    K: int,
-    N: int,
-    P: int,
-    Pc: int,
-    L: int,
-    C: int,
-):
+def _kernel(spec: Spec, K: int, N: int, P: int, Pc: int, L: int, C: int):
     """The kernel of one block: `K` intervals of `n[k]` steps of size `h[k]` from `t0[k]`, the
     state written at their ends; with `L > 0` also the state every L steps of each interval
     into its C slots of `ck_ref` (the reverse mode's checkpoints: the steps and their order
@@ -115,7 +107,7 @@ def _kernel(
             h, t0, n = h_ref[k], t0_ref[k], n_ref[k]
 
             def one(s, y):
-                return step(fn, tab, unit, end, p, c, t0 + s.astype(h.dtype) * h, h, y)
+                return step(spec, p, c, t0 + s.astype(h.dtype) * h, h, y)
 
             def segment(s, y):
                 for j in range(N):
@@ -230,18 +222,17 @@ def _blocks(spec: Spec, L: int, C: int, *arrays: Array, interpret: bool) -> tupl
     blocks; the states `(B, T, N)` and, with `L`, the checkpoints `(B, K, C, N)`."""
     y0, p, n, h, t0 = arrays
     B, N, K, dtype = y0.shape[0], y0.shape[1], h.shape[0], y0.dtype
-    hoisted, P = spec.hoisted, spec.hoisted.p
+    P = spec.hoisted.p
     Bp = -(-B // BLOCK) * BLOCK
     x0 = _padded(y0, Bp)  # (N, Bp)
     pp = _parameters(p, B, Bp, dtype)
-    tab, end = _stages.tableau_of(spec.method()), hoisted.end_components
     shapes: list[tuple[int, ...]] = [(K + 1, N)]
     specs = [pl.BlockSpec((K + 1, N, BLOCK), lambda i: (0, 0, i))]
     if L:
         shapes.append((K, C, N))
         specs.append(pl.BlockSpec((K, C, N, BLOCK), lambda i: (0, 0, 0, i)))
     outs = pl.pallas_call(
-        _kernel(hoisted.components, tab, spec.unit, end, K, N, P, p.shape[0] - P, L, C),
+        _kernel(spec, K, N, P, p.shape[0] - P, L, C),
         out_shape=[jax.ShapeDtypeStruct((*shape, Bp), dtype) for shape in shapes],
         grid=(Bp // BLOCK,),
         in_specs=[
@@ -301,11 +292,7 @@ def _back_blocks(
 
     pp = _parameters(p, B, Bp, dtype)
     R = pp.shape[0]
-    hoisted = spec.hoisted
-    tab, end = _stages.tableau_of(spec.method()), hoisted.end_components
-    kernel = _back_kernel(
-        hoisted.components, tab, spec.unit, end, K, N, P, P - hoisted.p, L, stored
-    )
+    kernel = _back_kernel(spec, K, N, P, P - spec.hoisted.p, L, stored)
     scratch = [(L, N)] if stored else [(L, N), (C, N)]  # a segment's states, the checkpoints
     src_spec = (
         pl.BlockSpec((K, src.shape[2], N, BLOCK), lambda i: (0, 0, 0, i))
@@ -340,18 +327,7 @@ def _back_blocks(
     return y0b[:, :B].T, pb[:P, :B]
 
 
-def _back_kernel(
-    fn,
-    tab: diffrax.ButcherTableau,
-    unit: Unit,
-    end,
-    K: int,
-    N: int,
-    P: int,
-    Pc: int,
-    L: int,
-    stored: bool,
-):
+def _back_kernel(spec: Spec, K: int, N: int, P: int, Pc: int, L: int, stored: bool):
     """The reverse mode of one block: from the forward run's checkpoints (`stored`: each
     interval's states every L steps) or its states at the K + 1 output times (`src_ref`), and
     the cotangents `g` there, the cotangents of the initial states and of the P parameters (the
@@ -379,7 +355,7 @@ def _back_kernel(
 
             def stepped(s, y, pc):  # step s of the interval (the parameters and constants pc)
                 t = t0 + s.astype(dtype) * h
-                return step(fn, tab, unit, end, pc[: P - Pc], pc[P - Pc :], t, h, y)
+                return step(spec, pc[: P - Pc], pc[P - Pc :], t, h, y)
 
             def advance(first, count, y, keep=None):
                 def one(m, y):
