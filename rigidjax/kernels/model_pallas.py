@@ -109,21 +109,12 @@ def _kernel(spec: Spec, K: int, N: int, P: int, Pc: int, L: int, C: int):
             def one(s, y):
                 return step(spec, p, c, t0 + s.astype(h.dtype) * h, h, y)
 
-            def segment(s, y):
+            def slot(s, y):  # a slot past the interval's last segment: its end state, no step
                 for j in range(N):
                     ck_ref[0][k, s, j] = y[j]
                 return jax.lax.fori_loop(s * L, jnp.minimum(s * L + L, n), one, y)
 
-            def unused(s, y):  # the slots after the interval's last segment: its end state
-                for j in range(N):
-                    ck_ref[0][k, s, j] = y[j]
-                return y
-
-            if L:
-                y = jax.lax.fori_loop(0, (n + L - 1) // L, segment, y)
-                y = jax.lax.fori_loop((n + L - 1) // L, C, unused, y)
-            else:
-                y = jax.lax.fori_loop(0, n, one, y)
+            y = jax.lax.fori_loop(0, C, slot, y) if L else jax.lax.fori_loop(0, n, one, y)
             for j in range(N):
                 out_ref[k + 1, j] = y[j]
             return y

@@ -165,11 +165,11 @@ def darboux(
             # a model (`solve_tree`): fixed explicit steps run on the CPU kernel written from
             # the field, ω(t) included; after every step the quaternion is renormalised, the
             # rotation vector replaced by its shadow where |θ| > π
-            quaternion = type(kin) is Quaternion
-            plain = quaternion or type(kin) is PoissonMatrix
             ys, _, _ = solve_tree(
-                term.vector_field, ts, y0, (), options, unit=(0,) if quaternion else (),
-                end=None if plain else kin.step_end, name="Darboux kinematics",
+                term.vector_field, ts, y0, (), options,
+                unit=(0,) if type(kin) is Quaternion else (),
+                end=kin.step_end if type(kin) is RotationVector else None,
+                name="Darboux kinematics",
             )  # fmt: skip
             P = to_matrix(ys)
             return (P, ys) if return_state else P

@@ -52,7 +52,7 @@ class TreeModel(eqx.Module):
     end_vf: Callable | None = None  # `end(y) -> (y, changed)` on the trees, after every step
 
     def model(self) -> Model:
-        """The flat `Model` (one per tree model: see `tree_model`)."""
+        """The flat `Model` (one per tree model: see `flat`)."""
         sizes = [math.prod(s) for s in self.y_shapes]
         starts = np.cumsum([0, *sizes])
         unit = tuple((int(starts[i]), sizes[i]) for i in self.unit)
@@ -91,7 +91,7 @@ class TreeModel(eqx.Module):
 
 
 def _joined(tree: Any, dtype) -> Array:
-    return jnp.concatenate([jnp.ravel(a).astype(dtype) for a in jax.tree_util.tree_leaves(tree)])
+    return jnp.concatenate(leaves(tree, dtype))
 
 
 def leaves(tree: Any, dtype) -> list[Array]:

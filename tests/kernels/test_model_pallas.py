@@ -283,6 +283,28 @@ def test_kernel_lowers_to_triton(triton_modules, dtype):
         assert module.count("scf.for") == 2  # the intervals and, inside, their steps
 
 
+def test_forward_kernel_writes_the_checkpoints():
+    """The forward kernel of a differentiated solve (`run(..., longest=12)`: checkpoints every
+    L = 4 steps, C = 3 slots per interval) gives the plain kernel's states bit for bit, and in
+    slot s of interval k the state after s·L of its steps (a separate run of that many steps),
+    the slots past the interval's last segment its end state."""
+    model = rigid_body_model(_gravity_gradient(0.3))
+    hoisted = model_kernel.hoist(model.field, model.size, model.params, jnp.float64)
+    spec = pk.Spec(hoisted, model.unit, rj.RK4)
+    w, q = _inputs(3)
+    y0 = jnp.concatenate([w, q], axis=1)
+    p = jnp.concatenate([moments_params(jnp.array([1.0, 2.0, 3.0])), hoisted.c])[:, None]
+    n, h, t0 = steps = _steps()  # 5, 1 and 12 steps
+    assert pk.checkpoints(12) == (4, 3)
+    ys, ck = pk.run(spec, y0, p, steps, interpret=True, longest=12)
+    np.testing.assert_array_equal(ys, pk.run(spec, y0, p, steps, interpret=True))
+    for k, slots in ((0, (0, 4, 5)), (1, (0, 1, 1)), (2, (0, 4, 8))):
+        for s, done in enumerate(slots):
+            part = (jnp.asarray([done], jnp.int32), h[k : k + 1], t0[k : k + 1])
+            want = pk.run(spec, ys[:, k], p, part, interpret=True)[:, 1]
+            np.testing.assert_array_equal(ck[:, k, s], want)
+
+
 def test_gpu_kernel_adjoint(on_gpu_kernel):
     """Reverse mode through the GPU kernel's own adjoint (a second Pallas kernel that reverses
     the same steps, recomputed from checkpoints) where the output times are not
