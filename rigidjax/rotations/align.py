@@ -23,11 +23,12 @@ rotation `q_pri` taking `b̂_p` to `â_p` (`∝ (1 + â·b̂, b̂ × â)`, beyon
 that takes b̂_p to −b̂_p), then the turn `φ = atan2(Σ w (c × a)·â_p, Σ w (c·a − (c·â_p)(a·â_p)))`
 about `â_p` that best aligns the others, `c = P(q_pri) b`. One vector pair takes this path too.
 
-Disparate finite weights (one pair's `w |a| |b|` above 1e6 times the others' sum): B rounds the
-light pairs away at `eps w_max` (2.7e-6 rad at weights (1e10, 1); SciPy's SVD of the same B
-loses as much, up to 4e-6 measured). There the constrained solution is refined by two Newton
-steps on the full objective (`_refined`): within 4e-16 rad of a 50-digit (mpmath) solution in
-30 random cases measured at weights (1e10, 1).
+The value is SciPy's (the SVD of B, `_kabsch_quat`) where the optimum is unique; K gives the
+derivative and the degenerate cases. Disparate finite weights (one pair's `w |a| |b|` above 1e6
+times the others' sum): B rounds the light pairs away at `eps w_max` (2.7e-6 rad at weights
+(1e10, 1); SciPy loses as much, up to 4e-6 measured). With `refine=True` the constrained
+solution is refined there by two Newton steps on the full objective (`_refined`): within
+4e-16 rad of a 50-digit (mpmath) solution in 30 random cases measured at weights (1e10, 1).
 """
 
 from __future__ import annotations
@@ -42,7 +43,7 @@ from jaxtyping import Array, Float
 from .._checks import Check, as_float, floats, is_concrete, validate_all
 from .._custom_types import Mat33, Quat, RealLike, Scalar
 from . import _validation as _v
-from .quat import _from_rotvec, _to_matrix, canonical, mul, rotate
+from .quat import _from_orthogonal, _from_rotvec, _to_matrix, canonical, mul, rotate
 
 # --------------------------------------------------------------------------- q-method
 
@@ -69,28 +70,44 @@ def _top_space(K: Float[Array, "4 4"]) -> tuple[Quat, Array, Array, Array]:
     return v, w, V, near
 
 
+def _kabsch_quat(B: Mat33) -> Quat:
+    """SciPy's rotation for B: `C = U Vᵀ` of the SVD `B = U S Vᵀ`, the last column of U negated
+    when det(U Vᵀ) < 0 (Kabsch), as a quaternion. The same LAPACK SVD as SciPy's on the CPU:
+    the same numbers, also where B rounds light pairs away (`refine`)."""
+    u, _, vh = jnp.linalg.svd(B)
+    flip = _v.det(jnp, u @ vh) < 0
+    u = u.at[:, -1].set(jnp.where(flip, -u[:, -1], u[:, -1]))
+    return _from_orthogonal(u @ vh)
+
+
 @jax.custom_jvp
-def _optimal_quat(K: Float[Array, "4 4"]) -> Quat:
-    return _top_space(K)[0]
+def _optimal_quat(B: Mat33) -> Quat:
+    """The optimal quaternion for B: SciPy's (`_kabsch_quat`) where the optimum is unique, else
+    the optimal one closest to the identity (`_top_space`), of the sign of K's top eigenvector."""
+    v, _, _, near = _top_space(_davenport_k(B))
+    q = _kabsch_quat(B)
+    q = jnp.where(q @ v < 0, -q, q)
+    return jnp.where(near[-2], v, q)
 
 
 @_optimal_quat.defjvp
 def _optimal_quat_jvp(primals: Any, tangents: Any) -> tuple[Quat, Quat]:
     # dv = Σ_{i outside the top eigenspace} V_i (V_iᵀ dK v) / (λ_max − λ_i)
-    (K,), (dK,) = primals, tangents
-    v, w, V, near = _top_space(K)
+    # (v: K's own eigenvector, of the value's sign)
+    (B,), (dB,) = primals, tangents
+    v, w, V, near = _top_space(_davenport_k(B))
     gap = w[-1] - w
-    proj = V.T @ (dK @ v)
+    proj = V.T @ (_davenport_k(dB) @ v)
     coef = jnp.where(near, jnp.zeros_like(gap), proj / jnp.where(near, jnp.ones_like(gap), gap))
-    return v, V @ coef
+    return _optimal_quat(B), V @ coef
 
 
 def _kabsch(a: Array, b: Array, w: Array) -> tuple[Quat, Mat33, Scalar]:
-    """Optimal quaternion, B and λ_max of the weighted problem (all weights finite)."""
-    B = jnp.einsum("n,ni,nj->ij", w, a, b)
-    K = _davenport_k(B)
-    q = _optimal_quat(K)
-    lam = q @ K @ q
+    """Optimal quaternion, B and λ_max of the weighted problem (all weights finite); B formed as
+    SciPy forms it, `(w a)ᵀ b`."""
+    B = (w[:, None] * a).T @ b
+    q = _optimal_quat(B)
+    lam = q @ _davenport_k(B) @ q
     return q, B, lam
 
 
@@ -197,6 +214,16 @@ def _refined(a: Array, b: Array, w: Array, p: Array, active: Array | bool = True
     return q
 
 
+def _dominated(q: Quat, q_opt: Quat, refine: bool) -> Quat:
+    """The result where one pair dominates: the optimum `q_opt` if `refine`, else SciPy's `q`
+    with the optimum's derivative (K's perturbation formula loses it there: K's rounding, eps
+    w_max, over the light pairs' gap)."""
+    q_opt = jnp.where(q_opt @ q < 0, -q_opt, q_opt)
+    if refine:
+        return q_opt
+    return jax.lax.stop_gradient(q) + (q_opt - jax.lax.stop_gradient(q_opt))
+
+
 # --------------------------------------------------------------------------- checks
 
 
@@ -297,6 +324,8 @@ def align_vectors(
     b: RealLike,
     weights: RealLike | None = None,
     return_sensitivity: Literal[False] = False,
+    *,
+    refine: bool = False,
 ) -> tuple[Quat, Scalar]: ...
 @overload
 def align_vectors(
@@ -305,12 +334,15 @@ def align_vectors(
     weights: RealLike | None = None,
     *,
     return_sensitivity: Literal[True],
+    refine: bool = False,
 ) -> tuple[Quat, Scalar, Mat33]: ...
 def align_vectors(
     a: RealLike,
     b: RealLike,
     weights: RealLike | None = None,
     return_sensitivity: bool = False,
+    *,
+    refine: bool = False,
 ) -> tuple[Quat, Scalar] | tuple[Quat, Scalar, Mat33]:
     """The rotation `q` that best maps `b` onto `a` (Wahba's problem), as SciPy's
     `Rotation.align_vectors`: minimises `½ Σ w_i |a_i − P(q) b_i|²` (module docstring).
@@ -326,6 +358,12 @@ def align_vectors(
     residuals (0, with gradient 0, for a fit exact to rounding: `rssd ≤ 64 eps √(Σ w(|a|² +
     |b|²))`). `return_sensitivity=True` adds SciPy's sensitivity matrix (3, 3) (not defined for a
     single pair or an infinite weight: ValueError; NaN if traced weights hold an `inf`).
+
+    With finite weights the rotation is SciPy's: its SVD of `B = Σ w_i a_i b_iᵀ` (on the CPU the
+    same LAPACK call, so the same numbers). Where one pair outweighs the others (`w|a||b|` over
+    1e6 times their sum) B rounds the light pairs away at `eps w_max`, and so does SciPy (up to
+    4e-6 rad at weights (1e10, 1)); `refine=True` returns the optimum itself there, to rounding
+    (two Newton steps from the constrained solution, `_refined`).
 
     Values and gradients are finite everywhere; the gradient is exact when the optimum is unique
     (not all vectors collinear). Where it is not unique the rotation closest to the identity
@@ -354,10 +392,8 @@ def align_vectors(
     else:
         q, B, lam = _kabsch(a, b, w_fin)
         p, dominant = _dominant(a, b, w_fin)
-        if not is_concrete(dominant):
-            q = jnp.where(dominant, _refined(a, b, w_fin, p, dominant), q)
-        elif bool(dominant):
-            q = _refined(a, b, w_fin, p)
+        if not is_concrete(dominant) or bool(dominant):
+            q = jnp.where(dominant, _dominated(q, _refined(a, b, w_fin, p, dominant), refine), q)
         sens = _sensitivity(B, lam, w) if return_sensitivity else None
         if has_inf is None:  # traced weights: both paths, the one that applies selected
             any_inf = jnp.any(is_inf)
