@@ -3,7 +3,6 @@ each is one clear error naming the argument and the fix."""
 
 import subprocess
 import sys
-import warnings
 
 import diffrax
 import jax
@@ -45,15 +44,32 @@ def test_closed_forms_check_the_moments(inertia, message):
             call()
 
 
-def test_closed_forms_warn_of_moments_no_body_has():
-    """Moments against the triangle inequality: a warning that names them (the closed form of
-    Euler's equations is still returned: reference cases use such moments)."""
-    with pytest.warns(RuntimeWarning, match=r"inertia = \[3\., 5\., 9\.\] violates the triangle"):
-        w = analytic.free_rigid_body([9.0, 3.0, 5.0], W0, TS)
+def test_closed_forms_reject_moments_no_body_has():
+    """Moments against the triangle inequality (issue 26): one error naming them and the fix,
+    in every closed form; `check=False` admits them (Principia's formal I = (3, 5, 9)); a flat
+    body (equality) passes."""
+    tri = r"inertia violates the triangle inequality .*, got inertia = \[9\., 3\., 5\.\]"
+    top = r"\(I1, I1, I3\) violates the triangle inequality"
+    calls = [
+        (lambda **k: analytic.free_rigid_body([9.0, 3.0, 5.0], W0, TS, **k), tri),
+        (lambda **k: analytic.free_rigid_body_attitude([9.0, 3.0, 5.0], W0, None, TS, **k), tri),
+        (lambda **k: analytic.free_rigid_body_parameters([9.0, 3.0, 5.0], W0, **k), tri),
+        (lambda **k: analytic.flip_period([9.0, 3.0, 5.0], W0, **k), tri),
+        (lambda **k: analytic.time_of_first_flip([9.0, 3.0, 5.0], W0, **k), tri),
+        (lambda **k: analytic.symmetric_top(1.0, 2.5, W0, TS, **k), top),
+        (lambda **k: analytic.symmetric_top_attitude(1.0, 2.5, W0, None, TS, **k), top),
+        (lambda **k: analytic.symmetric_top_precession(1.0, 2.5, W0, **k), top),
+    ]
+    for call, message in calls:
+        with pytest.raises(ValueError, match=message) as e:
+            call()
+        assert "check=False" in str(e.value)
+        assert not np.any(np.isnan(np.asarray(jax.tree_util.tree_leaves(call(check=False))[0])))
+    w = analytic.free_rigid_body([9.0, 3.0, 5.0], W0, TS, check=False)
     np.testing.assert_allclose(w[0], W0, atol=1e-15)
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        analytic.free_rigid_body([1.0, 2.0, 3.0], W0, TS)  # equality: a flat body, no warning
+    analytic.free_rigid_body([1.0, 2.0, 3.0], W0, TS)  # equality: a flat body
+    with raises_in_jit("inertia violates the triangle inequality"):
+        jax.block_until_ready(jax.jit(analytic.free_rigid_body)(jnp.array([1.0, 2, 4]), W0, TS))
 
 
 def test_closed_forms_check_the_moments_under_jit():

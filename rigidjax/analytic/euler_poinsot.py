@@ -16,7 +16,6 @@ direct integration in the tests.
 from __future__ import annotations
 
 import math
-import warnings
 from typing import NamedTuple
 
 import jax
@@ -29,7 +28,6 @@ from .._checks import (
     as_float,
     at,
     check_finite,
-    concrete_value,
     first,
     floats,
     fmt,
@@ -247,19 +245,25 @@ def _omega(p: _Plan, t: Array, per: Array | None = None) -> Array:
     return jnp.where(p.trivial, jnp.broadcast_to(p.w_orig, out.shape), out)
 
 
-def check_moments(I: Array, name: str = "inertia") -> Array:
-    """Principal moments `I (..., 3)` of a body, checked: finite and positive. One error naming
-    `name`, the offending moments and the fix (see `rigidjax._checks.validate_all`). Moments
-    that violate the triangle inequality (the largest > the sum of the other two: no rigid body
-    has them) get a `RuntimeWarning` that names them when they are concrete (not under `jit`),
-    not an error: Euler's equations and their closed form hold for any positive moments, and
-    reference cases use such moments (I = (3, 5, 9) in Principia's tests)."""
+def check_moments(I: Array, name: str = "inertia", check: bool = True) -> Array:
+    """Principal moments `I (..., 3)` of a body, checked: finite, positive and, unless
+    `check=False`, within the triangle inequality (the largest ≤ the sum of the other two,
+    within `max(1e-9, 1000 eps)` of the largest, as `RigidBody`: no mass distribution has other
+    moments). One error naming `name`, the offending moments and the fix (see
+    `rigidjax._checks.validate_all`). `check=False` (as `RigidBody(..., check=False)`) admits
+    such formal moments: Euler's equations and their closed form hold for any positive moments,
+    and reference cases use them (I = (3, 5, 9) in Principia's tests)."""
+    tol = max(1e-9, 1e3 * float(jnp.finfo(I.dtype).eps))
 
     def bad_finite(xp, v):
         return ~xp.all(xp.isfinite(v), axis=-1)
 
     def bad_positive(xp, v):
         return ~xp.all(v > 0, axis=-1)
+
+    def bad_triangle(xp, v):
+        s = xp.sort(v, axis=-1)
+        return s[..., 2] - (s[..., 0] + s[..., 1]) > tol * s[..., 2]
 
     def detail(bad):
         def show(v):
@@ -269,51 +273,52 @@ def check_moments(I: Array, name: str = "inertia") -> Array:
         return show
 
     fix = "; give three principal moments > 0 (of a tensor I: RigidBody(I).principal_moments)"
-    values = concrete_value(I)
-    if values is not None and np.all(np.isfinite(values)) and np.all(values > 0):
-        flat = np.sort(np.asarray(values, float).reshape(-1, 3), axis=-1)
-        bad = flat[:, 2] > (flat[:, 0] + flat[:, 1]) * (1 + 1e-12)
-        if bad.any():
-            warnings.warn(
-                f"{name} = {fmt(flat[int(np.argmax(bad))])} violates the triangle inequality "
-                "(the largest principal moment exceeds the sum of the other two): no rigid body "
-                "has these moments. The closed form of Euler's equations is returned; for a "
-                "physical body give moments with each ≤ the sum of the other two",
-                RuntimeWarning,
-                stacklevel=3,
+    checks = [
+        Check(bad_finite, f"{name} must be finite", detail(bad_finite), fix),
+        Check(bad_positive, f"{name} must be positive", detail(bad_positive), fix),
+    ]
+    if check:
+        checks.append(
+            Check(
+                bad_triangle,
+                f"{name} violates the triangle inequality (the largest principal moment exceeds "
+                "the sum of the other two)",
+                detail(bad_triangle),
+                "; no rigid body has these moments: check the values and units, or pass "
+                "check=False for a formal case (Euler's equations hold for any positive moments)",
             )
-    return validate_all(
-        I,
-        [
-            Check(bad_finite, f"{name} must be finite", detail(bad_finite), fix),
-            Check(bad_positive, f"{name} must be positive", detail(bad_positive), fix),
-        ],
-    )
+        )
+    return validate_all(I, checks)
 
 
 def _body_inputs(
-    inertia: Vec3Like, omega0: Vec3Like, ts: TimesLike | None = None
+    inertia: Vec3Like, omega0: Vec3Like, ts: TimesLike | None = None, check: bool = True
 ) -> list[Float[Array, "..."]]:
     """The arguments of the closed forms as floats of one dtype, checked: `inertia` by
-    `check_moments`, `omega0` and `ts` finite."""
+    `check_moments` (the triangle inequality unless `check=False`), `omega0` and `ts` finite."""
     names = ("inertia", "omega0") + (() if ts is None else ("ts",))
     args = (inertia, omega0) + (() if ts is None else (ts,))
     out = floats(*zip(args, names, strict=True))
-    out[0] = check_moments(vector(out[0], 3, "inertia"))
+    out[0] = check_moments(vector(out[0], 3, "inertia"), check=check)
     vector(out[1], 3, "omega0")
     return [out[0]] + [check_finite(x, n) for x, n in zip(out[1:], names[1:], strict=True)]
 
 
 def free_rigid_body(
-    inertia: Vec3Like, omega0: Vec3Like, ts: TimesLike, t0: RealScalarLike = 0.0
+    inertia: Vec3Like,
+    omega0: Vec3Like,
+    ts: TimesLike,
+    t0: RealScalarLike = 0.0,
+    *,
+    check: bool = True,
 ) -> Float[Array, "*#batch T 3"] | Vec3:
     """Closed-form body angular velocity of the torque-free rigid body (Euler–Poinsot).
 
     `inertia`: principal moments `(..., 3)` in any order (positive; equal moments allowed);
     `omega0`: body angular velocity `(..., 3)` at time `t0`; `ts`: times `(T,)` (any finite
     values, before or after `t0`). Returns `Ω(ts)` with shape `(..., T, 3)`, `Ω(t0) = omega0` to
-    rounding. Bad moments (NaN, ≤ 0) or a non-finite `omega0`,
-    `ts` or `t0` are an error naming the argument.
+    rounding. Bad moments (NaN, ≤ 0, against the triangle inequality: `check_moments`; `check=False`
+    admits the last) or a non-finite `omega0`, `ts` or `t0` are an error naming the argument.
 
     With `2E = Σ I_i Ω_i²`, `M² = Σ I_i² Ω_i²` and axes relabelled so that I2 is the middle moment
     (Landau–Lifshitz §37): for `M² > 2E I2` (motion around the largest axis, labelled 3)
@@ -331,7 +336,7 @@ def free_rigid_body(
     k = 0 and the symmetric-top solution `Ω1 + iΩ2 ∝ e^{iωt}`; a spherical top or Ω = 0 gives a
     constant. Derivation notes are in the module source.
     """
-    inertia, omega0, ts = _body_inputs(inertia, omega0, ts)
+    inertia, omega0, ts = _body_inputs(inertia, omega0, ts, check)
     t0 = check_finite(as_float(t0, "t0").astype(ts.dtype), "t0")
     scalar = ts.ndim == 0
     ts1 = jnp.atleast_1d(ts)
@@ -348,15 +353,18 @@ def _free_rigid_body_jit(inertia, omega0, ts, t0):
     return jnp.vectorize(one, signature="(3),(3),(t)->(t,3)")(inertia, omega0, ts)
 
 
-def free_rigid_body_parameters(inertia: Vec3Like, omega0: Vec3Like) -> FreeBodyParameters:
+def free_rigid_body_parameters(
+    inertia: Vec3Like, omega0: Vec3Like, *, check: bool = True
+) -> FreeBodyParameters:
     """`FreeBodyParameters(k2, lam, K, period, regime, energy, momentum)` of the Euler–Poinsot
     motion started at `omega0` (see `free_rigid_body` for the formulas); batch dims broadcast.
 
     `period = 4K(k²)/|λ|` is the period of Ω(t); half of it is the time between two flips of the
     Dzhanibekov (tennis-racket) effect. For a steady rotation about the largest or smallest axis
-    (k = 0) it is the period of the small oscillations around it, `2π/|λ|`.
+    (k = 0) it is the period of the small oscillations around it, `2π/|λ|`. `check`: as in
+    `free_rigid_body`.
     """
-    inertia, omega0 = _body_inputs(inertia, omega0)
+    inertia, omega0 = _body_inputs(inertia, omega0, check=check)
     return FreeBodyParameters(*_parameters_jit(inertia, omega0))
 
 
@@ -378,11 +386,11 @@ def _parameters_jit(inertia, omega0):
     return jnp.vectorize(one, signature="(3),(3)->(),(),(),(),(),(),()")(inertia, omega0)
 
 
-def flip_period(inertia: Vec3Like, omega0: Vec3Like) -> Scalar:
+def flip_period(inertia: Vec3Like, omega0: Vec3Like, *, check: bool = True) -> Scalar:
     """Period of the body angular velocity, `4K(k²)/|λ|` (see `free_rigid_body`); the time
     between two successive flips (sign changes of a component of cn or sn type, e.g. the
     middle-axis one) is half of it. ∞ on the separatrix, for a spherical top and for Ω = 0."""
-    return free_rigid_body_parameters(inertia, omega0).period
+    return free_rigid_body_parameters(inertia, omega0, check=check).period
 
 
 def _first_sn_zero(s: Array, c: Array, p: _Plan) -> Array:
@@ -398,7 +406,7 @@ def _first_sn_zero(s: Array, c: Array, p: _Plan) -> Array:
     return _ellipf(phi, p.m, p.m1) / jnp.abs(p.lam_p)
 
 
-def time_of_first_flip(inertia: Vec3Like, omega0: Vec3Like) -> Scalar:
+def time_of_first_flip(inertia: Vec3Like, omega0: Vec3Like, *, check: bool = True) -> Scalar:
     """First time t > 0 at which the body angular-velocity component along the initially
     dominant axis changes sign, in closed form; ∞ if it never does. Batch dims broadcast.
 
@@ -419,9 +427,9 @@ def time_of_first_flip(inertia: Vec3Like, omega0: Vec3Like) -> Scalar:
     component can vanish, once, at `t = −u0/λ` if that is positive; otherwise ∞. Derived here
     from THEORY §6 and the formulas above; checked against `simulate` in the tests.
     Differentiable: finite gradients wherever the time is finite (on the separatrix itself only
-    the derivative along it is exact), zero where it is ∞.
+    the derivative along it is exact), zero where it is ∞. `check`: as in `free_rigid_body`.
     """
-    inertia, omega0 = _body_inputs(inertia, omega0)
+    inertia, omega0 = _body_inputs(inertia, omega0, check=check)
     return _first_flip_jit(inertia, omega0)
 
 

@@ -140,10 +140,12 @@ def free_rigid_body_attitude(
     q0: QuatLike | None,
     ts: TimesLike,
     t0: RealScalarLike = 0.0,
+    *,
+    check: bool = True,
 ) -> Float[Array, "*#batch T 4"] | Quat:
     """Attitude quaternions `(..., T, 4)` (scalar-first, λ0 ≥ 0, P maps body → space) of the
     torque-free rigid body with principal moments `inertia`, body angular velocity `omega0` and
-    attitude `q0` (identity if None) at time `t0`.
+    attitude `q0` (identity if None) at time `t0`. Checked as `free_rigid_body` (`check`).
 
     Construction (derived here; cf. Landau–Lifshitz §37). M is fixed in space. Take a body axis e
     that the body momentum direction n(t) = IΩ/|M| never reaches: the "cn axis" of
@@ -158,7 +160,7 @@ def free_rigid_body_attitude(
     Carlson's symmetric integrals), exact to rounding. On the separatrix the integral is
     elementary (see `_psi_sep`). Finally `G = P0 B(0)ᵀ`.
     """
-    inertia, omega0, ts = _body_inputs(inertia, omega0, ts)
+    inertia, omega0, ts = _body_inputs(inertia, omega0, ts, check)
     dtype = ts.dtype
     q0 = quat.identity(dtype=dtype) if q0 is None else vector(q0, 4, "q0").astype(dtype)
     q0 = quat.normalize(q0)

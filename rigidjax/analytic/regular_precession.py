@@ -44,28 +44,30 @@ class SymmetricTopPrecession(NamedTuple):
 
 
 def _top_inputs(
-    I1: ScalarLike, I3: ScalarLike, omega0: Vec3Like, *more: RealLike
+    I1: ScalarLike, I3: ScalarLike, omega0: Vec3Like, *more: RealLike, check: bool = True
 ) -> list[Float[Array, "..."]]:
     """The arguments as floats of one dtype, checked: the moments `(I1, I1, I3)` by
-    `check_moments` (finite, positive), `omega0` and `ts` finite."""
+    `check_moments` (finite, positive, and `I3 ≤ 2 I1` unless `check=False`), `omega0` and `ts`
+    finite."""
     names = ("I1", "I3", "omega0", "ts")[: 3 + len(more)]
     out = floats(*zip((I1, I3, omega0, *more), names, strict=True))
     vector(out[2], 3, "omega0")
     I1, I3 = jnp.broadcast_arrays(out[0], out[1])
-    moments = check_moments(jnp.stack([I1, I1, I3], axis=-1), "(I1, I1, I3)")
+    moments = check_moments(jnp.stack([I1, I1, I3], axis=-1), "(I1, I1, I3)", check)
     out[0], out[1] = moments[..., 0], moments[..., 2]
     return out[:2] + [check_finite(x, n) for x, n in zip(out[2:], names[2:], strict=True)]
 
 
 def symmetric_top_precession(
-    I1: ScalarLike, I3: ScalarLike, omega0: Vec3Like
+    I1: ScalarLike, I3: ScalarLike, omega0: Vec3Like, *, check: bool = True
 ) -> SymmetricTopPrecession:
     """Regular precession of the free symmetric top `I1 = I2 ≠ I3` (symmetry axis = body z):
     precession rate `|M|/I1`, spin `Ω3 = (|M|/I3) cos θ`, body rate `ω = Ω3 (I3 − I1)/I1` and the
     nutation angle θ between the symmetry axis and M, `tan θ = I1 |Ω⊥| / (I3 Ω3)` (Zegrya–Parshin
-    004 (12.34)–(12.39)). Batch dims of the arguments broadcast; bad moments (NaN, ≤ 0) or a
-    non-finite `omega0` are an error naming the argument."""
-    return _precession(*_top_inputs(I1, I3, omega0))
+    004 (12.34)–(12.39)). Batch dims of the arguments broadcast; bad moments (NaN, ≤ 0, or
+    `I3 > 2 I1`, the triangle inequality, unless `check=False`) or a non-finite `omega0` are an
+    error naming the argument."""
+    return _precession(*_top_inputs(I1, I3, omega0, check=check))
 
 
 @jax.jit
@@ -82,13 +84,19 @@ def _precession(I1: Array, I3: Array, omega0: Array) -> SymmetricTopPrecession:
 
 
 def symmetric_top(
-    I1: ScalarLike, I3: ScalarLike, omega0: Vec3Like, ts: TimesLike, t0: RealScalarLike = 0.0
+    I1: ScalarLike,
+    I3: ScalarLike,
+    omega0: Vec3Like,
+    ts: TimesLike,
+    t0: RealScalarLike = 0.0,
+    *,
+    check: bool = True,
 ) -> Float[Array, "*#batch T 3"] | Vec3:
     """Body angular velocity `(..., T, 3)` of the free symmetric top `I1 = I2`, `I3` (symmetry
     axis = body z): `Ω3 = const`, `Ω1 + iΩ2 = (Ω1(t0) + iΩ2(t0)) e^{iω(t − t0)}`,
     `ω = Ω3 (I3 − I1)/I1` (from `I1 Ω̇1 = (I1 − I3) Ω2 Ω3`, `I1 Ω̇2 = (I3 − I1) Ω3 Ω1`; the sign
     agrees with `simulate`). `ts` (T,). Checked as `symmetric_top_precession`; `ts`, `t0` finite."""
-    I1, I3, omega0, ts = _top_inputs(I1, I3, omega0, ts)
+    I1, I3, omega0, ts = _top_inputs(I1, I3, omega0, ts, check=check)
     return _top(I1, I3, omega0, ts, check_finite(as_float(t0, "t0").astype(ts.dtype), "t0"))
 
 
@@ -109,6 +117,8 @@ def symmetric_top_attitude(
     q0: QuatLike | None,
     ts: TimesLike,
     t0: RealScalarLike = 0.0,
+    *,
+    check: bool = True,
 ) -> Float[Array, "*#batch T 4"] | Quat:
     """Attitude `(..., T, 4)` of the free symmetric top (symmetry axis = body z): regular
     precession about the fixed angular momentum,
@@ -116,8 +126,8 @@ def symmetric_top_attitude(
     i.e. `q(t) = q(M_space (t − t0)/I1) ∘ q0 ∘ q(−ω (t − t0) e_z)` with `M_space = P0 I Ω0`.
     Check: the body angular velocity of this P is `(|M|/I1) n(t) − ω e_z` with `n = IΩ/|M|`
     rotating about e_z at the rate ω, which equals Ω(t) (`symmetric_top`). λ0 ≥ 0. Checked as
-    `symmetric_top`; `q0` finite and non-zero."""
-    I1, I3, omega0, ts = _top_inputs(I1, I3, omega0, ts)
+    `symmetric_top` (`check`); `q0` finite and non-zero."""
+    I1, I3, omega0, ts = _top_inputs(I1, I3, omega0, ts, check=check)
     dtype = ts.dtype
     q0 = quat.identity(dtype=dtype) if q0 is None else vector(q0, 4, "q0").astype(dtype)
     t0 = check_finite(as_float(t0, "t0").astype(dtype), "t0")
