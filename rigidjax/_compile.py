@@ -30,32 +30,33 @@ QUICK_COMPILE = {"xla_cpu_use_fusion_emitters": False}
 SMALL_PROGRAM = {**QUICK_COMPILE, "xla_backend_optimization_level": 0}
 
 
-@functools.cache
-def quick_compile_options(small: bool = False) -> dict[str, Any]:
-    """`QUICK_COMPILE` (`SMALL_PROGRAM` if `small`) if this XLA accepts it (one tiny compile to
-    find out), else `{}`."""
-    options = SMALL_PROGRAM if small else QUICK_COMPILE
-    try:
-        jax.jit(lambda x: x, compiler_options=options).lower(0.0).compile()
-    except Exception:  # noqa: BLE001 - an XLA without the option: its default emitters
-        return {}
-    return dict(options)
-
-
 class quick_compile_jit:  # noqa: N801 - used as a decorator, like eqx.filter_jit
-    """`eqx.filter_jit(fn)` compiled with `quick_compile_options(small)`, built at the first call
-    (the options need a backend, which importing rigidjax must not start)."""
+    """`eqx.filter_jit(fn)` compiled with `QUICK_COMPILE` (`SMALL_PROGRAM` if `small`), built at
+    the first call (the options need a backend, which importing rigidjax must not start). An XLA
+    that does not know the options rejects them at that first compile ("No such compile
+    option"): then `fn` is compiled with its defaults, for good. (No probe compile to find out
+    first: it cost 5-10 ms of a rotation map's 50 ms first call, measured here.)"""
 
     def __init__(self, fn: Callable, small: bool = False):
         self._fn = fn
-        self._small = small
+        self._options = dict(SMALL_PROGRAM if small else QUICK_COMPILE)
         self._jitted: Callable | None = None
         functools.update_wrapper(self, fn)
 
     def __call__(self, *args, **kwargs):
         if self._jitted is None:
-            # filter_jit hands keyword arguments other than `donate` to jax.jit (its
-            # `jitkwargs`, not in its typed signature)
-            jit: Callable[..., Callable] = eqx.filter_jit
-            self._jitted = jit(self._fn, compiler_options=quick_compile_options(self._small))
-        return self._jitted(*args, **kwargs)
+            self._jitted = self._build(self._options)
+        try:
+            return self._jitted(*args, **kwargs)
+        except jax.errors.JaxRuntimeError as e:
+            if not self._options or "No such compile option" not in str(e):
+                raise
+            self._options = {}
+            self._jitted = self._build({})
+            return self._jitted(*args, **kwargs)
+
+    def _build(self, options: dict[str, Any]) -> Callable:
+        # filter_jit hands keyword arguments other than `donate` to jax.jit (its `jitkwargs`,
+        # not in its typed signature)
+        jit: Callable[..., Callable] = eqx.filter_jit
+        return jit(self._fn, compiler_options=options)

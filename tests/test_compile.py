@@ -4,18 +4,33 @@ and give the same numbers as the default compile."""
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from rigidjax import _compile
 
 
 def test_options_known_here_and_left_out_where_unknown(monkeypatch):
-    assert _compile.quick_compile_options() == _compile.QUICK_COMPILE
-    _compile.quick_compile_options.cache_clear()
+    """This XLA takes the options; one that does not know them compiles with its defaults (the
+    same numbers), and errors of the program itself are not taken for that."""
+    f = _compile.quick_compile_jit(lambda x: jnp.sin(x) * 2, small=True)
+    np.testing.assert_array_equal(f(jnp.arange(3.0)), jnp.sin(jnp.arange(3.0)) * 2)
+    assert f._options == _compile.SMALL_PROGRAM
+
+    def fails(x):
+        return jax.pure_callback(_raise, jax.ShapeDtypeStruct((), x.dtype), x)
+
+    h = _compile.quick_compile_jit(fails)
+    with pytest.raises(jax.errors.JaxRuntimeError, match="from the program"):
+        jax.block_until_ready(h(jnp.zeros(())))
+    assert h._options == _compile.QUICK_COMPILE
     monkeypatch.setattr(_compile, "QUICK_COMPILE", {"xla_no_such_option_in_any_xla": False})
-    try:
-        assert _compile.quick_compile_options() == {}
-    finally:
-        _compile.quick_compile_options.cache_clear()
+    g = _compile.quick_compile_jit(lambda x: jnp.sin(x) * 2)
+    np.testing.assert_array_equal(g(jnp.arange(3.0)), jnp.sin(jnp.arange(3.0)) * 2)
+    assert g._options == {}
+
+
+def _raise(x):
+    raise ValueError("from the program")
 
 
 def test_same_numbers_as_the_default_compile():

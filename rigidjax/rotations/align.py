@@ -35,12 +35,14 @@ from __future__ import annotations
 
 from typing import Any, Literal, overload
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
 from .._checks import Check, as_float, floats, is_concrete, validate_all
+from .._compile import quick_compile_jit
 from .._custom_types import Mat33, Quat, RealLike, Scalar
 from . import _validation as _v
 from .quat import _from_orthogonal, _from_rotvec, _to_matrix, canonical, mul, rotate
@@ -214,14 +216,21 @@ def _refined(a: Array, b: Array, w: Array, p: Array, active: Array | bool = True
     return q
 
 
-def _dominated(q: Quat, q_opt: Quat, refine: bool) -> Quat:
-    """The result where one pair dominates: the optimum `q_opt` if `refine`, else SciPy's `q`
-    with the optimum's derivative (K's perturbation formula loses it there: K's rounding, eps
-    w_max, over the light pairs' gap)."""
-    q_opt = jnp.where(q_opt @ q < 0, -q_opt, q_opt)
-    if refine:
-        return q_opt
-    return jax.lax.stop_gradient(q) + (q_opt - jax.lax.stop_gradient(q_opt))
+@jax.custom_jvp
+def _scipy_value(q: Quat, a: Array, b: Array, w: Array, p: Array, dominant: Array) -> Quat:
+    """SciPy's `q`; where pair `p` is `dominant`, with the derivative of the optimum
+    (`_refined`): K's perturbation formula loses it there (K's rounding, eps w_max, over the
+    light pairs' gap). A value-only call does not run `_refined`."""
+    return q
+
+
+@_scipy_value.defjvp
+def _scipy_value_jvp(primals: Any, tangents: Any) -> tuple[Quat, Quat]:
+    q, a, b, w, p, dominant = primals
+    dq, da, db, dw, _, _ = tangents
+    q_opt, dq_opt = jax.jvp(lambda a, b, w: _refined(a, b, w, p, dominant), (a, b, w), (da, db, dw))
+    dq_opt = jnp.where(q_opt @ q < 0, -dq_opt, dq_opt)
+    return q, jnp.where(dominant, dq_opt, dq)
 
 
 # --------------------------------------------------------------------------- checks
@@ -372,8 +381,7 @@ def align_vectors(
     """
     a, b, w, _ = _args(a, b, weights)
     n = a.shape[0]
-    concrete = is_concrete(w)
-    has_inf = bool(np.any(np.isinf(np.asarray(w)))) if concrete else None
+    has_inf = bool(np.any(np.isinf(np.asarray(w)))) if is_concrete(w) else None
     if return_sensitivity and (n == 1 or has_inf):
         raise ValueError(
             "Cannot return sensitivity matrix with an infinite weight or one vector pair "
@@ -381,23 +389,41 @@ def align_vectors(
         )
     is_inf = jnp.isinf(w) if n > 1 else jnp.ones((1,), bool)
     primary = jnp.argmax(is_inf)
+    if n == 1 or has_inf is not False:
+        primary = _zero_primary_check(a, b, primary, is_inf[primary])
+    solve = _solve_quick if all(map(is_concrete, (a, b, w))) else _solve
+    return solve(a, b, w, primary, has_inf, refine, return_sensitivity)
+
+
+def _solve_core(
+    a: Array,
+    b: Array,
+    w: Array,
+    primary: Array,
+    has_inf: bool | None,
+    refine: bool,
+    sensitivity: bool,
+) -> tuple[Quat, Scalar] | tuple[Quat, Scalar, Mat33]:
+    """`align_vectors` of checked arguments, `primary` the index of the infinite weight (if
+    any), `has_inf` whether there is one (None: traced weights, both paths)."""
+    n = a.shape[0]
+    is_inf = jnp.isinf(w) if n > 1 else jnp.ones((1,), bool)
     w_fin = jnp.where(jnp.isinf(w), jnp.zeros_like(w), w)
-
-    def constrained() -> Quat:
-        return _constrained(a, b, w_fin, _zero_primary_check(a, b, primary, is_inf[primary]))
-
     if n == 1 or has_inf:
-        q = constrained()
+        q = _constrained(a, b, w_fin, primary)
         sens = None
     else:
         q, B, lam = _kabsch(a, b, w_fin)
         p, dominant = _dominant(a, b, w_fin)
-        if not is_concrete(dominant) or bool(dominant):
-            q = jnp.where(dominant, _dominated(q, _refined(a, b, w_fin, p, dominant), refine), q)
-        sens = _sensitivity(B, lam, w) if return_sensitivity else None
+        if refine:
+            q_opt = _refined(a, b, w_fin, p, dominant)
+            q = jnp.where(dominant, jnp.where(q_opt @ q < 0, -q_opt, q_opt), q)
+        else:
+            q = _scipy_value(q, a, b, w_fin, p, dominant)
+        sens = _sensitivity(B, lam, w) if sensitivity else None
         if has_inf is None:  # traced weights: both paths, the one that applies selected
             any_inf = jnp.any(is_inf)
-            q = jnp.where(any_inf, constrained(), q)
+            q = jnp.where(any_inf, _constrained(a, b, w_fin, primary), q)
             sens = None if sens is None else jnp.where(any_inf, jnp.nan, sens)
     q = canonical(q)
     left_out = is_inf & (jnp.isinf(w) | (n > 1))  # a single finite-weight pair keeps its weight
@@ -409,7 +435,13 @@ def align_vectors(
     scale = jnp.sum(w_rssd * (jnp.sum(a * a, -1) + jnp.sum(b * b, -1)))
     pos = ssd > (64 * jnp.finfo(ssd.dtype).eps) ** 2 * scale
     rssd = jnp.where(pos, jnp.sqrt(jnp.where(pos, ssd, jnp.ones_like(ssd))), jnp.zeros_like(ssd))
-    if return_sensitivity:
+    if sensitivity:
         assert sens is not None
         return q, rssd, sens
     return q, rssd
+
+
+# one compiled program per shape, dtype and flags: concrete arrays with XLA's quicker CPU
+# compile (`quick_compile_jit`), tracers (derivatives, jit, vmap) nested in the caller's program
+_solve_quick = quick_compile_jit(_solve_core)
+_solve = eqx.filter_jit(_solve_core)

@@ -28,6 +28,7 @@ from typing import Any, TypeAlias
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax import lax
 from jaxtyping import Array, DTypeLike, Float
 
 from .._checks import as_float, is_concrete, matrix, validate, vector
@@ -138,13 +139,13 @@ def _safe_norm(x: Scalar, y: Scalar) -> Scalar:
     """`hypot(x, y)` with gradient 0 (not NaN) at the origin."""
     r2 = x * x + y * y
     pos = r2 > 0
-    return jnp.where(pos, jnp.sqrt(jnp.where(pos, r2, jnp.ones_like(r2))), jnp.zeros_like(r2))
+    return lax.select(pos, jnp.sqrt(lax.select(pos, r2, jnp.ones_like(r2))), jnp.zeros_like(r2))
 
 
 def _wrap(x: Scalar) -> Scalar:
     """Shift an angle in (−3π, 3π) into [−π, π] (SciPy's wrapping)."""
     two_pi = 2 * jnp.pi
-    return jnp.where(x < -jnp.pi, x + two_pi, jnp.where(x > jnp.pi, x - two_pi, x))
+    return lax.select(x < -jnp.pi, x + two_pi, lax.select(x > jnp.pi, x - two_pi, x))
 
 
 def _angles(q: Quat, n1: Axis, n2: Axis, n3: Axis, intrinsic: bool) -> Vec3:
@@ -178,18 +179,21 @@ def _angles(q: Quat, n1: Axis, n2: Axis, n3: Axis, intrinsic: bool) -> Vec3:
     lockpi = mid >= jnp.pi - tol
     lock = lock0 | lockpi
     zero, one = jnp.zeros_like(a), jnp.ones_like(a)
-    half_sum = jnp.arctan2(jnp.where(lockpi, zero, b), jnp.where(lockpi, one, a))
-    half_diff = jnp.arctan2(jnp.where(lock0, zero, d), jnp.where(lock0, one, c))
+    half_sum = jnp.arctan2(lax.select(lockpi, zero, b), lax.select(lockpi, one, a))
+    half_diff = jnp.arctan2(lax.select(lock0, zero, d), lax.select(lock0, one, c))
     if intrinsic:  # output order (ψ3, ψ2, ψ1): the output's third angle ψ1 is set to 0
-        single = jnp.where(lock0, 2 * half_sum, 2 * half_diff)
-        first = jnp.where(lock, zero, half_sum - half_diff)
-        third = jnp.where(lock, single, half_sum + half_diff)
+        single = lax.select(lock0, 2 * half_sum, 2 * half_diff)
+        first = lax.select(lock, zero, half_sum - half_diff)
+        third = lax.select(lock, single, half_sum + half_diff)
     else:
-        single = jnp.where(lock0, 2 * half_sum, -2 * half_diff)
-        first = jnp.where(lock, single, half_sum - half_diff)
-        third = jnp.where(lock, zero, half_sum + half_diff)
+        single = lax.select(lock0, 2 * half_sum, -2 * half_diff)
+        first = lax.select(lock, single, half_sum - half_diff)
+        third = lax.select(lock, zero, half_sum + half_diff)
     mid = mid - lam
-    mid = jnp.where(flip, -mid, mid)
+    if isinstance(flip, bool):  # axes known when tracing
+        mid = -mid if flip else mid
+    else:
+        mid = lax.select(flip, -mid, mid)
     out = (third, mid, first) if intrinsic else (first, mid, third)
     return jnp.stack([_wrap(x) for x in out], axis=-1)
 
