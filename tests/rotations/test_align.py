@@ -247,6 +247,14 @@ def test_dominant_weight_matches_scipy():
         a, b, w = _dominant_problem(seed, near)
         for align in (quat.align_vectors, ALIGN_PAIR):
             same_rotation(align(a, b, w)[0], scipy_align(a, b, w)[0], atol=1e-9)
+    # the sensitivity from the singular values, as SciPy's (from λ_max, (λ_max² − |B|²)/2
+    # cancelled: 6e-7 to 2e-6 relative at weights (1e10, 1, 1), measured); a third pair
+    for seed in range(4):
+        a, b, w = _dominant_problem(seed, 1e-3)
+        a, b, w = np.vstack([a, a[1:] + 1]), np.vstack([b, b[1:] - 1]), np.append(w, 1.0)
+        sens = quat.align_vectors(a, b, w, return_sensitivity=True)[2]
+        ref = scipy_align(a, b, w, sens=True)[2]
+        np.testing.assert_allclose(sens, ref, rtol=1e-12, atol=1e-12 * np.abs(ref).max())
 
 
 def test_dominant_weight_refined_matches_exact_references():
