@@ -150,6 +150,7 @@ def test_bang_bang_slew_time(wheel):
     np.testing.assert_allclose(angle[2], theta / 2, atol=1e-10)  # half way at t_f / 2
 
 
+@pytest.mark.slow  # over 20 s here (the gradient's compiles)
 def test_gain_gradient():
     """`jax.grad` of a closed-loop cost w.r.t. the PD gains passed as `controller_params` (kernel
     path) equals central differences."""
@@ -171,6 +172,7 @@ def test_gain_gradient():
     np.testing.assert_allclose(grad, fd, rtol=1e-6)
 
 
+@pytest.mark.slow  # over 20 s here (the gradient's compiles)
 def test_command_effort_gradient():
     """`jax.grad` of the control effort `Σ_k |u_k|²` (the recorded commands) and of the final
     state w.r.t. the gains on the wheels: the kernel's adjoint (the commands' cotangents enter

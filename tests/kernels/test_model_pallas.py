@@ -119,6 +119,7 @@ def _gravity_gradient(gain):
     return torque
 
 
+@pytest.mark.slow  # over 20 s here (the gradient's compiles)
 def test_torque_through_gpu_kernel_with_diffrax_gradients(on_gpu_kernel):
     """`simulate` with a torque (an attitude torque with a traced gain, and a time-dependent
     damping) through the GPU kernel, which evaluates the JAX torque itself: the Diffrax path's
@@ -305,6 +306,7 @@ def test_forward_kernel_writes_the_checkpoints():
             np.testing.assert_array_equal(ck[:, k, s], want)
 
 
+@pytest.mark.slow  # over 20 s here (the gradient's compiles)
 def test_gpu_kernel_adjoint(on_gpu_kernel):
     """Reverse mode through the GPU kernel's own adjoint (a second Pallas kernel that reverses
     the same steps, recomputed from checkpoints) where the output times are not
