@@ -78,6 +78,12 @@ def concrete_value(x: object) -> np.ndarray | None:
     return np.asarray(x)
 
 
+def inertia_rtol(dtype: Any) -> float:
+    """Relative tolerance of the inertia checks (symmetry, positive definiteness, the triangle
+    inequality), `max(1e-9, 1000 eps)` of `dtype`: `RigidBody` and the closed forms alike."""
+    return max(1e-9, 1e3 * float(jnp.finfo(dtype).eps))
+
+
 class Check(NamedTuple):
     """One check: `bad(xp, x)` (xp is NumPy or jax.numpy) is true where `x` fails; the error is
     `message + detail(x) + hint` (the detail, with the offending value, on concrete `x` only)."""

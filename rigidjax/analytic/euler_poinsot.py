@@ -31,6 +31,7 @@ from .._checks import (
     first,
     floats,
     fmt,
+    inertia_rtol,
     validate_all,
     vector,
 )
@@ -253,7 +254,7 @@ def check_moments(I: Array, name: str = "inertia", check: bool = True) -> Array:
     `rigidjax._checks.validate_all`). `check=False` (as `RigidBody(..., check=False)`) admits
     such formal moments: Euler's equations and their closed form hold for any positive moments,
     and reference cases use them (I = (3, 5, 9) in Principia's tests)."""
-    tol = max(1e-9, 1e3 * float(jnp.finfo(I.dtype).eps))
+    tol = inertia_rtol(I.dtype)
 
     def bad_finite(xp, v):
         return ~xp.all(xp.isfinite(v), axis=-1)

@@ -18,9 +18,18 @@ from typing import Annotated, Any
 
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, DTypeLike
+from jaxtyping import Array, Bool
 
-from .._checks import as_float, attach_check, check_shape, floats, is_concrete, matrix, vector
+from .._checks import (
+    as_float,
+    attach_check,
+    check_shape,
+    floats,
+    inertia_rtol,
+    is_concrete,
+    matrix,
+    vector,
+)
 from .._custom_types import (
     InertiaLike,
     Mat33,
@@ -279,10 +288,6 @@ def as_tensor(inertia: InertiaLike) -> Mat33:
 # --------------------------------------------------------------------------- validation
 
 
-def _default_rtol(dtype: DTypeLike) -> float:
-    return max(1e-9, 1e3 * float(jnp.finfo(dtype).eps))
-
-
 def _violations(I: Any, rtol: float, xp: Any, diagonal: bool = False) -> tuple[Any, ...]:
     """Per-matrix diagnostics with the array module `xp` (numpy on concrete input, else jnp);
     a `diagonal` tensor's principal moments are its diagonal in order (no eigensolver: one per
@@ -328,7 +333,7 @@ def check_inertia(
     with a static message. `diagonal`: `I` is diagonal by construction (principal moments).
     """
     I = matrix(I, name)
-    tol = _default_rtol(I.dtype) if rtol is None else float(rtol)
+    tol = inertia_rtol(I.dtype) if rtol is None else float(rtol)
     if not is_concrete(I):
         _, _, _, _, _, bad_sym, bad_pd, bad_tri = _violations(I, tol, jnp, diagonal)
         fails = jnp.stack([jnp.any(bad_sym), jnp.any(bad_pd), jnp.any(bad_tri)])

@@ -72,13 +72,19 @@ def _top_space(K: Float[Array, "4 4"]) -> tuple[Quat, Array, Array, Array]:
     return v, w, V, near
 
 
-def _kabsch_quat(B: Mat33) -> Quat:
-    """SciPy's rotation for B: `C = U Vᵀ` of the SVD `B = U S Vᵀ`, the last column of U negated
-    when det(U Vᵀ) < 0 (Kabsch), as a quaternion. The same LAPACK SVD as SciPy's on the CPU:
-    the same numbers, also where B rounds light pairs away (`refine`)."""
-    u, _, vh = jnp.linalg.svd(B)
+def _kabsch_svd(B: Mat33) -> tuple[Mat33, Array, Mat33]:
+    """SciPy's SVD `B = U S Vᵀ` with Kabsch's sign: where det(U Vᵀ) < 0, U's last column and the
+    last singular value negated, so that `U Vᵀ` is a rotation. The same LAPACK SVD as SciPy's on
+    the CPU: the same numbers, also where B rounds light pairs away (`refine`)."""
+    u, s, vh = jnp.linalg.svd(B)
     flip = _v.det(jnp, u @ vh) < 0
     u = u.at[:, -1].set(jnp.where(flip, -u[:, -1], u[:, -1]))
+    return u, s.at[-1].set(jnp.where(flip, -s[-1], s[-1])), vh
+
+
+def _kabsch_quat(B: Mat33) -> Quat:
+    """SciPy's rotation for B, `C = U Vᵀ` (`_kabsch_svd`), as a quaternion."""
+    u, _, vh = _kabsch_svd(B)
     return _from_orthogonal(u @ vh)
 
 
@@ -116,8 +122,7 @@ def _sensitivity(B: Mat33, w: Array) -> Mat33:
     the module docstring; from λ_max, `(λ_max² − |B|²)/2` cancels at disparate weights: 1e-6
     relative at (1e10, 1, 1), measured). The singular values' derivative `uᵢᵀ dB vᵢ` is finite
     also where they repeat."""
-    u, s, vh = jnp.linalg.svd(B)
-    s = s.at[2].multiply(jnp.where(_v.det(jnp, u @ vh) < 0, -1.0, 1.0).astype(s.dtype))
+    s = _kabsch_svd(B)[1]
     kappa = s[0] * s[1] + s[1] * s[2] + s[2] * s[0]
     zeta = (s[0] + s[1]) * (s[1] + s[2]) * (s[2] + s[0])
     return jnp.mean(w) / zeta * (kappa * jnp.eye(3, dtype=B.dtype) + B @ B.T)
