@@ -24,11 +24,14 @@ that takes b̂_p to −b̂_p), then the turn `φ = atan2(Σ w (c × a)·â_p, Σ
 about `â_p` that best aligns the others, `c = P(q_pri) b`. One vector pair takes this path too.
 
 The value is SciPy's (the SVD of B, `_kabsch_quat`) where the optimum is unique; K gives the
-derivative and the degenerate cases. Disparate finite weights (one pair's `w |a| |b|` above 1e6
-times the others' sum): B rounds the light pairs away at `eps w_max` (2.7e-6 rad at weights
-(1e10, 1); SciPy loses as much, up to 4e-6 measured). With `refine=True` the constrained
-solution is refined there by two Newton steps on the full objective (`_refined`): within
-4e-16 rad of a 50-digit (mpmath) solution in 30 random cases measured at weights (1e10, 1).
+derivative and the degenerate cases, except where one pair dominates: there the derivative is
+`_refined`'s (`_scipy_value`), K's rounding being larger than the light pairs' gap.
+
+Disparate finite weights (one pair's `w |a| |b|` above 1e6 times the others' sum): B rounds the
+light pairs away at `eps w_max` (2.7e-6 rad at weights (1e10, 1); SciPy loses as much, up to
+4e-6 measured). With `refine=True` the constrained solution is refined there by two Newton
+steps on the full objective (`_refined`): within 4e-16 rad of a 50-digit (mpmath) solution in
+30 random cases measured at weights (1e10, 1).
 """
 
 from __future__ import annotations
