@@ -1,0 +1,7 @@
+"""Attitude determination: the multiplicative EKF of attitude and gyro bias (`mekf`), its
+one-step core (`propagate`, `update`), and the estimator in the loop of a sampled-data
+controller (`estimated`)."""
+
+from .mekf import MEKF, FilterState, mekf, propagate, update
+
+__all__ = ["MEKF", "FilterState", "mekf", "propagate", "update"]
