@@ -25,7 +25,16 @@ from .mechanics import RigidBody, Trajectory, angular_momentum, energy
 from .mechanics.gyrostat import GyrostatTrajectory
 from .rotations import quat
 
-__all__ = ["energy_drift", "first_flip_time", "max_nutation", "momentum_drift"]
+__all__ = [
+    "energy_drift",
+    "first_flip_time",
+    "max_nutation",
+    "momentum_drift",
+    "peak_wheel_speed",
+    "pointing_error",
+    "saturation_count",
+    "settling_time",
+]
 
 
 def _safe_norm(x: Float[Array, "*batch 3"]) -> Float[Array, "*batch"]:

@@ -19,6 +19,8 @@ from jaxtyping import Array
 from .._checks import as_float, floats
 from .._custom_types import Scalar, ScalarLike
 
+__all__ = ["am", "cn", "dn", "ellipj", "ellipk", "ellipkinc", "ellipkm1", "ellippi", "sn"]
+
 # Arithmetic–geometric mean steps. From b0 = √(1 − m) the ratio b/a first grows like 2√(b/a) per
 # step, then c/a falls quadratically: 14 steps reach c/a < 1e-20 for any 1 − m ≥ 1e-300 (13 are
 # needed at 1e-300, 9 at 1e-16). Extra steps are exact no-ops (c = 0): one count for all dtypes.

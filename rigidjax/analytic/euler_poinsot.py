@@ -72,6 +72,16 @@ from .elliptic import _ellipf, _ellipj, _ellipk, _sech
 # regular for steady rotation about an equatorial axis of a symmetric top).
 
 
+__all__ = [
+    "FreeBodyParameters",
+    "check_moments",
+    "flip_period",
+    "free_rigid_body",
+    "free_rigid_body_parameters",
+    "time_of_first_flip",
+]
+
+
 class FreeBodyParameters(NamedTuple):
     """Constants of the Euler–Poinsot motion (see `free_rigid_body_parameters`)."""
 

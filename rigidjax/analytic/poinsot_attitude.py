@@ -25,6 +25,8 @@ from .euler_poinsot import (
     _unpermute,
 )
 
+__all__ = ["free_body_flow", "free_rigid_body_attitude"]
+
 # Quaternions of the cyclic relabellings C_j = [e_{j+1}, e_{j+2}, e_j] (columns): C_j maps the
 # standard z axis to body axis j (C_2 = E; C_0, C_1: ±120° about (1, 1, 1)).
 _Q_CYCLIC = ((0.5, 0.5, 0.5, 0.5), (0.5, -0.5, -0.5, -0.5), (1.0, 0.0, 0.0, 0.0))

@@ -34,6 +34,15 @@ from .euler_poinsot import check_moments
 # ----------------------------------------------------------------------------------------------
 
 
+__all__ = [
+    "SymmetricTopPrecession",
+    "fixed_axis_rotation",
+    "symmetric_top",
+    "symmetric_top_attitude",
+    "symmetric_top_precession",
+]
+
+
 class SymmetricTopPrecession(NamedTuple):
     """Regular precession of a free symmetric top (see `symmetric_top_precession`)."""
 

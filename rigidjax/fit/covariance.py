@@ -23,6 +23,8 @@ from jaxtyping import Array, Float
 
 from .losses import Loss
 
+__all__ = ["METHODS", "covariance"]
+
 METHODS = ("gauss_newton", "sandwich")
 
 

@@ -37,6 +37,16 @@ from ..mechanics.inertia import as_tensor, check_inertia
 from ..rotations import quat
 from .flow import flow
 
+__all__ = [
+    "ExcitationDesign",
+    "PiecewiseConstantTorque",
+    "design_excitation",
+    "fisher_information",
+    "log_det_criterion",
+    "piecewise_constant",
+    "prbs",
+]
+
 _ENTRIES = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
 
 

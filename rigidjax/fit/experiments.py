@@ -18,6 +18,8 @@ from .._checks import as_float, check_finite, check_times, validate, vector
 from .._custom_types import RealLike
 from ..rotations import quat
 
+__all__ = ["Experiments", "angular_rate", "experiments", "guess", "initial_states"]
+
 
 class Experiments(NamedTuple):
     """`ts (E, T)`, `omega (E, T, 3)` or None, `quat (E, T, 4)` (unit) or None; `several`:

@@ -23,6 +23,8 @@ from jaxtyping import Array, Float, Int
 from .._custom_types import Frame
 from ..rotations import quat
 
+__all__ = ["Torque", "flow", "substeps_for", "torque_rows"]
+
 Torque = Callable[[Array, Array, Array], Array]
 
 

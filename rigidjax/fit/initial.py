@@ -19,6 +19,8 @@ from jaxtyping import Array, Float
 
 from ..rotations import so3
 
+__all__ = ["linear_inertia"]
+
 
 def _lin(a: Float[Array, "*n 3"]) -> Float[Array, "*n 3 6"]:
     """`L(a)` with `I a = L(a) θ`, θ = (I11, I22, I33, I12, I13, I23)."""

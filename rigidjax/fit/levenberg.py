@@ -23,6 +23,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+__all__ = ["LMResult", "levenberg_marquardt"]
+
 
 class LMResult(NamedTuple):
     """`params`; `residuals` and `jacobian` at `params` (the last stage) as returned by the

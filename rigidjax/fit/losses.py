@@ -18,6 +18,8 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+__all__ = ["DEFAULT_SCALE", "LOSSES", "Loss", "make_loss"]
+
 LOSSES = ("l2", "huber", "cauchy")
 DEFAULT_SCALE = {"l2": 1.0, "huber": 1.345, "cauchy": 2.385}
 

@@ -22,6 +22,8 @@ from jaxtyping import Array, ArrayLike, Float
 
 from ..rotations import quat
 
+__all__ = ["Layout", "inertia_from_params", "params_from_inertia"]
+
 
 def _tril(params: Float[Array, "6"]) -> Float[Array, "3 3"]:
     """L (lower triangular) from (L00, L11, L22, L10, L20, L21)."""

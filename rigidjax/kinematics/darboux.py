@@ -27,6 +27,8 @@ from .formulations import (
     lookup,
 )
 
+__all__ = ["OmegaLike", "darboux", "omega_path"]
+
 OmegaLike = Callable[[Array], Array] | diffrax.AbstractPath | tuple[ArrayLike, ArrayLike]
 
 

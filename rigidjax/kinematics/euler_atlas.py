@@ -26,6 +26,8 @@ import jax.numpy as jnp
 from .._custom_types import EulerSeq, Scalar, Vec3
 from ..rotations import euler
 
+__all__ = ["is_proper", "lock_axes", "margin", "partner"]
+
 
 def _check_seq(seq: object) -> str:
     if not isinstance(seq, str) or seq not in euler.SEQUENCES:

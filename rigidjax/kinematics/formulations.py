@@ -24,6 +24,19 @@ from .._custom_types import EulerSeq, Frame, Mat33, Mat33Like, Quat, Vec3, Vec3L
 from ..rotations import euler, quat, so3
 from . import euler_atlas
 
+__all__ = [
+    "METHODS",
+    "AbstractKinematics",
+    "CayleyKlein",
+    "EulerAngles",
+    "EulerState",
+    "PoissonMatrix",
+    "Quaternion",
+    "RotationVector",
+    "check_omega",
+    "lookup",
+]
+
 
 class AbstractKinematics(eqx.Module):
     """An attitude state with its kinematic equation and its map to the rotation tensor."""

@@ -10,6 +10,8 @@ from .._checks import as_float, check_positive
 from .._custom_types import InertiaLike, Mat33, Scalar, ScalarLike, Vec3
 from .inertia import as_tensor, check_inertia, principal_axes
 
+__all__ = ["RigidBody", "euler_rhs"]
+
 
 class RigidBody(eqx.Module):
     """Inertia tensor in body axes (about the centre of mass or the fixed point) and mass.

@@ -37,6 +37,9 @@ else:  # `simulate` checks it itself (a TypeError that names `torque`)
     Torque = object
 
 
+__all__ = ["Trajectory", "fixed_steps", "simulate"]
+
+
 class Trajectory(AbstractTrajectory):
     """Solution of `simulate`: times `ts (T,)`, body angular velocity `omega (..., T, 3)` and
     attitude `quat (..., T, 4)` (unit; P maps body to space; its sign is continuous in time and

@@ -10,6 +10,8 @@ from .._custom_types import Mat33, QuatLike, Scalar, Vec3, Vec3Like
 from ..rotations import quat
 from .body import RigidBody
 
+__all__ = ["angular_momentum", "drift", "energy", "momentum_squared"]
+
 
 def _batched_inertia(body: RigidBody, omega: Array) -> Mat33:
     # inertia (..., 3, 3) broadcast against omega (..., [T,] 3): insert the time axis if needed

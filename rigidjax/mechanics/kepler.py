@@ -47,6 +47,23 @@ else:  # `simulate_central` checks it itself (a TypeError that names `potential`
     Potential = object
 
 
+__all__ = [
+    "CentralTrajectory",
+    "OrbitalElements",
+    "TwoBodyTrajectory",
+    "elements",
+    "energy",
+    "lrl_vector",
+    "orbit_radius",
+    "reduced_mass",
+    "rutherford_angle",
+    "rutherford_cross_section",
+    "rutherford_impact_parameter",
+    "simulate_central",
+    "simulate_two_body",
+]
+
+
 def _check_alpha(alpha: Array) -> Array:
     return validate(
         alpha,

@@ -64,6 +64,19 @@ from .body import RigidBody
 from .dynamics import fixed_steps
 from .sixdof import SixDofTrajectory, Wrench, initial_state, simulate_6dof
 
+__all__ = [
+    "circular_orbit",
+    "gravity_gradient_torque",
+    "lvlh_angles",
+    "lvlh_matrix",
+    "lvlh_rate",
+    "lvlh_state",
+    "mean_motion",
+    "pitch_frequency",
+    "roll_yaw_frequencies",
+    "simulate_satellite",
+]
+
 
 def mean_motion(mu: RealLike, a: RealLike) -> Array:
     """`n = √(μ/a³)` (Kepler's third law `T²/a³ = 4π²/μ` of 004 with α/m = μ)."""

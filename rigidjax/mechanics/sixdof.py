@@ -39,6 +39,22 @@ from ..models.solve import solve_tree
 from ..rotations import quat
 from .body import RigidBody, euler_rhs
 
+__all__ = [
+    "RigidState",
+    "SixDofTrajectory",
+    "Wrench",
+    "WrenchFn",
+    "angular_momentum",
+    "initial_state",
+    "kinetic_energy",
+    "linear_momentum",
+    "point_position",
+    "point_velocity",
+    "pure_torque",
+    "simulate_6dof",
+    "wrench_at_point",
+]
+
 
 class RigidState(eqx.Module):
     """6-DOF state: COM position `R` and velocity `V` (space axes), attitude `q` (unit quaternion,

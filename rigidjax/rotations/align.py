@@ -53,6 +53,9 @@ from .quat import _from_orthogonal, _from_rotvec, _to_matrix, canonical, mul, ro
 # --------------------------------------------------------------------------- q-method
 
 
+__all__ = ["DOMINANCE", "align_vectors"]
+
+
 def _davenport_k(B: Mat33) -> Float[Array, "4 4"]:
     tr = jnp.trace(B)
     z = jnp.stack([B[2, 1] - B[1, 2], B[0, 2] - B[2, 0], B[1, 0] - B[0, 1]])

@@ -54,6 +54,17 @@ from .._custom_types import Mat33, Mat33Like, RealLike, Scalar, ScalarLike, Vec3
 from .._numerics import safe_sqrt
 from . import _validation
 
+__all__ = [
+    "AndoyerVariables",
+    "free_body_hamiltonian",
+    "from_andoyer",
+    "gamma",
+    "momentum",
+    "space_momentum",
+    "to_andoyer",
+    "to_momentum_attitude",
+]
+
 
 class AndoyerVariables(NamedTuple):
     """Andoyer–Deprit variables; each field is an array of the same leading batch shape.

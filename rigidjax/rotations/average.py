@@ -16,6 +16,8 @@ from .._custom_types import Quat, RealLike
 from . import _validation as _v
 from .quat import _unit, canonical
 
+__all__ = ["mean", "top_eigvec"]
+
 
 @jax.custom_jvp
 def top_eigvec(M: Float[Array, "*#batch 4 4"]) -> Quat:

@@ -13,6 +13,17 @@ from .._custom_types import CMat22, CMat22Like, Quat, QuatLike, Vec3, Vec3Like
 from . import _validation as v
 from . import quat
 
+__all__ = [
+    "from_cayley_klein",
+    "from_su2",
+    "pauli",
+    "sigma_to_vec",
+    "su2_act",
+    "to_cayley_klein",
+    "to_su2",
+    "vec_to_sigma",
+]
+
 
 def _complex_dtype(dtype: DTypeLike) -> jnp.dtype:
     return jnp.result_type(dtype, jnp.complex64)

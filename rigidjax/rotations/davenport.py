@@ -17,6 +17,13 @@ from .._custom_types import DavenportAxesLike, Mat33, Mat33Like, Quat, QuatLike,
 from . import quat
 from .euler import _angles, _angles_arg, _compose
 
+__all__ = [
+    "davenport_from_matrix",
+    "davenport_from_quat",
+    "davenport_to_matrix",
+    "davenport_to_quat",
+]
+
 
 def _davenport_axes(axes: DavenportAxesLike, dtype: DTypeLike) -> tuple[Vec3, Vec3, Vec3]:
     """Unit axes (m, e, n) from `axes` of shape (..., 3, 3) = (m, e, n) or (..., 2, 3) = (m, n)."""

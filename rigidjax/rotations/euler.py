@@ -47,6 +47,23 @@ from .._custom_types import (
 from . import _validation, quat
 from ._compiled import compiled
 
+__all__ = [
+    "SEQUENCES",
+    "Axis",
+    "davenport_from_matrix",
+    "davenport_from_quat",
+    "davenport_to_matrix",
+    "davenport_to_quat",
+    "from_matrix",
+    "from_quat",
+    "gimbal_tol",
+    "jacobian",
+    "omega_to_rates",
+    "rates_to_omega",
+    "to_matrix",
+    "to_quat",
+]
+
 SEQUENCES: tuple[str, ...] = tuple(
     s
     for case in (str.upper, str.lower)

@@ -19,6 +19,8 @@ from .._custom_types import Mat33, Mat33Like, Quat, QuatLike, Vec3, Vec3Like
 from . import _validation, quat
 from .so3 import hat
 
+__all__ = ["compose", "from_matrix", "from_quat", "rotate", "to_matrix", "to_quat"]
+
 _PI_HINT = (
     "; its Gibbs vector 2 tan(χ/2) e is infinite: use quaternions (rigidjax.quat) or MRPs "
     "(rigidjax.mrp) instead"

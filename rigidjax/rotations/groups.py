@@ -24,6 +24,8 @@ from .._checks import vector
 from .._custom_types import Quat, QuatLike
 from .quat import _unit, mul
 
+__all__ = ["reduce", "rotation_group"]
+
 _AXES = ("x", "y", "z", "X", "Y", "Z")
 if TYPE_CHECKING:
     GroupName: TypeAlias = str

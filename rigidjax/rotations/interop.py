@@ -19,6 +19,8 @@ from .._custom_types import Quat, QuatLike
 from . import _validation as _v
 from .quat import _unit
 
+__all__ = ["from_jaxlie", "from_scipy", "to_jaxlie", "to_scipy"]
+
 
 def from_scipy(rotation: Any) -> Quat:
     """Quaternions `(..., 4)` (scalar-first, float64 unless x64 is off) of a

@@ -15,6 +15,8 @@ from .._custom_types import Mat33, Mat33Like, Quat, QuatLike, Vec3, Vec3Like
 from . import _validation, quat
 from ._compiled import compiled
 
+__all__ = ["compose", "from_matrix", "from_quat", "rotate", "shadow", "to_matrix", "to_quat"]
+
 
 def _from_unit_quat(q: Quat) -> Vec3:
     return _from_canonical(quat.canonical(q))

@@ -18,6 +18,8 @@ from .._custom_types import Quat, QuatLike, Scalar, ScalarLike
 from . import _validation as _v
 from .quat import _angle, _from_rotvec, _to_rotvec, _unit, conj, identity, mul
 
+__all__ = ["approx_equal", "magnitude", "power"]
+
 
 def magnitude(q: QuatLike) -> Scalar:
     """Rotation angle ∈ [0, π] of `q` (SciPy's `Rotation.magnitude`; the same as `quat.angle`):

@@ -43,6 +43,48 @@ from . import _series
 from . import _validation as _v
 from ._compiled import compiled
 
+__all__ = [
+    "align_vectors",
+    "angle",
+    "approx_equal",
+    "canonical",
+    "conj",
+    "continuous",
+    "from_cayley_klein",
+    "from_jaxlie",
+    "from_matrix",
+    "from_rotvec",
+    "from_scipy",
+    "from_su2",
+    "from_xyzw",
+    "identity",
+    "inv",
+    "local",
+    "magnitude",
+    "mean",
+    "mul",
+    "norm2",
+    "normalize",
+    "pauli",
+    "power",
+    "random",
+    "reduce",
+    "retract",
+    "rotate",
+    "rotation_group",
+    "sigma_to_vec",
+    "slerp",
+    "su2_act",
+    "to_cayley_klein",
+    "to_jaxlie",
+    "to_matrix",
+    "to_rotvec",
+    "to_scipy",
+    "to_su2",
+    "to_xyzw",
+    "vec_to_sigma",
+]
+
 
 def _split(q: Quat) -> tuple[Scalar, Vec3]:
     return q[..., 0], q[..., 1:]

@@ -18,6 +18,8 @@ from .._custom_types import Quat, QuatLike, RealLike
 from . import _validation as _v
 from .quat import _from_rotvec, _to_rotvec, _unit, conj, mul
 
+__all__ = ["Slerp", "key_frames"]
+
 
 def key_frames(ts: RealLike, q: QuatLike) -> tuple[Float[Array, " N"], Float[Array, "N 4"]]:
     """Key times `(N,)` (finite, strictly increasing, N ≥ 2) and unit key quaternions `(N, 4)`,

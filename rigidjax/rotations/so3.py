@@ -17,6 +17,25 @@ from .._custom_types import Frame, Mat33, Mat33Like, Scalar, Vec3, Vec3Like
 from . import _series, _validation, quat
 from ._compiled import compiled
 
+__all__ = [
+    "Z",
+    "Z_inv",
+    "angular_velocity",
+    "check_rotation",
+    "compose",
+    "distance",
+    "exp",
+    "hat",
+    "log",
+    "orthogonality_error",
+    "project",
+    "random",
+    "rotate",
+    "rotate_tensor",
+    "shadow",
+    "vee",
+]
+
 
 def hat(v: Vec3Like) -> Mat33:
     """Skew matrix `v × E`: `hat(v) @ a = v × a`."""

@@ -39,6 +39,8 @@ from . import _validation as _v
 from .quat import _from_rotvec, _to_rotvec, conj, mul
 from .slerp import key_frames
 
+__all__ = ["RotationSpline"]
+
 # Taylor coefficients (in θ²) of k1 and k2 of the nonlinear term
 _K1 = [(-1) ** j * (2 * j + 2) / math.factorial(2 * j + 4) for j in range(8)]
 _K2 = [(-1) ** (j + 1) * (2 * j + 2) / math.factorial(2 * j + 5) for j in range(8)]

@@ -23,6 +23,17 @@ from jaxtyping import Array, PyTree
 from .._custom_types import Args, BoolScalarLike, DenseInfo, RealScalarLike, Y
 from ..analytic.poinsot_attitude import free_body_flow
 
+__all__ = [
+    "AbstractFlowSolver",
+    "ExactFreeBody",
+    "RigidBodyField",
+    "Torque",
+    "field_of",
+    "flow_from_start",
+    "free_flow",
+    "tree_add",
+]
+
 Torque = Callable[..., Array]  # torque(t, Ω (3,), q (4,)) -> K (3,)
 
 

@@ -11,6 +11,8 @@ import jax.tree_util as jtu
 from .._custom_types import VF, Args, BoolScalarLike, DenseInfo, RealScalarLike, Y
 from . import _stages
 
+__all__ = ["ExplicitRK", "unrolled"]
+
 
 class ExplicitRK(_stages.AbstractTableauSolver):
     """Any explicit Diffrax Runge–Kutta tableau (`method`, default Tsit5) with its stages unrolled

@@ -8,6 +8,8 @@ import diffrax
 import numpy as np
 from jaxtyping import PyTree
 
+__all__ = ["RK4"]
+
 
 class RK4(diffrax.AbstractERK):
     """Classical RK4 (Kutta 1901): four stages, order 4, no embedded error estimate — use it with

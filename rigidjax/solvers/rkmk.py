@@ -33,6 +33,8 @@ from .._custom_types import (
 from ..rotations import so3
 from . import _stages
 
+__all__ = ["RKMK", "LieTerm"]
+
 
 def _move(R0: Mat33, theta: Vec3, frame: Frame) -> Mat33:
     E = so3.exp(theta)

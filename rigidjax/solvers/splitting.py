@@ -22,6 +22,8 @@ from jaxtyping import PyTree
 from .._custom_types import Args, BoolScalarLike, DenseInfo, RealScalarLike, Y
 from .exact_free_body import AbstractFlowSolver, RigidBodyField, field_of, free_flow
 
+__all__ = ["LiePoissonSplitting", "strang_step"]
+
 _CBRT2 = 2.0 ** (1.0 / 3.0)
 # Yoshida (1990) triple jump: S(w1 h) S(w0 h) S(w1 h) is of order 4 for a symmetric S of order 2.
 _YOSHIDA = (1 / (2 - _CBRT2), -_CBRT2 / (2 - _CBRT2), 1 / (2 - _CBRT2))

@@ -12,6 +12,8 @@ from jaxtyping import Array, Bool, PyTree
 
 from .._custom_types import VF, Args, BoolScalarLike, DenseInfo, RealScalarLike, Y
 
+__all__ = ["StepEndMap"]
+
 
 class StepEndMap(diffrax.AbstractSolver[tuple[PyTree, Bool[Array, ""]]]):
     """Wrap `solver`; after each accepted or rejected step apply `fn(y1) -> (y1', jumped)`.
