@@ -9,6 +9,7 @@ from typing import Any, NamedTuple
 import equinox as eqx
 import jax
 import jax.core
+from jax._src import core as _jax_core  # `trace_state_clean`, not yet in the public `jax.core`
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, DTypeLike, Float
@@ -58,6 +59,16 @@ def matrix(x: RealLike, name: str) -> Mat33:
     x = as_float(x, name)
     check_shape(x, (3, 3), name)
     return x
+
+
+def top_level() -> bool:
+    """True where no JAX transformation is being traced (no `jit`, `scan` body, `vmap`, `grad`,
+    custom rule): only there may a program be compiled with its own XLA options (a `jit` with
+    `compiler_options` cannot be nested), whatever the arguments (arrays captured from outside a
+    `jit` are concrete inside it). JAX's own test of its trace state; where a JAX lacks it,
+    False (the plain program: the same values)."""
+    clean = getattr(_jax_core, "trace_state_clean", None)
+    return bool(clean()) if clean is not None else False
 
 
 def is_concrete(x: object) -> bool:

@@ -26,6 +26,8 @@ from typing import Any
 import equinox as eqx
 import jax
 
+from ._checks import top_level
+
 QUICK_COMPILE = {"xla_cpu_use_fusion_emitters": False}
 SMALL_PROGRAM = {**QUICK_COMPILE, "xla_backend_optimization_level": 0}
 
@@ -35,15 +37,21 @@ class quick_compile_jit:  # noqa: N801 - used as a decorator, like eqx.filter_ji
     the first call (the options need a backend, which importing rigidjax must not start). An XLA
     that does not know the options rejects them at that first compile ("No such compile
     option"): then `fn` is compiled with its defaults, for good. (No probe compile to find out
-    first: it cost 5-10 ms of a rotation map's 50 ms first call, measured here.)"""
+    first: it cost 5-10 ms of a rotation map's 50 ms first call, measured here.) Inside any
+    transformation (`_checks.top_level` false: a `jit` with its arguments or constants captured
+    from outside, a `scan` body, a custom rule) it is the plain `eqx.filter_jit(fn)`, nested in
+    the caller's program: XLA takes options only at the top."""
 
     def __init__(self, fn: Callable, small: bool = False):
         self._fn = fn
         self._options = dict(SMALL_PROGRAM if small else QUICK_COMPILE)
         self._jitted: Callable | None = None
+        self._plain = eqx.filter_jit(fn)
         functools.update_wrapper(self, fn)
 
     def __call__(self, *args, **kwargs):
+        if not top_level():  # inside a transformation: the plain program, nested in the caller's
+            return self._plain(*args, **kwargs)
         if self._jitted is None:
             self._jitted = self._build(self._options)
         try:
