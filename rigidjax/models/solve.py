@@ -127,7 +127,9 @@ class _Components(eqx.Module):
         p, c = args
         if self.scalar:
             return self.field(t, y, p, c)
-        ys, ps = jnp.stack(y, axis=-1), jnp.stack(jnp.broadcast_arrays(*p), axis=-1)
+        ys = jnp.stack(y, axis=-1)
+        # no parameters: an empty `(P = 0,)` row, as `_joined` makes for the kernels
+        ps = jnp.stack(jnp.broadcast_arrays(*p), axis=-1) if p else jnp.zeros((0,), ys.dtype)
         if ys.ndim == 1:
             return tuple(self.field(t, ys, ps))
         ps = jnp.broadcast_to(ps, (*ys.shape[:-1], ps.shape[-1]))
@@ -164,6 +166,25 @@ def _compile(model: Model, dtype):
         return model_kernel.hoist(model.field, model.size, model.params, dtype, *fns), None
     except Unsupported as e:
         return None, e.primitive
+
+
+def _unrolled(hoisted: model_kernel.Hoisted) -> tuple[model_kernel.Hoisted | None, str | None]:
+    """`(hoisted, None)` where the Diffrax path can evaluate its scalar program (every map it
+    has unrolls), else `(None, primitive)`: the model's own field then (an adaptive solve never
+    builds the kernel, which would have found the primitive first)."""
+    dt = hoisted.dtype
+    scalar = jax.ShapeDtypeStruct((), dt)
+    c = jax.ShapeDtypeStruct(hoisted.c.shape, dt)
+    args = (scalar, (scalar,) * hoisted.n, (scalar,) * hoisted.p, c)
+    maps = [hoisted.components, hoisted.end_components]
+    maps += [hoisted.jump_components] if hoisted.jumps else []
+    try:
+        for fn in maps:
+            if fn is not None:
+                jax.eval_shape(fn, *args)
+    except Unsupported as e:
+        return None, e.primitive
+    return hoisted, None
 
 
 def solve_model(
@@ -257,6 +278,8 @@ def _solve(
             return jnp.moveaxis(ys, 1, 0), stats, result
         if gpu and hoisted is not None and keep.all():
             return _gpu(model, hoisted, ts, y0, p, c, options)
+    if hoisted is not None:
+        hoisted, missing = _unrolled(hoisted)
     if missing is not None and kernel_options(options):
         warnings.warn(
             f"the {model.name} uses `{missing}`, which the fast path (the CPU kernel written "
