@@ -9,7 +9,9 @@ The package is layered; each layer uses only the ones above it:
 - `kinematics`: the Darboux problem (`darboux`, the kinematics formulations);
 - `mechanics`: bodies, inertia, Euler's equations (`simulate`), gyrostat, heavy top, 6-DOF,
   Kepler, ...;
-- `control`: sampled-data control laws (`quaternion_pd`, `bdot`);
+- `control`: sampled-data control laws (`quaternion_pd`, `bdot`), controllers with memory;
+- `sensors`, `estimation`: a rate gyro and a star tracker, the multiplicative EKF (`mekf`) and
+  the estimator in the loop (`estimated`);
 - `analytic`: closed forms (Jacobi elliptic functions, Euler–Poinsot, the symmetric top);
 - `fit`: identification (`identify_inertia`) and experiment design (`design_excitation`);
 - `cli`: the `rigidjax` command.
@@ -18,7 +20,18 @@ The package is layered; each layer uses only the ones above it:
 import sys as _sys
 from typing import TYPE_CHECKING
 
-from . import analytic, control, fit, kinematics, mechanics, observables, rotations, solvers
+from . import (
+    analytic,
+    control,
+    estimation,
+    fit,
+    kinematics,
+    mechanics,
+    observables,
+    rotations,
+    sensors,
+    solvers,
+)
 
 if TYPE_CHECKING:  # imported on first use: see __getattr__
     from . import sweep
@@ -112,6 +125,7 @@ __all__ = [
     "darboux",
     "design_excitation",
     "energy",
+    "estimation",
     "euler",
     "fit",
     "gibbs",
@@ -129,6 +143,7 @@ __all__ = [
     "quat",
     "rotations",
     "satellite",
+    "sensors",
     "simulate",
     "simulate_heavy_top",
     "sixdof",

@@ -2,6 +2,17 @@
 one-step core (`propagate`, `update`), and the estimator in the loop of a sampled-data
 controller (`estimated`)."""
 
+from .loop import Estimated, LoopLog, estimated, loop_log
 from .mekf import MEKF, FilterState, mekf, propagate, update
 
-__all__ = ["MEKF", "FilterState", "mekf", "propagate", "update"]
+__all__ = [
+    "MEKF",
+    "Estimated",
+    "FilterState",
+    "LoopLog",
+    "estimated",
+    "loop_log",
+    "mekf",
+    "propagate",
+    "update",
+]

@@ -4,7 +4,13 @@ runs (Franklin, Powell & Workman, *Digital Control of Dynamic Systems*, 3rd ed.,
 solve steps from grid point to grid point of `ts ∪ {t_k}`, so every step of a fixed-step method
 lies within one hold interval: the right-hand side is smooth in each step, and the method keeps
 its order. The command is part of the state (zero derivative), set by a jump map at the
-samples, so that the whole loop is one model: one CPU kernel call for all steps and samples."""
+samples, so that the whole loop is one model: one CPU kernel call for all steps and samples.
+
+A controller with memory (`rigidjax.control.StatefulController`: a filter, simulated sensors
+and their PRNG key) carries it the same way: the held part of the state is then
+`(command ‖ log, memory)`, both set by the jump map, and the `log` recorded with the command.
+A jump map the CPU kernel cannot take (random draws, for one) runs on the Diffrax path, with
+the same steps."""
 
 from __future__ import annotations
 
@@ -53,28 +59,38 @@ def sample_grid(ts: np.ndarray, period: float) -> tuple[np.ndarray, np.ndarray, 
 
 class _Held(eqx.Module):
     """The field on the state `(y, command)`: `vf(t, y, (*args, command))`, the command held
-    (zero derivative)."""
+    (zero derivative); with memory (`m` given), on `(y, (command ‖ log, memory))`, the first
+    `m` entries the command, all of it held."""
 
     vf: Callable
+    m: int | None = eqx.field(static=True, default=None)
 
     def __call__(self, t, y, args):
-        state, cmd = y
-        return self.vf(t, state, (*args, cmd)), jnp.zeros_like(cmd)
+        state, held = y
+        cmd = held if self.m is None else held[0][: self.m]
+        zero = jax.tree_util.tree_map(jnp.zeros_like, held)
+        return self.vf(t, state, (*args, cmd)), zero
 
 
 class _Sample(eqx.Module):
-    """The jump map at a sample: `(y, command) ← (y, command(t, y))`."""
+    """The jump map at a sample: `(y, command) ← (y, command(t, y))`; with memory,
+    `(y, (_, memory)) ← (y, (command ‖ log, memory'))`, `(command, memory', log) =
+    command(t, y, memory)`."""
 
     command: Callable
+    memory: bool = eqx.field(static=True, default=False)
 
     def __call__(self, t, y, args):
-        state, _ = y
-        return state, self.command(t, state)
+        state, held = y
+        if not self.memory:
+            return state, self.command(t, state)
+        cmd, memory, log = self.command(t, state, held[1])
+        return state, (jnp.concatenate([cmd, log.astype(cmd.dtype)]), memory)
 
 
 def held_solve(
     vf: Callable,
-    command: Callable[[Array, Any], Array],
+    command: Callable[..., Any],
     y0: Any,
     args: tuple,
     ts: Array,
@@ -85,6 +101,8 @@ def held_solve(
     *,
     unit: tuple[int, ...],
     name: str,
+    memory0: Any = None,
+    log_size: int = 0,
 ) -> tuple[Any, dict[str, Array], diffrax.RESULTS, Array, Array]:
     """Integrate `vf(t, y, (*args, cmd))` with the command `cmd = command(t_k, y_k)` sampled at
     `ts[0] + k period` and held (`cmd0` before the first sample; `times`: the values of `ts`,
@@ -92,7 +110,11 @@ def held_solve(
     `sample_grid`, the command a state with zero derivative that a jump map sets at the samples
     (`solve_tree` with `jump`: inside the CPU kernel, or a solve per grid interval on the
     Diffrax path). Returns `(ys (T, ...), stats, result, control_ts (K,), commands (K, m))`,
-    raising a failure (`options.throw`) at the output interval where it happened."""
+    raising a failure (`options.throw`) at the output interval where it happened.
+
+    With `memory0` (a controller's memory, a PyTree), `command(t_k, y_k, memory) -> (cmd,
+    memory, log (log_size,))` and the commands returned are `(K, m + log_size)`: each command
+    followed by its log."""
     if times is None or not isinstance(period, int | float | np.floating):
         raise ValueError(
             "with a controller, ts and control_period must be concrete (not traced under "
@@ -104,9 +126,17 @@ def held_solve(
     inner = dataclasses.replace(options, throw=False)
     keep = np.zeros(grid_np.shape[0], bool)
     keep[out] = True
+    stateful = memory0 is not None
+    m = cmd0.shape[-1]
+    if stateful:
+        log0 = jnp.zeros(log_size, cmd0.dtype)
+        held0: Any = (jnp.concatenate([cmd0, log0]), memory0)
+    else:
+        held0 = cmd0
     (ys, _), stats, result = solve_tree(
-        _Held(vf), grid, (y0, cmd0), args, inner, unit=unit, name=name, jump=_Sample(command),
-        jumps=sample_np[:-1], keep=keep, record=len(jax.tree_util.tree_leaves(y0)),
+        _Held(vf, m if stateful else None), grid, (y0, held0), args, inner, unit=unit,
+        name=name, jump=_Sample(command, stateful), jumps=sample_np[:-1], keep=keep,
+        record=len(jax.tree_util.tree_leaves(y0)),
     )  # fmt: skip
     commands = stats.pop("recorded")
     control_ts = grid[np.flatnonzero(sample_np[:-1])]
@@ -115,7 +145,7 @@ def held_solve(
         def probe(k: int) -> str | None:
             """The controller, if it returned a non-finite command in `[ts[k-1], ts[k])`."""
             inside = (control_ts >= ts[k - 1]) & (control_ts < ts[k])
-            bad = inside & ~jnp.all(jnp.isfinite(commands), axis=-1)
+            bad = inside & ~jnp.all(jnp.isfinite(commands[..., :m]), axis=-1)
             if not bool(jnp.any(bad)):
                 return None
             t = float(control_ts[int(jnp.argmax(bad))])

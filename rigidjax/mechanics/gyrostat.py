@@ -42,6 +42,7 @@ from .._checks import (
 from .._custom_types import Frame, RealLike
 from .._integrate import SolveKwargs, SolveOptions
 from .._numerics import inv3
+from ..control.stateful import StatefulController
 from ..kinematics.formulations import Quaternion
 from ..models.solve import solve_tree
 from ..rotations import quat
@@ -61,12 +62,14 @@ class GyrostatTrajectory(Trajectory):
     """Solution of `simulate` for a `Gyrostat`: `omega`, `quat` as `Trajectory`, the rotors'
     momentum `h (..., T, 3)`, with wheels `wheel_speed (..., T, n)` (relative to the body), and
     with a controller the sample times `control_ts (K,)` and the commands applied (clipped)
-    from each sample to the next, `command (..., K, m)`."""
+    from each sample to the next, `command (..., K, m)`; with a `StatefulController`, its log
+    at each sample `controller_log (..., K, L)`."""
 
     h: Float[Array, "*batch T 3"]
     wheel_speed: Float[Array, "*batch T n"] | None = None
     control_ts: Float[Array, " K"] | None = None
     command: Float[Array, "*batch K m"] | None = None
+    controller_log: Float[Array, "*batch K L"] | None = None
 
 
 class _Field(eqx.Module):
@@ -123,9 +126,10 @@ def simulate_gyrostat(
     *,
     wheel_speed0: RealLike | None = None,
     h_rate: Callable[[Array], Array] | None = None,
-    controller: Controller | None = None,
+    controller: Controller | StatefulController | None = None,
     control_period: float | None = None,
     controller_params: Any = None,
+    controller_key: Any = None,
     torque_frame: Frame = "body",
     options: SolveOptions | None = None,
     check: bool = True,
@@ -142,9 +146,15 @@ def simulate_gyrostat(
     `ts[0] + k control_period` and held until the next sample (zero-order hold), a body torque
     `(3,)` or, with wheels, the motor torques `(n,)` (clipped to `wheel_torque_max`); the solve
     then steps from sample to sample (and to each output time), so that fixed steps never
-    straddle a switch. Options as `simulate`'s: fixed steps of an explicit Runge–Kutta method
-    run on the model's CPU kernel. Other `kinematics` than `"quat"` are taken for a constant `h`
-    without controller (as the torque `−Ω × h` of `simulate`)."""
+    straddle a switch. A `rigidjax.control.StatefulController` (e.g.
+    `rigidjax.estimation.estimated`: a law acting on an MEKF's estimate from simulated sensors)
+    keeps its memory between samples, each body its own, started from `controller_key` (one
+    PRNG key, or one per body: the batch shape of `omega0`/`q0`; one key is split over the
+    bodies), and records its log (`controller_log`). Options as `simulate`'s: fixed steps of
+    an explicit Runge–Kutta method run on the model's CPU kernel (a jump map it cannot take,
+    such as random draws, on the Diffrax path with the same steps). Other `kinematics` than
+    `"quat"` are taken for a constant `h` without controller (as the torque `−Ω × h` of
+    `simulate`)."""
     options = SolveOptions.of(options, solve_kwargs)
     given = ts
     ts, omega0, q0 = initial_rotation(ts, omega0, q0, check)
@@ -175,7 +185,26 @@ def simulate_gyrostat(
     if h_rate is not None:
         _check_callable(h_rate, "h_rate", "h_rate(t)", one[:1], (3,))
     m = n if n else 3
-    if controller is not None:
+    stateful = isinstance(controller, StatefulController)
+    if controller_key is not None and not stateful:
+        raise ValueError(
+            "controller_key seeds a StatefulController's memory (its simulated sensors): give "
+            "one as controller, or leave controller_key out"
+        )
+    keys = None
+    if isinstance(controller, StatefulController):
+        assert control_period is not None
+        keys = _controller_keys(controller_key, batch)
+        one_key = None if keys is None else keys.reshape(-1)[0]
+        memory = jax.eval_shape(
+            controller.init, one_key, *one, controller_params, float(control_period)
+        )
+        _check_callable(
+            lambda *a: controller.step(*a)[0], "controller.step",
+            "controller.step(t_k, omega_k, q_k, params, memory)[0]",
+            (*one, controller_params, memory), (m,),
+        )  # fmt: skip
+    elif controller is not None:
         _check_callable(
             controller, "controller", "controller(t_k, omega_k, q_k, params)",
             (*one, controller_params), (m,),
@@ -190,7 +219,7 @@ def simulate_gyrostat(
     else:
         params = (I, g.body.operator()[1]) + (() if h_rate is not None else (g.h,))
 
-    def one_body(w0, qq0, x0):
+    def one_body(w0, qq0, x0, key=None):
         y0 = (w0, qq0) + ((x0,) if n else (g.h,) if h_rate is not None else ())
         cmd0 = jnp.zeros(m, dtype)
         if controller is None:
@@ -198,17 +227,36 @@ def simulate_gyrostat(
                 field, ts, y0, (*params, cmd0), options, unit=(1,), name="gyrostat"
             )
             return ys, stats, result, None, None
-        law = controller
 
-        def command(t, y):
-            u = law(t, y[0], y[1], controller_params)
+        def applied(u):
             return g.clip(jnp.asarray(u).astype(dtype)) if n else jnp.asarray(u).astype(dtype)
 
         assert control_period is not None
+        extra = {}
+        if isinstance(controller, StatefulController):
+            law = controller
+
+            def command_memory(t, y, mem):
+                u, mem, log = law.step(t, y[0], y[1], controller_params, mem)
+                mem = jax.tree_util.tree_map(lambda a: jnp.asarray(a).astype(dtype), mem)
+                return applied(u), mem, jnp.asarray(log).astype(dtype)
+
+            mem0 = law.init(key, ts[0], w0, qq0, controller_params, float(control_period))
+            mem0 = jax.tree_util.tree_map(lambda a: jnp.asarray(a).astype(dtype), mem0)
+            extra = dict(memory0=mem0, log_size=law.log_size)
+            command: Callable = command_memory
+        else:
+            stateless = controller
+
+            def command_held(t, y):
+                return applied(stateless(t, y[0], y[1], controller_params))
+
+            command = command_held
+
         return held_solve(
-            field, command, y0, params, ts, None if times is None else times.astype(dtype),
-            control_period, cmd0, options, unit=(1,),
-            name="gyrostat",
+            field, command, y0, params, ts,
+            None if times is None else times.astype(dtype), control_period, cmd0, options,
+            unit=(1,), name="gyrostat", **extra,
         )  # fmt: skip
 
     B = int(np.prod(batch))
@@ -216,6 +264,8 @@ def simulate_gyrostat(
         jnp.broadcast_to(a, (*batch, a.shape[-1])).reshape(B, a.shape[-1])
         for a in (omega0, q0, ws0)
     ]
+    if keys is not None:
+        flat.append(keys.reshape(B))
     if batch:
         ys, stats, result, cts, cmds = jax.vmap(one_body)(*flat)
         cts = None if cts is None else cts[0]  # the same sample times for every body
@@ -226,10 +276,28 @@ def simulate_gyrostat(
         ys, stats, result, cts, cmds = one_body(*(a[0] for a in flat))
         ys = jax.tree_util.tree_map(lambda a: a[None], ys)
         cmds = None if cmds is None else cmds[None]
-    return _trajectory(g, ts, batch, ys, stats, result, cts, cmds, h_rate is not None)
+    log = None
+    if stateful and cmds is not None:
+        cmds, log = cmds[..., :m], cmds[..., m:]
+    return _trajectory(g, ts, batch, ys, stats, result, cts, cmds, h_rate is not None, log)
 
 
-def _trajectory(g, ts, batch, ys, stats, result, cts, cmds, integrated_h) -> GyrostatTrajectory:
+def _controller_keys(key: Any, batch: tuple[int, ...]) -> Array | None:
+    """The bodies' PRNG keys `(*batch,)` (typed) from `controller_key`: None; one key (split
+    over the bodies, so that each has its own draws); or one per body."""
+    if key is None:
+        return None
+    from ..sensors import keys_for
+
+    typed, per_body = keys_for(key, batch, "controller_key")
+    if per_body:
+        return typed
+    return jax.random.split(typed, int(np.prod(batch))).reshape(batch)
+
+
+def _trajectory(
+    g, ts, batch, ys, stats, result, cts, cmds, integrated_h, log=None
+) -> GyrostatTrajectory:
     """The trajectory of `batch` from the states `ys` (`(B, T, ...)` leaves)."""
     T = ts.shape[0]
 
@@ -249,6 +317,7 @@ def _trajectory(g, ts, batch, ys, stats, result, cts, cmds, integrated_h) -> Gyr
         ws,
         cts,
         None if cmds is None else cmds.reshape(*batch, *cmds.shape[-2:]),
+        None if log is None else log.reshape(*batch, *log.shape[-2:]),
         ts=ts,
         stats=stats,
         result=result,
