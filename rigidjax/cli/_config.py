@@ -52,6 +52,16 @@ SECTIONS: dict[str, dict[str, str]] = {
         "target": "target attitude as a rotation vector [x, y, z] in degrees (body → space)",
         "tolerance": "settling tolerance on the pointing error [deg] (default 0.5)",
     },
+    "sensors": {
+        "gyro_arw": "the gyro's angle random walk [rad/√s] (needs [control]: the estimator "
+        "in the loop)",
+        "gyro_rrw": "the gyro's rate random walk [rad/s^1.5]",
+        "gyro_bias": "1σ of the gyro's initial bias per axis [rad/s] (the filter's prior too)",
+        "star_tracker": "the star tracker's 1σ noise per body axis [rad]: a number or [x, y, z]",
+        "knowledge0": "1σ of the initial knowledge error per axis [rad] (default 1e-3)",
+        "seed": "the noise seed: each point's key is folded from it and the point's factor "
+        "values (default 0)",
+    },
     "observables": {"names": "which observables to compute (default: all of OBSERVABLES)"},
     "run": {
         "chunk_size": "points per compiled chunk (default: from the memory per point)",
@@ -69,6 +79,8 @@ OBSERVABLES = (
 )
 CLOSED_LOOP = ("settling_time", "peak_wheel_speed", "saturation_count", "pointing_error_end")
 """The observables of a sweep with `[wheels]` and `[control]` (a closed loop)."""
+ESTIMATED = ("knowledge_error_end", "knowledge_error_rms", "control_error_end")
+"""The observables a closed loop with `[sensors]` adds (the estimator in the loop)."""
 METHODS = ("tsit5", "dopri5", "dopri8", "rk4")
 KINEMATICS = ("quat", "rotvec", "matrix", "euler", "cayley_klein", "geometric")
 Template = Any  # nested lists of floats and factor names
@@ -98,6 +110,7 @@ class Config:
     float32: bool
     wheels: dict[str, Any] | None = None  # axes (n, 3), perpendiculars (n, 3), inertia, ...
     control: dict[str, Any] | None = None  # kp, kd, period, target (4,), tolerance [rad]
+    sensors: dict[str, Any] | None = None  # arw, rrw, bias, star_tracker (3,), knowledge0, seed
 
 
 def _fail(path: Path, where: str, problem: str) -> UsageError:
@@ -285,6 +298,45 @@ def _closed_loop(path: Path, raw: dict) -> tuple[dict | None, dict | None]:
     return out_w, out_c
 
 
+def _sensors(path: Path, raw: dict, control: dict | None) -> dict | None:
+    """`[sensors]`, checked: the gyro's and star tracker's noise, the initial errors' spread
+    and the noise seed of the estimator in the loop (a closed loop only)."""
+    table = raw.get("sensors")
+    if table is None:
+        return None
+    if control is None:
+        raise _fail(path, "[sensors]", "the estimator in the loop needs [wheels] and [control]")
+    for key in ("gyro_arw", "gyro_rrw", "gyro_bias", "star_tracker"):
+        if key not in table:
+            raise _fail(path, f"[sensors] {key}", f"missing: {SECTIONS['sensors'][key]}")
+    st = table["star_tracker"]
+    if isinstance(st, list):
+        if len(st) != 3:
+            raise _fail(
+                path, "[sensors] star_tracker", f"must be a number or [x, y, z], got {st!r}"
+            )
+        sigma = [_number(path, "[sensors] star_tracker", x, positive=True) for x in st]
+    else:
+        sigma = [_number(path, "[sensors] star_tracker", st, positive=True)] * 3
+
+    def level(key: str, default: float | None = None) -> float:
+        v = _number(path, f"[sensors] {key}", table.get(key, default))
+        if v < 0:
+            raise _fail(path, f"[sensors] {key}", f"must be ≥ 0, got {v!r}")
+        return v
+
+    return dict(
+        arw=level("gyro_arw"),
+        rrw=level("gyro_rrw"),
+        bias=level("gyro_bias"),
+        star_tracker=np.array(sigma),
+        knowledge0=_number(
+            path, "[sensors] knowledge0", table.get("knowledge0", 1e-3), positive=True
+        ),
+        seed=_integer(path, "[sensors] seed", table.get("seed", 0), 0),
+    )
+
+
 def _unknown(path: Path, where: str, table: dict, allowed: set[str] | dict) -> None:
     extra = sorted(set(table) - set(allowed))
     if extra:
@@ -320,6 +372,7 @@ def load(path: Path) -> Config:
     design, logs = _design(path, raw.get("design", {}))
     factors = design["factors"] if design["kind"] == "grid" else design["ranges"]
     wheels, control = _closed_loop(path, raw)
+    sensors = _sensors(path, raw, control)
     used = _names(inertia) | _names(omega0) | _names(q0)
     used |= _names(wheels["tilt"]) if wheels else set()
     for name in sorted(used - set(factors)):
@@ -344,8 +397,9 @@ def load(path: Path) -> Config:
     dt = _number(path, "[solver] dt", solver["dt"], positive=True) if "dt" in solver else None
     if method == "rk4" and dt is None:
         raise _fail(path, "[solver] dt", "rk4 takes fixed steps: give dt, the step size [s]")
-    known = CLOSED_LOOP if control else OBSERVABLES
-    names = raw.get("observables", {}).get("names", list(known[:4]))
+    known = (CLOSED_LOOP + (ESTIMATED if sensors else ())) if control else OBSERVABLES
+    default = list(known[:4]) + (list(ESTIMATED) if sensors else [])
+    names = raw.get("observables", {}).get("names", default)
     if not isinstance(names, list) or not names:
         raise _fail(path, "[observables] names", "must be a non-empty list")
     for n in names:
@@ -357,6 +411,10 @@ def load(path: Path) -> Config:
     precision = run.get("precision", "float64")
     if precision not in ("float64", "float32"):
         raise _fail(path, "[run] precision", f"must be float64 or float32, got {precision!r}")
+    if sensors and precision != "float64":
+        raise _fail(
+            path, "[run] precision", "the estimator in the loop ([sensors]) runs in float64"
+        )
     chunk = run.get("chunk_size")
     return Config(
         path=path,
@@ -379,6 +437,7 @@ def load(path: Path) -> Config:
         float32=precision == "float32",
         wheels=wheels,
         control=control,
+        sensors=sensors,
     )
 
 
@@ -445,22 +504,50 @@ def make_model(c: Config) -> Callable[[dict], dict]:
 def _closed_loop_model(c: Config, ts, options) -> Callable[[dict], dict]:
     """The one-point model of a closed loop: a gyrostat with the config's wheels (each axis
     turned by its `tilt` about its perpendicular: `a cos t + p sin t`), the quaternion PD law
-    on the nominal axes, sampled every `period` and held, and the `CLOSED_LOOP` observables."""
+    on the nominal axes, sampled every `period` and held, and the `CLOSED_LOOP` observables.
+    With `[sensors]`, the law acts on the MEKF's estimate (`rigidjax.estimation.estimated`),
+    the point's noise drawn from a key folded from the seed and the point's factor values
+    (the bits of each, in the design's order: reproducible, and distinct for distinct points),
+    and the `ESTIMATED` observables are available."""
+    import jax
     import jax.numpy as jnp
 
     from .. import observables as obs
     from ..control import quaternion_pd
+    from ..estimation import control_error, estimated, knowledge_error
     from ..mechanics import Gyrostat
     from ..mechanics.dynamics import simulate
 
-    w, k = c.wheels, c.control
+    w, k, sn = c.wheels, c.control, c.sensors
     assert w is not None and k is not None  # `load` gives both or neither
     dtype = ts.dtype
     A0, perp = (jnp.asarray(w[key].T, dtype) for key in ("axes", "perp"))  # (3, n)
     target = jnp.asarray(k["target"], dtype)
     law = quaternion_pd(k["kp"], k["kd"], target, wheel_axes=A0)
     n = A0.shape[1]
+    ctrl: Any = law
+    if sn is not None:
+        P0 = np.diag([sn["knowledge0"] ** 2] * 3 + [sn["bias"] ** 2] * 3)
+        ctrl = estimated(
+            law, arw=sn["arw"], rrw=sn["rrw"], sigma=jnp.asarray(sn["star_tracker"], dtype),
+            P0=jnp.asarray(P0, dtype),
+        )  # fmt: skip
+
+    def point_key(p: dict):
+        key = jax.random.key(sn["seed"] if sn is not None else 0)
+        for name in sorted(p):
+            words = jax.lax.bitcast_convert_type(jnp.asarray(p[name], dtype), jnp.uint32)
+            for word in jnp.atleast_1d(words):
+                key = jax.random.fold_in(key, word)
+        return key
+
+    def rms(x):
+        return jnp.sqrt(jnp.mean(x[..., -max(1, x.shape[-1] // 2) :] ** 2, axis=-1))
+
     compute = {
+        "knowledge_error_end": lambda tr: knowledge_error(tr)[..., -1],
+        "knowledge_error_rms": lambda tr: rms(knowledge_error(tr)),
+        "control_error_end": lambda tr: control_error(tr, target)[..., -1],
         "settling_time": lambda tr: obs.settling_time(tr, target, k["tolerance"]),
         "peak_wheel_speed": obs.peak_wheel_speed,
         "saturation_count": lambda tr: (
@@ -480,9 +567,10 @@ def _closed_loop_model(c: Config, ts, options) -> Callable[[dict], dict]:
             wheel_torque_max=w["torque_max"],
         )
         w0, q0 = fill(c.omega0, p, jnp).astype(dtype), fill(c.q0, p, jnp).astype(dtype)
+        extra: dict[str, Any] = {} if sn is None else {"controller_key": point_key(p)}
         tr = simulate(
-            sc, w0, q0, ts, controller=law, control_period=k["period"], options=options,
-            check=False,
+            sc, w0, q0, ts, controller=ctrl, control_period=k["period"], options=options,
+            check=False, **extra,
         )  # fmt: skip
         return {name: compute[name](tr) for name in c.observables} | {"result": tr.result}
 

@@ -2,7 +2,7 @@
 one-step core (`propagate`, `update`), and the estimator in the loop of a sampled-data
 controller (`estimated`)."""
 
-from .loop import Estimated, LoopLog, estimated, loop_log
+from .loop import Estimated, LoopLog, control_error, estimated, knowledge_error, loop_log
 from .mekf import MEKF, FilterState, mekf, propagate, update
 
 __all__ = [
@@ -10,7 +10,9 @@ __all__ = [
     "Estimated",
     "FilterState",
     "LoopLog",
+    "control_error",
     "estimated",
+    "knowledge_error",
     "loop_log",
     "mekf",
     "propagate",

@@ -42,7 +42,7 @@ from ..control.stateful import StatefulController
 from ..rotations import quat
 from .mekf import FilterState, _level, check_P0, default_P0, propagate, update
 
-__all__ = ["Estimated", "LoopLog", "estimated", "loop_log"]
+__all__ = ["Estimated", "LoopLog", "control_error", "estimated", "knowledge_error", "loop_log"]
 
 _SQRT3 = math.sqrt(3.0)
 
@@ -117,6 +117,30 @@ def loop_log(traj: Any) -> LoopLog:
         )
     cuts = (0, 4, 7, 10, 13, 16, 19)
     return LoopLog(*(log[..., a:b] for a, b in zip(cuts[:-1], cuts[1:], strict=True)))
+
+
+def _angle(v: Float[Array, "*batch 3"]) -> Float[Array, "*batch"]:
+    """`|v|` with a finite gradient at 0 (double `where`)."""
+    n2 = jnp.sum(v * v, axis=-1)
+    pos = n2 > 0
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, n2, 1.0)), 0.0)
+
+
+def knowledge_error(traj: Any) -> Float[Array, "*batch K"]:
+    """The pointing knowledge error at each control sample (rad): the angle `|δθ|` between the
+    estimate and the true attitude, `δθ = log(q̂⁻¹ ∘ q)` (ECSS-E-ST-60-10's knowledge error,
+    after the sample's update)."""
+    return _angle(loop_log(traj).attitude_error)
+
+
+def control_error(traj: Any, q_target: RealLike) -> Float[Array, "*batch K"]:
+    """The control error at each control sample (rad): the angle between the target
+    `q_target (4,)` and the estimate `q̂` that the law acts on (with `knowledge_error`, the
+    two terms of the pointing error `rigidjax.observables.pointing_error`, true vs target)."""
+    q_hat = loop_log(traj).quat
+    qt = jnp.asarray(q_target, q_hat.dtype)
+    qe = quat.mul(quat.conj(qt / jnp.linalg.norm(qt)), q_hat)
+    return 2 * jnp.arctan2(_angle(qe[..., 1:]), jnp.abs(qe[..., 0]))
 
 
 class Estimated(StatefulController):
