@@ -25,9 +25,9 @@ from .._integrate import (
     fixed_step_count,
     nonfinite_field,
     raise_failure,
-    raise_forward_mode,
     solve_saved,
 )
+from .._modes import both_modes
 from ..kernels import model as model_kernel
 from ..kernels import model_pallas
 from ..kernels._scalar import Unsupported
@@ -78,17 +78,13 @@ def kernel_solve(
     """A kernel's solve with the steps of `solve_saved` (`n` equal steps of at most `dt0` per
     output interval) and its failures: more steps than `max_steps` (where Diffrax stops), or a
     non-finite state; returns `(states (B, T, N), stats, result)` (the caller raises a
-    failure: `raise_failure`). Forward mode is a clear
-    error that names `adjoint=diffrax.ForwardMode()` (which takes the Diffrax path). `keep`
+    failure: `raise_failure`; forward mode: `_solve`'s `both_modes`). `keep`
     (booleans `(T,)`, the first and last true): the times whose states `run` returns; failures
     are then placed in the intervals between kept times."""
     width = ts[1:] - ts[:-1]
     n = fixed_step_count(width, jnp.asarray(options.dt0, ts.dtype))
     taken = jnp.minimum(n, options.max_steps).astype(jnp.int32)
-    try:
-        ys = run(n, taken, width / n, ts[:-1])
-    except TypeError as e:
-        raise_forward_mode(e)
+    ys = run(n, taken, width / n, ts[:-1])
     finite = jnp.all(jnp.isfinite(ys), axis=(0, 2))
     kept = np.arange(ts.shape[0]) if keep is None else np.flatnonzero(keep)
     over = jnp.concatenate([jnp.zeros(1, jnp.int32), jnp.cumsum(n > options.max_steps)])
@@ -248,11 +244,13 @@ def _solve(
 ) -> tuple[Array, dict[str, Array], diffrax.RESULTS]:
     """`solve_model` without raising failures: the CPU kernel (each block of parameters its
     own operand: a shared block is never copied per body), the GPU kernel, or Diffrax (`p`:
-    the blocks joined)."""
+    the blocks joined). With the default adjoint, every backend of a model with a scalar
+    program is differentiable in every mode and order (`_modes.both_modes`): its own reverse
+    mode, forward mode and higher orders through the Diffrax path on the same steps."""
     dtype = ts.dtype
     hoisted, missing = _compile(model, dtype)
+    backend: Backend | None = None
     if hoisted is not None and kernel_options(options):
-        c = hoisted.c.astype(dtype)
         method = method_of(options)
         try:
             kernel = model_kernel.build(hoisted, model.unit, method, model.record)
@@ -264,21 +262,10 @@ def _solve(
         except Unsupported as e:
             kernel, gpu, hoisted, missing = None, False, None, e.primitive
         if kernel is not None:
-            pk = [b.astype(dtype) for b in blocks] + ([c[None]] if c.shape[0] else [])
-            recorded = []
-
-            def run(n, taken, h, t0):
-                ys, rec = model_kernel.run(kernel, y0, pk, taken, h, t0, jumps, keep)
-                recorded.append(rec)
-                return ys
-
-            ys, stats, result = kernel_solve(run, ts, options, keep)
-            if model.record[1]:
-                stats["recorded"] = jnp.moveaxis(recorded[0], 1, 0)
-            return jnp.moveaxis(ys, 1, 0), stats, result
-        if gpu and hoisted is not None and keep.all():
-            return _gpu(model, hoisted, ts, y0, p, c, options)
-    if hoisted is not None:
+            backend = _cpu(kernel, model, options, jumps, keep)
+        elif gpu and hoisted is not None and keep.all():
+            backend = _gpu_backend(model, hoisted, options)
+    if backend is None and hoisted is not None:
         hoisted, missing = _unrolled(hoisted)
     if missing is not None and kernel_options(options):
         warnings.warn(
@@ -289,16 +276,86 @@ def _solve(
             stacklevel=4,
         )
     c = jnp.zeros((0,), dtype) if hoisted is None else hoisted.c.astype(dtype)
-    if jumps is not None:
-        ys, stats, result = _diffrax_jumps((model, hoisted, ts, y0, p, c, options, single), jumps)
-    else:
-        ys, stats, result = _diffrax(model, hoisted, ts, y0, p, c, options, single)
+    problem = (model, hoisted, single, jumps, keep)
+    if backend is None:
+        backend = _diffrax_backend(problem, options)
+    if hoisted is not None and isinstance(
+        options.adjoint, None | diffrax.RecursiveCheckpointAdjoint
+    ):  # the scalar program: every input explicit (`c`), so one rule differentiates it all
+        forward = _diffrax_backend(problem, options, diffrax.ForwardMode(), values=True)
+        second = _diffrax_backend(problem, options, diffrax.DirectAdjoint(), values=True)
+        backend = both_modes(backend, forward, second)
+    (ys, recorded), (stats, result) = backend(y0, tuple(blocks), c, ts)
+    if model.record[1]:
+        stats["recorded"] = recorded
+    return ys, stats, result
+
+
+Backend = Callable[..., Any]
+"""`(y0 (B, N), blocks, c (Pc,), ts (T,)) -> ((ys (S, B, N), recorded (J, B, NR)),
+(stats, result))`: one backend's solve (`S` the kept times, `J` the recorded jumps)."""
+
+
+def _cpu(kernel, model: Model, options: SolveOptions, jumps, keep) -> Backend:
+    """The CPU kernel's solve (`kernels.model.run`)."""
+
+    def backend(y0, blocks, c, ts):
+        dtype = ts.dtype
+        pk = [b.astype(dtype) for b in blocks] + ([c[None]] if c.shape[0] else [])
+        recorded = []
+
+        def run(n, taken, h, t0):
+            ys, rec = model_kernel.run(kernel, y0, pk, taken, h, t0, jumps, keep)
+            recorded.append(rec)
+            return ys
+
+        ys, stats, result = kernel_solve(run, ts, options, keep)
+        return (jnp.moveaxis(ys, 1, 0), jnp.moveaxis(recorded[0], 1, 0)), (stats, result)
+
+    return backend
+
+
+def _gpu_backend(model: Model, hoisted: model_kernel.Hoisted, options: SolveOptions) -> Backend:
+    """The Pallas kernel's solve (`_gpu`)."""
+
+    def backend(y0, blocks, c, ts):
+        p = _joined(list(blocks), ts.dtype)
+        ys, stats, result = _gpu(model, hoisted, ts, y0, p, c, options)
+        return (ys, jnp.zeros((0, *ys.shape[1:-1], 0), ys.dtype)), (stats, result)
+
+    return backend
+
+
+def _diffrax_backend(
+    problem: tuple,
+    options: SolveOptions,
+    adjoint: diffrax.AbstractAdjoint | None = None,
+    *,
+    values: bool = False,
+) -> Backend:
+    """The Diffrax path's solve of `problem` (`(model, hoisted, single, jumps, keep)`) with
+    `options` (and `adjoint`, if given); `values`: the states and records only."""
+    model, hoisted, single, jumps, keep = problem
+    if adjoint is not None:
+        options = dataclasses.replace(options, adjoint=adjoint)
     kept = np.flatnonzero(keep)
-    if model.record[1] and jumps is not None:
+
+    def backend(y0, blocks, c, ts):
+        p = _joined(list(blocks), ts.dtype)
+        if jumps is not None:
+            args = (model, hoisted, ts, y0, p, c, options, single)
+            ys, stats, result = _diffrax_jumps(args, jumps)
+        else:
+            ys, stats, result = _diffrax(model, hoisted, ts, y0, p, c, options, single)
         R0, NR = model.record
-        stats["recorded"] = ys[np.flatnonzero(jumps) + 1, :, R0 : R0 + NR]
-    stats["num_valid"] = jnp.sum(jnp.asarray(kept) < stats["num_valid"])
-    return ys[kept], stats, result
+        at = np.flatnonzero(jumps) + 1 if NR and jumps is not None else np.zeros(0, int)
+        out = (ys[kept], ys[at, :, R0 : R0 + NR])
+        if values:
+            return out
+        stats["num_valid"] = jnp.sum(jnp.asarray(kept) < stats["num_valid"])
+        return out, (stats, result)
+
+    return backend
 
 
 def _diffrax_jumps(

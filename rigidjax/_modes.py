@@ -1,0 +1,290 @@
+"""`both_modes`: one function differentiable in every mode and order, from an implementation
+whose derivative is reverse mode only (a kernel's discrete adjoint, Diffrax's checkpointed
+adjoint: `jax.custom_vjp` inside) and pure-JAX implementations of the same numbers (the Diffrax
+path on the same steps with `ForwardMode` and `DirectAdjoint`).
+
+`f = both_modes(reverse, forward, second)` is a `jax.custom_jvp` whose value is `reverse`'s.
+Its tangent is one primitive, `tangent_p`, linear in the inputs' tangents:
+- evaluated (`jax.jvp`, `jax.jacfwd`): the tangent of `forward` (`jax.jvp`);
+- transposed (`jax.grad`, `jax.vjp`, `jax.jacrev`: JAX linearises, then transposes): the
+  pullback of `reverse` from the primal run of the same rule (`jax.vjp`, its residuals the
+  primitive's operands), so reverse mode runs the fast adjoint once, as `reverse` alone would;
+- differentiated again (`jax.hessian`, `jacfwd` of `jacfwd`): `second`'s derivatives, which
+  JAX takes to any order;
+- batched (`jax.vmap`): the same primitive on a leading batch axis (`nbatch`).
+
+This is the structure JAX's docs recommend for a primitive with rules for both modes ("Custom
+derivative rules with hijax primitives", JAX 301; `linear_call` has no batching rule)."""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import jax.tree_util as jtu
+import numpy as np
+from jax.core import ShapedArray
+from jax.custom_derivatives import SymbolicZero
+from jax.extend.core import Primitive
+from jax.interpreters import ad, batching, mlir
+
+Aval = tuple[tuple[int, ...], Any]
+
+
+class _Fns(NamedTuple):
+    """What the primitive's rules need, hashable (by the functions' identity)."""
+
+    forward: Callable  # (*float leaves of xs) -> ys leaves: jvp-able
+    second: Callable  # the same, differentiable in every mode and order
+    n_x: int  # float leaves of xs
+    live: tuple[bool, ...]  # which of them have a tangent (the operands `dx`)
+    res_tree: Any  # the reverse pullback's tree (its leaves: the residual operands)
+    out_avals: tuple[Aval, ...]  # ys leaves of one call (nbatch = 0)
+
+
+def _float(x: Any) -> bool:
+    return jnp.issubdtype(jnp.result_type(x), jnp.inexact)
+
+
+_NONE = object()  # the tangent of a float leaf that has none (not differentiated)
+
+
+def _is_zero(t: Any) -> bool:
+    return t is _NONE or isinstance(t, SymbolicZero | ad.Zero)
+
+
+def _jvp_live(fn: Callable, args: list, tangents: list) -> tuple[list, list]:
+    """`jax.jvp(fn, args, tangents)` over the arguments whose tangent is not a symbolic zero
+    (the others held constant: no derivative is traced through them, e.g. through Diffrax's
+    `nextafter` of the times)."""
+    idx = [k for k, t in enumerate(tangents) if not _is_zero(t)]
+    if not idx:
+        out = fn(*args)
+        return out, [jnp.zeros_like(y) for y in out]
+
+    def on_live(*live):
+        full = list(args)
+        for k, x in zip(idx, live, strict=True):
+            full[k] = x
+        return fn(*full)
+
+    return jax.jvp(on_live, [args[k] for k in idx], [tangents[k] for k in idx])
+
+
+def both_modes(reverse: Callable, forward: Callable, second: Callable) -> Callable:
+    """`f(*xs) -> (ys, aux)` with the value of `reverse(*xs)` and derivatives in every mode
+    (module docstring); `forward(*xs)` and `second(*xs)` return the same `ys`, `aux` has no
+    derivative (counts, flags). `xs` leaves that are not floating point get none either."""
+
+    def on_floats(fn: Callable, leaves: list, tree, floats: list[int]) -> Callable:
+        def g(*fl):
+            full = list(leaves)
+            for k, x in zip(floats, fl, strict=True):
+                full[k] = x
+            return jtu.tree_leaves(fn(*jtu.tree_unflatten(tree, full)))
+
+        return g
+
+    @jax.custom_jvp
+    def f(*xs):
+        return reverse(*xs)
+
+    def f_jvp(primals, tangents):
+        leaves, tree = jtu.tree_flatten(primals)
+        floats = [k for k, x in enumerate(leaves) if _float(x)]
+        fl = [leaves[k] for k in floats]
+        dl = jtu.tree_flatten(tangents, is_leaf=_is_zero)[0]
+        dfl = [dl[k] for k in floats]
+        ys_tree: list = []
+
+        def value(*fl):  # `reverse` on the float leaves, its states flattened
+            full = list(leaves)
+            for k, x in zip(floats, fl, strict=True):
+                full[k] = x
+            ys, aux = reverse(*jtu.tree_unflatten(tree, full))
+            ys_leaves, tree_ys = jtu.tree_flatten(ys)
+            ys_tree.append(tree_ys)
+            return ys_leaves, aux
+
+        second_on = on_floats(second, leaves, tree, floats)
+        ys_leaves, aux, res, res_tree = _primal_run(value, second_on, fl)
+        live = tuple(not _is_zero(d) for d in dfl)
+        fns = _Fns(
+            forward=on_floats(forward, leaves, tree, floats),
+            second=second_on,
+            n_x=len(fl),
+            live=live,
+            res_tree=res_tree,
+            out_avals=tuple((tuple(y.shape), jnp.result_type(y)) for y in ys_leaves),
+        )
+        dx = [d for d, on in zip(dfl, live, strict=True) if on]
+        if dx:
+            dys = tangent_p.bind(*fl, *res, *dx, fns=fns, nbatch=0)
+        else:
+            dys = [jnp.zeros_like(y) for y in ys_leaves]
+        aux_zero = jtu.tree_map(_zero_tangent, aux)
+        ys = jtu.tree_unflatten(ys_tree[0], ys_leaves)
+        return (ys, aux), (jtu.tree_unflatten(ys_tree[0], dys), aux_zero)
+
+    f.defjvp(f_jvp, symbolic_zeros=True)
+    return f
+
+
+def _primal_run(value: Callable, second: Callable, fl: list) -> tuple[list, Any, list, Any]:
+    """`(ys, aux, residuals, residuals' tree)`: the value of `value(*fl) -> (ys, aux)` and the
+    residuals of its pullback (`jax.vjp`). Differentiated itself (an outer `jax.jacfwd` of
+    `jax.grad`, as `jax.hessian`), the tangent of `ys` is `second`'s; the residuals' tangents
+    are zero: the rules that take them (`_jvp`, `_adjoint`) differentiate through `second`
+    from `x` instead."""
+    box: list = []
+
+    @jax.custom_jvp
+    def run(*fl):
+        ys, pullback, aux = jax.vjp(value, *fl, has_aux=True)
+        res, res_tree = jtu.tree_flatten(pullback)
+        box.append(res_tree)
+        return ys, aux, res
+
+    def run_jvp(fl, dfl):
+        ys, aux, res = run(*fl)
+        _, dys = _jvp_live(second, list(fl), list(dfl))
+        zero = functools.partial(jtu.tree_map, _zero_tangent)
+        return (ys, aux, res), (list(dys), zero(aux), zero(res))
+
+    run.defjvp(run_jvp, symbolic_zeros=True)
+    ys, aux, res = run(*fl)
+    return ys, aux, res, box[-1]
+
+
+def _zero_tangent(x: Any) -> Any:
+    x = jnp.asarray(x)
+    if _float(x):
+        return jnp.zeros_like(x)
+    return np.zeros(x.shape, jax.dtypes.float0)
+
+
+tangent_p = Primitive("rigidjax_tangent")
+tangent_p.multiple_results = True
+
+
+def _mapped(fn: Callable, nbatch: int) -> Callable:
+    for _ in range(nbatch):
+        fn = jax.vmap(fn)
+    return fn
+
+
+def _split_ops(ops, fns: _Fns):
+    n_res = fns.res_tree.num_leaves
+    return list(ops[: fns.n_x]), list(ops[fns.n_x : fns.n_x + n_res]), list(ops[fns.n_x + n_res :])
+
+
+def _tangents(fns: _Fns, dx: list) -> list:
+    """The tangents of all float leaves from those of the live ones (zeros elsewhere)."""
+    it = iter(dx)
+    return [next(it) if on else _NONE for on in fns.live]
+
+
+def _tangent(*ops, fns: _Fns, nbatch: int) -> list:
+    """The tangent of `forward` at `x` along `dx` (the residuals unused)."""
+    x, _, dx = _split_ops(ops, fns)
+
+    def one(x, dx):
+        return _jvp_live(fns.forward, x, _tangents(fns, dx))[1]
+
+    return list(_mapped(one, nbatch)(x, dx))
+
+
+@functools.lru_cache(maxsize=32)
+def _compiled_tangent(fns: _Fns, nbatch: int) -> Callable:
+    return jax.jit(functools.partial(_tangent, fns=fns, nbatch=nbatch))
+
+
+def _impl(*ops, fns: _Fns, nbatch: int) -> list:
+    return _compiled_tangent(fns, nbatch)(*ops)
+
+
+def _abstract(*ops, fns: _Fns, nbatch: int) -> list:
+    lead = ops[0].shape[:nbatch] if nbatch else ()
+    return [ShapedArray((*lead, *shape), dtype) for shape, dtype in fns.out_avals]
+
+
+def _jvp(primals, tangents, *, fns: _Fns, nbatch: int):
+    """`d/dε T(x + ε u, dx + ε v)`: the tangent map differentiated once more, through
+    `second` (any order, either mode)."""
+    x, _, dx = _split_ops(primals, fns)
+    u, _, v = _split_ops(tangents, fns)
+
+    def T(*args):
+        x, dx = args[: fns.n_x], args[fns.n_x :]
+        return _jvp_live(fns.second, list(x), _tangents(fns, list(dx)))[1]
+
+    def one(args, targs):
+        return _jvp_live(T, args, targs)
+
+    if nbatch:
+        u = [ad.instantiate_zeros(t) for t in u]
+        v = [ad.instantiate_zeros(t) for t in v]
+    out, dout = _mapped(one, nbatch)([*x, *dx], [*u, *v])
+    return list(out), list(dout)
+
+
+def _transpose(cts, *ops, fns: _Fns, nbatch: int):
+    """The cotangents of `dx`: the pullback of `reverse` (its residuals among the operands),
+    differentiable again through `second` (`_adjoint`)."""
+    x, res, dx = _split_ops(ops, fns)
+    avals = _abstract(*x, fns=fns, nbatch=nbatch)
+    cts = [
+        jnp.zeros(a.shape, a.dtype) if type(ct) is ad.Zero else ct
+        for ct, a in zip(cts, avals, strict=True)
+    ]
+    bars = _mapped(_adjoint(fns), nbatch)(tuple(x), tuple(res), tuple(cts))
+    bars = [b for b, on in zip(bars, fns.live, strict=True) if on]
+    # (a tangent known to be zero, e.g. of an argument not differentiated, gets no cotangent)
+    live = [b if ad.is_undefined_primal(d) else None for d, b in zip(dx, bars, strict=True)]
+    return [None] * (len(x) + len(res)) + live
+
+
+@functools.lru_cache(maxsize=32)
+def _adjoint(fns: _Fns) -> Callable:
+    """`(x, residuals, ȳ) -> x̄` by `reverse`'s pullback; its own derivative (`jax.hessian`:
+    forward mode over this reverse mode) that of `second`'s pullback."""
+
+    @jax.custom_jvp
+    def adjoint(x, res, ct):
+        pullback = jtu.tree_unflatten(fns.res_tree, res)
+        return tuple(pullback(list(ct)))
+
+    def adjoint_jvp(primals, tangents):
+        x, _, ct = primals
+        dx, _, dct = tangents
+        n = len(x)
+
+        def by_second(*args):
+            return tuple(jax.vjp(fns.second, *args[:n])[1](list(args[n:])))
+
+        out, dout = _jvp_live(by_second, [*x, *ct], [*dx, *dct])
+        return tuple(out), tuple(dout)
+
+    adjoint.defjvp(adjoint_jvp, symbolic_zeros=True)
+    return adjoint
+
+
+def _batch(args, dims, *, fns: _Fns, nbatch: int):
+    size = next(a.shape[d] for a, d in zip(args, dims, strict=True) if d is not None)
+    moved = [
+        jnp.broadcast_to(a, (size, *jnp.shape(a))) if d is None else jnp.moveaxis(a, d, 0)
+        for a, d in zip(args, dims, strict=True)
+    ]
+    out = tangent_p.bind(*moved, fns=fns, nbatch=nbatch + 1)
+    return out, [0] * len(out)
+
+
+tangent_p.def_impl(_impl)
+tangent_p.def_abstract_eval(_abstract)
+ad.primitive_jvps[tangent_p] = _jvp
+ad.primitive_transposes[tangent_p] = _transpose
+batching.primitive_batchers[tangent_p] = _batch
+mlir.register_lowering(tangent_p, mlir.lower_fun(_tangent, multiple_results=True))
