@@ -110,7 +110,7 @@ def gyro(
     scale_factor: Annotated[RealLike, "*#batch 3"] | None = None,
     misalignment: Annotated[RealLike, "*#batch 3 3"] | None = None,
     omega_mean: Annotated[RealLike, "*#batch T-1 3"] | None = None,
-) -> tuple[Float[Array, "*batch T-1 3"], Float[Array, "*batch T 3"]]:
+) -> tuple[Float[Array, "*batch n 3"], Float[Array, "*batch T 3"]]:
     """Farrenkopf's rate gyro (module docstring): returns `(rate (..., T−1, 3), bias (..., T, 3))`,
     `rate[k]` the measured mean rate over `[ts[k], ts[k+1]]`
 

@@ -1,6 +1,6 @@
 """Sampled-data controllers with memory: flight software that keeps a state between samples (a
 filter's estimate, an integrator, a PRNG key for simulated sensors), for
-`simulate(gyrostat, ..., controller=..., control_period=..., controller_key=...)`.
+`simulate(gyrostat, ..., controller=c.with_key(key), control_period=...)`.
 
 The memory is part of the solve's state, held (zero derivative) between samples and set by the
 sampling jump map with the command (`rigidjax.mechanics._zoh`): the loop stays one model, and a
@@ -29,9 +29,23 @@ class StatefulController(eqx.Module):
       until the next sample and `log (L,)` is recorded, as `GyrostatTrajectory.controller_log
       (..., K, L)`.
 
-    `log_size` is `L` (0: nothing recorded)."""
+    `log_size` is `L` (0: nothing recorded). The bodies' keys come from `simulate`'s
+    `controller_key` or else from the controller's own `key` (`with_key`)."""
 
     log_size: ClassVar[int] = 0
+    key: Any = eqx.field(default=None, kw_only=True)  # PRNG key(s): one, or one per body
+
+    def with_key(self, key: Any) -> StatefulController:
+        """This controller with its PRNG `key`: one key (split over the bodies) or one per body
+        (the batch shape of the initial state)."""
+        return eqx.tree_at(lambda c: c.key, self, key, is_leaf=lambda x: x is None)
+
+    def __call__(self, *args: Any) -> Array:
+        raise TypeError(
+            "a StatefulController keeps memory between samples: simulate(gyrostat, ..., "
+            "controller=it) calls its init and step; call controller.step(t, omega, q, params, "
+            "memory) directly"
+        )
 
     @abc.abstractmethod
     def init(

@@ -3,7 +3,7 @@ simulated rate gyro and star tracker, instead of the true state.
 
 `estimated(law, arw=..., rrw=..., sigma=...)` wraps a law `law(t_k, ω, q, params) -> command`
 (e.g. `rigidjax.control.quaternion_pd`) into a `rigidjax.control.StatefulController` for
-`simulate(gyrostat, ..., controller=..., control_period=T, controller_key=keys)`. Each body
+`simulate(gyrostat, ..., controller=c.with_key(keys), control_period=T)`. Each body
 carries, in the solve's state, the true gyro bias, the filter's state `(q̂, b̂, P)` and its PRNG
 key; at each sample `t_k` (flight software's cycle):
 
@@ -162,9 +162,9 @@ class Estimated(StatefulController):
     def init(self, key, t0, omega0, q0, params, period):
         if key is None:
             raise ValueError(
-                "the estimator in the loop draws sensor noise: give simulate(..., "
-                "controller_key=jax.random.key(seed)) (one key, split over the bodies, or one "
-                "per body)"
+                "the estimator in the loop draws sensor noise: give it a key, "
+                "controller=estimated(...).with_key(jax.random.key(seed)) or simulate(..., "
+                "controller_key=...) (one key, split over the bodies, or one per body)"
             )
         dtype = jnp.asarray(omega0).dtype
         if dtype != jnp.float64:
@@ -253,7 +253,8 @@ def estimated(
     axis. The filter assumes `filter_arw`, `filter_rrw`, `filter_sigma` (default: the true
     values) and starts from `P0 (6, 6)` over `(δθ, δb)` (default `diag(0.1² I, (1e-3)² I)`),
     from which the initial knowledge and bias errors are drawn. For
-    `simulate(gyrostat, ..., controller=estimated(...), control_period=T, controller_key=key)`."""
+    `simulate(gyrostat, ..., controller=estimated(...).with_key(key), control_period=T)`
+    (`key`: one PRNG key, split over the bodies, or one per body)."""
     if not callable(law):
         raise TypeError(f"law must be a callable law(t, omega, q, params) -> command, got {law!r}")
     a, r, s = _axes(arw, "arw", False), _axes(rrw, "rrw", False), _axes(sigma, "sigma", True)

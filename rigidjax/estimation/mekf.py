@@ -201,8 +201,8 @@ def check_P0(P0: RealLike, name: str = "P0") -> Array:
 
 
 def _run(ts, gyro, q_meas, arw, rrw, sigma, q0, b0, P0):
-    """One run (no batch): the update at ts[0], then propagate-and-update for k ≥ 1."""
-    s, ll, y, nis = update(FilterState(q0, b0, P0), q_meas[0], sigma)
+    """One run (no batch): one scan over the samples, each a propagation (none before the
+    first: `dt = 0` is the identity) and an update."""
 
     def step(carry, x):
         s, ll = carry
@@ -211,20 +211,14 @@ def _run(ts, gyro, q_meas, arw, rrw, sigma, q0, b0, P0):
         s, dll, y, nis = update(s, qm, sigma)
         return (s, ll + dll), (s, y, nis)
 
-    dts = ts[1:] - ts[:-1]
-    (_, ll), (ss, ys, ns) = jax.lax.scan(step, (s, ll), (dts, gyro, q_meas[1:]))
+    dts = jnp.concatenate([jnp.zeros_like(ts[:1]), ts[1:] - ts[:-1]])
+    rates = jnp.concatenate([jnp.zeros_like(gyro[:1]), gyro])
+    init = (FilterState(q0, b0, P0), jnp.zeros((), ts.dtype))
+    (_, ll), (ss, ys, ns) = jax.lax.scan(jax.checkpoint(step), init, (dts, rates, q_meas))
+    return ss.q, ss.b, ss.P, ys, ns, ll
 
-    def joined(a, b):
-        return jnp.concatenate([a[None], b])
 
-    return (
-        joined(s.q, ss.q),
-        joined(s.b, ss.b),
-        joined(s.P, ss.P),
-        joined(y, ys),
-        joined(nis, ns),
-        ll,
-    )
+_batched = jax.jit(jax.vmap(_run))  # compiled once per shape, also when called eagerly
 
 
 def mekf(
@@ -305,7 +299,7 @@ def mekf(
         flat(b0, (3,)),
         flat(P, (6, 6)),
     )
-    qs, bs, Ps, ys, ns, ll = jax.vmap(_run)(*args)
+    qs, bs, Ps, ys, ns, ll = _batched(*args)
 
     def shape(a):
         return a.reshape(*batch, *a.shape[1:])

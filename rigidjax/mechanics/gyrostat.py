@@ -148,9 +148,10 @@ def simulate_gyrostat(
     then steps from sample to sample (and to each output time), so that fixed steps never
     straddle a switch. A `rigidjax.control.StatefulController` (e.g.
     `rigidjax.estimation.estimated`: a law acting on an MEKF's estimate from simulated sensors)
-    keeps its memory between samples, each body its own, started from `controller_key` (one
-    PRNG key, or one per body: the batch shape of `omega0`/`q0`; one key is split over the
-    bodies), and records its log (`controller_log`). Options as `simulate`'s: fixed steps of
+    keeps its memory between samples, each body its own, started from `controller_key` or the
+    controller's own `key` (`controller.with_key(key)`; one PRNG key, or one per body: the
+    batch shape of `omega0`/`q0`; one key is split over the bodies), and records its log
+    (`controller_log`). Options as `simulate`'s: fixed steps of
     an explicit Runge–Kutta method run on the model's CPU kernel (a jump map it cannot take,
     such as random draws, on the Diffrax path with the same steps). Other `kinematics` than
     `"quat"` are taken for a constant `h` without controller (as the torque `−Ω × h` of
@@ -194,7 +195,7 @@ def simulate_gyrostat(
     keys = None
     if isinstance(controller, StatefulController):
         assert control_period is not None
-        keys = _controller_keys(controller_key, batch)
+        keys = _controller_keys(controller.key if controller_key is None else controller_key, batch)
         one_key = None if keys is None else keys.reshape(-1)[0]
         memory = jax.eval_shape(
             controller.init, one_key, *one, controller_params, float(control_period)
