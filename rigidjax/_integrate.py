@@ -18,6 +18,7 @@ from jaxtyping import Array, PyTree
 
 from ._checks import attach_check, is_concrete
 from ._custom_types import Frame
+from ._modes import both_modes
 from .solvers.explicit_rk import unrolled
 from .solvers.rkmk import RKMK
 from .solvers.step_end_map import StepEndMap
@@ -255,11 +256,14 @@ def solve_saved(
     method, wrapped in `StepEndMap` with `step_end` when given. Without a step-size controller,
     a `PIDController` at `options.rtol`, `options.atol` (defaults `default_tolerances`), with
     error norm `norm` when given."""
-    solver = unrolled(options.solver if solver is None else solver)
+    method = unrolled(options.solver if solver is None else solver)
     adjoint = diffrax.RecursiveCheckpointAdjoint() if options.adjoint is None else options.adjoint
     meter = diffrax.NoProgressMeter() if options.progress_meter is None else options.progress_meter
-    if step_end is not None:
-        solver = StepEndMap.wrap(solver, step_end, adjoint)
+
+    def solver_for(adjoint: diffrax.AbstractAdjoint) -> diffrax.AbstractSolver:
+        return method if step_end is None else StepEndMap.wrap(method, step_end, adjoint)
+
+    solver = solver_for(adjoint)
     controller = options.stepsize_controller
     if controller is None:
         d_rtol, d_atol = default_tolerances(ts.dtype, tight=tight)
@@ -280,10 +284,14 @@ def solve_saved(
         raise ValueError("dt0 (the step size) is required with diffrax.ConstantStepSize")
     dt0 = None if dt0 is None else jnp.asarray(dt0, ts.dtype)  # traced: no recompiling per value
     _warn_unattainable(ts.dtype, options.rtol, options.atol)
+    steps = (controller, options.max_steps, meter)
     try:
-        ys, stats, result = _solve_intervals(
-            term, solver, controller, ts, y0, args, dt0, options.max_steps, adjoint, meter
-        )
+        if options.adjoint is None and type(term) is diffrax.ODETerm:
+            ys, stats, result = _in_every_mode(term, solver_for, steps, ts, y0, args, dt0)
+        else:
+            ys, stats, result = _solve_intervals(
+                term, solver, controller, ts, y0, args, dt0, options.max_steps, adjoint, meter
+            )
     except TypeError as e:
         raise_forward_mode(e)
     if options.throw:
@@ -292,6 +300,36 @@ def solve_saved(
             return nonfinite_field(lambda t, y: term.vf(t, y, args), ts, ys, k, _has_torque(term))
 
         ys = raise_failure(result, stats["num_valid"], ts, ys, options.max_steps, probe)
+    return ys, stats, result
+
+
+def _in_every_mode(term: diffrax.ODETerm, solver_for: Callable, steps: tuple, ts, y0, args, dt0):
+    """`_solve_intervals` with the default adjoint, differentiable in every mode and order
+    (`_modes.both_modes`): Diffrax's checkpointed reverse mode, forward mode by `ForwardMode`,
+    higher orders by `DirectAdjoint`. The field's closed-over tracers (a torque's gain under
+    `jax.grad`) become explicit inputs (`equinox.filter_closure_convert`), as a custom rule
+    needs."""
+    controller, max_steps, meter = steps
+    field = eqx.filter_closure_convert(term.vf, ts[0], y0, args)
+    dynamic, static = eqx.partition(field, eqx.is_array)
+
+    def run(adjoint: diffrax.AbstractAdjoint, values: bool) -> Callable:
+        def solve(y0, args, ts, dt0, dynamic):
+            term = diffrax.ODETerm(eqx.combine(dynamic, static))
+            solver = solver_for(adjoint)
+            out = _solve_intervals(
+                term, solver, controller, ts, y0, args, dt0, max_steps, adjoint, meter
+            )
+            return out[0] if values else (out[0], out[1:])
+
+        return solve
+
+    solve = both_modes(
+        run(diffrax.RecursiveCheckpointAdjoint(), False),
+        run(diffrax.ForwardMode(), True),
+        run(diffrax.DirectAdjoint(), True),
+    )
+    ys, (stats, result) = solve(y0, args, ts, dt0, dynamic)
     return ys, stats, result
 
 

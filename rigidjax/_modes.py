@@ -110,8 +110,8 @@ def both_modes(reverse: Callable, forward: Callable, second: Callable) -> Callab
             return ys_leaves, aux
 
         second_on = on_floats(second, leaves, tree, floats)
-        ys_leaves, aux, res, res_tree = _primal_run(value, second_on, fl)
         live = tuple(not _is_zero(d) for d in dfl)
+        ys_leaves, aux, res, res_tree = _primal_run(value, second_on, fl, live)
         fns = _Fns(
             forward=on_floats(forward, leaves, tree, floats),
             second=second_on,
@@ -133,17 +133,29 @@ def both_modes(reverse: Callable, forward: Callable, second: Callable) -> Callab
     return f
 
 
-def _primal_run(value: Callable, second: Callable, fl: list) -> tuple[list, Any, list, Any]:
+def _primal_run(
+    value: Callable, second: Callable, fl: list, live: tuple[bool, ...]
+) -> tuple[list, Any, list, Any]:
     """`(ys, aux, residuals, residuals' tree)`: the value of `value(*fl) -> (ys, aux)` and the
-    residuals of its pullback (`jax.vjp`). Differentiated itself (an outer `jax.jacfwd` of
+    residuals of its pullback (`jax.vjp`) with respect to the `live` leaves only (a backend
+    may do less for the others: the Pallas kernel's adjoint serves where the output times are
+    not differentiated). Differentiated itself (an outer `jax.jacfwd` of
     `jax.grad`, as `jax.hessian`), the tangent of `ys` is `second`'s; the residuals' tangents
     are zero: the rules that take them (`_jvp`, `_adjoint`) differentiate through `second`
     from `x` instead."""
     box: list = []
 
+    idx = [k for k, on in enumerate(live) if on]
+
     @jax.custom_jvp
     def run(*fl):
-        ys, pullback, aux = jax.vjp(value, *fl, has_aux=True)
+        def on_live(*xs):
+            full = list(fl)
+            for k, x in zip(idx, xs, strict=True):
+                full[k] = x
+            return value(*full)
+
+        ys, pullback, aux = jax.vjp(on_live, *[fl[k] for k in idx], has_aux=True)
         res, res_tree = jtu.tree_flatten(pullback)
         box.append(res_tree)
         return ys, aux, res
@@ -241,7 +253,6 @@ def _transpose(cts, *ops, fns: _Fns, nbatch: int):
         for ct, a in zip(cts, avals, strict=True)
     ]
     bars = _mapped(_adjoint(fns), nbatch)(tuple(x), tuple(res), tuple(cts))
-    bars = [b for b, on in zip(bars, fns.live, strict=True) if on]
     # (a tangent known to be zero, e.g. of an argument not differentiated, gets no cotangent)
     live = [b if ad.is_undefined_primal(d) else None for d, b in zip(dx, bars, strict=True)]
     return [None] * (len(x) + len(res)) + live
@@ -249,8 +260,10 @@ def _transpose(cts, *ops, fns: _Fns, nbatch: int):
 
 @functools.lru_cache(maxsize=32)
 def _adjoint(fns: _Fns) -> Callable:
-    """`(x, residuals, ȳ) -> x̄` by `reverse`'s pullback; its own derivative (`jax.hessian`:
-    forward mode over this reverse mode) that of `second`'s pullback."""
+    """`(x, residuals, ȳ) -> x̄` (of the live leaves) by `reverse`'s pullback; its own
+    derivative (`jax.hessian`: forward mode over this reverse mode) that of `second`'s
+    pullback."""
+    idx = [k for k, on in enumerate(fns.live) if on]
 
     @jax.custom_jvp
     def adjoint(x, res, ct):
@@ -263,7 +276,8 @@ def _adjoint(fns: _Fns) -> Callable:
         n = len(x)
 
         def by_second(*args):
-            return tuple(jax.vjp(fns.second, *args[:n])[1](list(args[n:])))
+            bars = jax.vjp(fns.second, *args[:n])[1](list(args[n:]))
+            return tuple(bars[k] for k in idx)
 
         out, dout = _jvp_live(by_second, [*x, *ct], [*dx, *dct])
         return tuple(out), tuple(dout)

@@ -277,14 +277,19 @@ def _solve(
         )
     c = jnp.zeros((0,), dtype) if hoisted is None else hoisted.c.astype(dtype)
     problem = (model, hoisted, single, jumps, keep)
-    if backend is None:
-        backend = _diffrax_backend(problem, options)
     if hoisted is not None and isinstance(
         options.adjoint, None | diffrax.RecursiveCheckpointAdjoint
-    ):  # the scalar program: every input explicit (`c`), so one rule differentiates it all
+    ):
+        # the scalar program: every input explicit (`c`), so one rule differentiates it all
+        # (the model's own field: `solve_saved`'s rule, its closure converted)
+        if backend is None:
+            checkpointed = diffrax.RecursiveCheckpointAdjoint()
+            backend = _diffrax_backend(problem, options, checkpointed)
         forward = _diffrax_backend(problem, options, diffrax.ForwardMode(), values=True)
         second = _diffrax_backend(problem, options, diffrax.DirectAdjoint(), values=True)
         backend = both_modes(backend, forward, second)
+    if backend is None:
+        backend = _diffrax_backend(problem, options)
     (ys, recorded), (stats, result) = backend(y0, tuple(blocks), c, ts)
     if model.record[1]:
         stats["recorded"] = recorded

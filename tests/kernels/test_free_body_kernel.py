@@ -207,14 +207,30 @@ def test_gradient_of_a_jitted_function():
     np.testing.assert_allclose(jax.grad(jax.jit(f))(x), jax.jit(jax.grad(f))(x), rtol=1e-13)
 
 
-def test_forward_mode_names_the_remedy():
+def test_forward_mode_and_hessian_with_default_options():
+    """`jax.jvp` and `jax.hessian` through the kernel with the default adjoint (issue 34): the
+    tangent equals `jax.jacrev`'s Jacobian applied to it and central differences; the
+    Hessian of a scalar loss equals central differences of its gradient."""
     w, q = _inputs(2)
 
     def f(I):
         return rj.simulate(rj.RigidBody(I), w, q, TS, solver=rj.RK4(), **FIXED).omega
 
-    with pytest.raises(TypeError, match="ForwardMode"):
-        jax.jvp(f, (jnp.array([1.0, 2.0, 3.0]),), (jnp.ones(3),))
+    I, v = jnp.array([1.0, 2.0, 3.0]), jnp.array([0.3, -0.2, 0.5])
+    _, tangent = jax.jvp(f, (I,), (v,))
+    np.testing.assert_allclose(tangent, jax.jacrev(f)(I) @ v, rtol=0, atol=1e-12)
+    eps = 1e-6
+    central = (f(I + eps * v) - f(I - eps * v)) / (2 * eps)
+    np.testing.assert_allclose(tangent, central, rtol=0, atol=1e-8)
+
+    def loss(I):
+        return jnp.sum(f(I) ** 2)
+
+    grad = jax.grad(loss)
+    hessian = jax.hessian(loss)(I)
+    np.testing.assert_allclose(
+        hessian @ v, (grad(I + eps * v) - grad(I - eps * v)) / (2 * eps), atol=1e-7
+    )
 
 
 @pytest.mark.parametrize("case", ["nonfinite", "max_steps"])

@@ -1,0 +1,155 @@
+"""Every model, every backend, every mode (issue 34): `jax.jacfwd` (forward mode) equals
+`jax.jacrev` (reverse mode) to 1e-9 and central differences, with default options; a model the
+kernel cannot take (an indexed update, a `while_loop`, a `cond` on a traced predicate, a host
+callback, complex numbers) runs on the Diffrax path with one warning naming the primitive, equal
+to its supported twin, and is differentiable in both modes too."""
+
+import warnings
+
+import diffrax
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import rigidjax as rj
+
+TS = jnp.linspace(0.0, 1.0, 3)
+FIXED = dict(stepsize_controller=diffrax.ConstantStepSize(), dt0=0.1)
+Q0 = rj.quat.from_rotvec(jnp.array([0.1, 0.2, 0.3]))
+W0 = jnp.array([0.3, 0.5, -0.2])
+
+
+def _agree(f, x, atol=1e-7):
+    """jacfwd = jacrev (1e-9) = central differences (`atol`)."""
+    forward, reverse = jax.jacfwd(f)(x), jax.jacrev(f)(x)
+    np.testing.assert_allclose(forward, reverse, rtol=0, atol=1e-9)
+    eps = 1e-6
+    basis = np.eye(x.size).reshape(x.size, *x.shape)
+    central = np.stack([(f(x + eps * e) - f(x - eps * e)) / (2 * eps) for e in basis], -1)
+    np.testing.assert_allclose(forward, central, rtol=0, atol=atol)
+
+
+def _end(traj):
+    return jnp.concatenate([traj.omega[-1], traj.quat[-1]])
+
+
+def test_kernel_torque_gain_and_initial_state():
+    """The CPU kernel with a torque whose gain is closed over (lifted into the kernel's
+    parameters): derivatives w.r.t. the gain and the initial rate."""
+    body = rj.RigidBody(jnp.array([1.0, 2.0, 3.0]))
+
+    def f(x):
+        gain, w0 = x[0], x[1:]
+        torque = lambda t, w, q: -gain * w + 0.1 * rj.quat.to_matrix(q)[:, 2]  # noqa: E731
+        return _end(rj.simulate(body, w0, Q0, TS, torque=torque, **FIXED))
+
+    _agree(f, jnp.concatenate([jnp.array([0.2]), W0]))
+
+
+def test_full_tensor_adaptive():
+    """A full inertia tensor at the default tolerances (the Diffrax path: `solve_saved`'s rule,
+    its field's closure converted)."""
+
+    def f(w0):
+        inertia = jnp.array([[2.0, 0.1, 0.0], [0.1, 3.0, 0.0], [0.0, 0.0, 4.0]])
+        return _end(rj.simulate(rj.RigidBody(inertia), w0, Q0, TS))
+
+    _agree(f, W0)
+
+
+@pytest.mark.slow
+def test_heavy_top_sixdof_darboux():
+    """The heavy top (kernel), the 6-DOF body with a wrench (kernel) and `darboux`."""
+    top = rj.HeavyTop(rj.RigidBody(jnp.array([1.0, 1.0, 0.5])), com=jnp.array([0.0, 0.0, 1.0]))
+
+    def heavy(w0):
+        traj = rj.simulate_heavy_top(top, w0, jnp.array([0.0, 0.1, 1.0]), TS, **FIXED)
+        return traj.omega[-1]
+
+    _agree(heavy, W0)
+
+    def sixdof(w0):
+        body = rj.RigidBody(jnp.array([1.0, 2.0, 3.0]))
+
+        def wrench(t, state):
+            return -0.1 * state.V, -0.2 * state.omega
+
+        R0, V0 = jnp.zeros(3), jnp.array([1.0, 0.0, 0.0])
+        traj = rj.sixdof.simulate_6dof(body, R0, V0, Q0, w0, TS, wrench, **FIXED)
+        return jnp.concatenate([traj.R[-1], traj.omega[-1]])
+
+    _agree(sixdof, W0)
+
+    def darboux(a):
+        return rj.darboux(lambda t: a * jnp.array([1.0, t, t * t]), TS, method="quat").reshape(-1)
+
+    _agree(darboux, jnp.array([0.1, 0.2, 0.3]))
+
+
+def _indexed(w):
+    return jnp.zeros(3).at[jnp.array([0, 1, 2])].add(-0.1 * w)
+
+
+def _loop(w):
+    return jax.lax.while_loop(lambda c: c[0] < 1, lambda c: (c[0] + 1, c[1]), (0, -0.1 * w))[1]
+
+
+def _branch(w, t):
+    return jax.lax.cond(t > 0.5, lambda: -0.1 * w, lambda: -0.1 * w + 0.0 * t)
+
+
+def _host(w):
+    shape = jax.ShapeDtypeStruct((3,), w.dtype)
+    return jax.pure_callback(lambda w: -0.1 * np.asarray(w), shape, w, vmap_method="sequential")
+
+
+def _complex(w):
+    return jnp.real((-0.1 * w).astype(jnp.complex128) * (1.0 + 0.0j))
+
+
+UNSUPPORTED = {
+    "scatter-add": lambda t, w, q: _indexed(w),
+    "while": lambda t, w, q: _loop(w),
+    "cond": lambda t, w, q: _branch(w, t),
+    "pure_callback": lambda t, w, q: _host(w),
+    "complex": lambda t, w, q: _complex(w),
+}
+
+
+@pytest.mark.parametrize("primitive", list(UNSUPPORTED))
+def test_fallback_equals_its_twin(primitive):
+    """A torque with a primitive the kernel cannot take: one warning naming it; the values of
+    the same torque written with supported operations, to rounding."""
+    body = rj.RigidBody(jnp.array([1.0, 2.0, 3.0]))
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        got = rj.simulate(body, W0, Q0, TS, torque=UNSUPPORTED[primitive], **FIXED)
+    named = [r for r in record if "fast path" in str(r.message)]
+    assert len(named) == 1 and primitive.split("-")[0] in str(named[0].message)
+    twin = rj.simulate(body, W0, Q0, TS, torque=lambda t, w, q: -0.1 * w, **FIXED)
+    np.testing.assert_allclose(got.omega, twin.omega, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(got.quat, twin.quat, rtol=0, atol=1e-14)
+
+
+def test_fallback_without_parameters_and_in_every_mode():
+    """`darboux` with `ω(t)` built by `euler.to_matrix` (an indexed update: no kernel, and a
+    model without parameters) at fixed steps: the attitude of an adaptive solve at tight
+    tolerances, and derivatives w.r.t. a closed-over amplitude in both modes."""
+
+    def omega(t, a):
+        return rj.euler.to_matrix(jnp.stack([t, 0.2, 0.3]), "ZXZ") @ a
+
+    a0 = jnp.array([0.1, 0.2, 0.3])
+    with pytest.warns(RuntimeWarning, match="scatter"):
+        fixed = rj.darboux(lambda t: omega(t, a0), TS, P0=jnp.eye(3), method="quat", **FIXED)
+    tight = rj.darboux(lambda t: omega(t, a0), TS, P0=jnp.eye(3), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(fixed, tight, rtol=0, atol=1e-8)
+
+    def f(a):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            P = rj.darboux(lambda t: omega(t, a), TS, P0=jnp.eye(3), method="quat", **FIXED)
+        return P[-1].reshape(-1)
+
+    _agree(f, a0)
