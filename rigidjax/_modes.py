@@ -56,7 +56,7 @@ def _is_zero(t: Any) -> bool:
     return t is _NONE or isinstance(t, SymbolicZero | ad.Zero)
 
 
-def _jvp_live(fn: Callable, args: list, tangents: list) -> tuple[list, list]:
+def _jvp_live(fn: Callable, args: list, tangents: list) -> tuple[Any, Any]:
     """`jax.jvp(fn, args, tangents)` over the arguments whose tangent is not a symbolic zero
     (the others held constant: no derivative is traced through them, e.g. through Diffrax's
     `nextafter` of the times)."""

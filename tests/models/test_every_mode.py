@@ -92,7 +92,10 @@ def _indexed(w):
 
 
 def _loop(w):
-    return jax.lax.while_loop(lambda c: c[0] < 1, lambda c: (c[0] + 1, c[1]), (0, -0.1 * w))[1]
+    def body(c):  # one pass, multiplying by 1 (a carry the loop really updates)
+        return c[0] + 1, c[1] * (c[0] + 1).astype(w.dtype)
+
+    return jax.lax.while_loop(lambda c: c[0] < 1, body, (0, -0.1 * w))[1]
 
 
 def _branch(w, t):

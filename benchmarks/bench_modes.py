@@ -1,0 +1,136 @@
+"""What derivatives cost on each path, in both modes (issue 34): the value, the reverse-mode
+gradient (`jax.grad`) and the forward-mode Jacobian (`jax.jacfwd`) of one loss, on the CPU kernel
+(fixed RK4 steps) and on the Diffrax path (the default adaptive tolerances), with default
+options.
+
+Problem: B bodies, principal moments (1, 2, 2.5) ± 10 %, Ω0 ~ N(0, 1)³, random unit
+quaternions, a damping torque `−g Ω` with a closed-over gain g, t ∈ [0, 2], 5 output times;
+RK4 at dt = 1e-2 on the kernel (B = 1000), rtol = atol = 1e-8 on the Diffrax path
+(B = 100). Loss: the sum of squares of the final rates. Gradient w.r.t. (moments (B, 3), g);
+Jacobian of the final rates w.r.t. g (forward mode: one tangent).
+
+`--baseline DIR` runs the same measurements on another checkout of rigidjax (e.g. a `git
+worktree` of the last release) in a fresh process, in the same run: its reverse-mode times are
+the baseline of `grad_vs_baseline` (forward mode failed there with default options).
+
+Usage
+    python benchmarks/bench_modes.py [--repeats 5] [--baseline DIR]
+        [--out benchmarks/results/modes.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import jax  # noqa: E402
+
+jax.config.update("jax_enable_x64", True)
+
+import diffrax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+from _harness import (  # noqa: E402
+    finish,
+    fresh_process,
+    interleaved,
+    load_average,
+    machine_info,
+    measure,
+)
+
+import rigidjax as rj  # noqa: E402
+
+TS = jnp.linspace(0.0, 2.0, 5)
+PATHS = {
+    "kernel": (
+        1000,
+        dict(solver=rj.RK4(), stepsize_controller=diffrax.ConstantStepSize(), dt0=1e-2),
+    ),
+    "diffrax": (100, dict(rtol=1e-8, atol=1e-8)),
+}
+
+
+def _problem(B: int, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    moments = jnp.asarray(np.array([1.0, 2.0, 2.5]) * rng.uniform(0.9, 1.1, (B, 3)))
+    q = rng.normal(size=(B, 4))
+    return (
+        moments,
+        jnp.asarray(rng.normal(size=(B, 3))),
+        jnp.asarray(q / np.linalg.norm(q, axis=1)[:, None]),
+    )
+
+
+def _measure(repeats: int, forward_mode: bool) -> dict:
+    out = {}
+    for path, (B, kw) in PATHS.items():
+        moments, w0, q0 = _problem(B)
+
+        def rates(moments, g, w0=w0, q0=q0, kw=kw):
+            torque = lambda t, w, q: -g * w  # noqa: E731
+            return rj.simulate(rj.RigidBody(moments), w0, q0, TS, torque=torque, **kw).omega[:, -1]
+
+        def loss(moments, g, rates=rates):
+            return jnp.sum(rates(moments, g) ** 2)
+
+        g = jnp.asarray(0.1)
+        timings = {
+            "value": measure(loss, moments, g, repeats=1),
+            "grad": measure(jax.grad(loss, argnums=(0, 1)), moments, g, repeats=1),
+        }
+        if forward_mode:
+            timings["jacfwd"] = measure(jax.jacfwd(rates, argnums=1), moments, g, repeats=1)
+        interleaved(timings.values(), repeats)
+        row = {"bodies": B, **{k: t.summary() for k, t in timings.items()}}
+        for k, t in timings.items():
+            row[k]["compile_s"] = t.trace_lower_compile_s
+        if forward_mode:
+            jr = jax.jacrev(rates, argnums=1)(moments, g)
+            row["jacfwd_vs_jacrev_max_abs"] = float(jnp.max(jnp.abs(timings["jacfwd"].output - jr)))
+        row["grad_per_value"] = timings["grad"].best / timings["value"].best
+        out[path] = row
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--baseline", type=Path, default=None)
+    ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "modes.json")
+    args = ap.parse_args()
+    if args.worker:  # the baseline checkout: reverse mode only
+        print(json.dumps(_measure(args.repeats, forward_mode=False)))
+        return
+    t0 = time.perf_counter()
+    out: dict = {"machine": machine_info(), "load_average_start": load_average()}
+    out["paths"] = _measure(args.repeats, forward_mode=True)
+    if args.baseline is not None:
+        env = {**os.environ, "PYTHONPATH": str(args.baseline.resolve())}
+        base, _, proc = fresh_process(__file__, "--worker", "--repeats", str(args.repeats), env=env)
+        if base is None:
+            raise SystemExit(f"the baseline run failed:\n{proc.stderr[-2000:]}")
+        out["baseline"] = {"checkout": str(args.baseline), "paths": base}
+        for path, row in out["paths"].items():
+            for k in ("value", "grad"):
+                row[f"{k}_vs_baseline"] = row[k]["seconds"] / base[path][k]["seconds"]
+    for path, row in out["paths"].items():
+        line = ", ".join(
+            f"{k} {row[k]['seconds'] * 1e3:.1f} ms" for k in ("value", "grad", "jacfwd")
+        )
+        extra = "".join(
+            f", {k} {row[k]:.2f}x" for k in ("value_vs_baseline", "grad_vs_baseline") if k in row
+        )
+        print(f"{path} ({row['bodies']} bodies): {line}{extra}")
+    finish(out, args.out, t0)
+
+
+if __name__ == "__main__":
+    main()
