@@ -20,7 +20,7 @@ from ._checks import attach_check, is_concrete
 from ._custom_types import Frame
 from ._modes import both_modes
 from .solvers.explicit_rk import unrolled
-from .solvers.rkmk import RKMK
+from .solvers.rkmk import RKMK, LieTerm
 from .solvers.step_end_map import StepEndMap
 
 
@@ -286,8 +286,9 @@ def solve_saved(
     _warn_unattainable(ts.dtype, options.rtol, options.atol)
     steps = (controller, options.max_steps, meter)
     try:
-        if options.adjoint is None and type(term) is diffrax.ODETerm:
-            ys, stats, result = _in_every_mode(term, solver_for, steps, ts, y0, args, dt0)
+        if options.adjoint is None and type(term) in (diffrax.ODETerm, LieTerm):
+            one_field = cast(diffrax.ODETerm | LieTerm, term)  # (not a subclass: rebuilt)
+            ys, stats, result = _in_every_mode(one_field, solver_for, steps, ts, y0, args, dt0)
         else:
             ys, stats, result = _solve_intervals(
                 term, solver, controller, ts, y0, args, dt0, options.max_steps, adjoint, meter
@@ -303,19 +304,22 @@ def solve_saved(
     return ys, stats, result
 
 
-def _in_every_mode(term: diffrax.ODETerm, solver_for: Callable, steps: tuple, ts, y0, args, dt0):
+def _in_every_mode(
+    term: diffrax.ODETerm | LieTerm, solver_for: Callable, steps: tuple, ts, y0, args, dt0
+):
     """`_solve_intervals` with the default adjoint, differentiable in every mode and order
     (`_modes.both_modes`): Diffrax's checkpointed reverse mode, forward mode by `ForwardMode`,
     higher orders by `DirectAdjoint`. The field's closed-over tracers (a torque's gain under
     `jax.grad`) become explicit inputs (`equinox.filter_closure_convert`), as a custom rule
     needs."""
     controller, max_steps, meter = steps
+    kind = type(term)  # a term of one vector field: an `ODETerm`, or a `LieTerm` (RKMK)
     field = eqx.filter_closure_convert(term.vf, ts[0], y0, args)
     dynamic, static = eqx.partition(field, eqx.is_array)
 
     def run(adjoint: diffrax.AbstractAdjoint, values: bool) -> Callable:
         def solve(y0, args, ts, dt0, dynamic):
-            term = diffrax.ODETerm(eqx.combine(dynamic, static))
+            term = kind(eqx.combine(dynamic, static))
             solver = solver_for(adjoint)
             out = _solve_intervals(
                 term, solver, controller, ts, y0, args, dt0, max_steps, adjoint, meter
