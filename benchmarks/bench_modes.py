@@ -3,7 +3,7 @@ gradient (`jax.grad`) and the forward-mode Jacobian (`jax.jacfwd`) of one loss, 
 (fixed RK4 steps) and on the Diffrax path (the default adaptive tolerances), with default
 options.
 
-Problem: B bodies, principal moments (1, 2, 2.5) ± 10 %, Ω0 ~ N(0, 1)³, random unit
+Problem: B bodies, principal moments (1.5, 2, 2.5) ± 10 %, Ω0 ~ N(0, 1)³, random unit
 quaternions, a damping torque `−g Ω` with a closed-over gain g, t ∈ [0, 2], 5 output times;
 RK4 at dt = 1e-2 on the kernel (B = 1000), rtol = atol = 1e-8 on the Diffrax path
 (B = 100). Loss: the sum of squares of the final rates. Gradient w.r.t. (moments (B, 3), g);
@@ -59,7 +59,7 @@ PATHS = {
 
 def _problem(B: int, seed: int = 0):
     rng = np.random.default_rng(seed)
-    moments = jnp.asarray(np.array([1.0, 2.0, 2.5]) * rng.uniform(0.9, 1.1, (B, 3)))
+    moments = jnp.asarray(np.array([1.5, 2.0, 2.5]) * rng.uniform(0.9, 1.1, (B, 3)))
     q = rng.normal(size=(B, 4))
     return (
         moments,
