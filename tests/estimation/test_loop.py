@@ -34,9 +34,9 @@ def test_generator_is_mrg32k3a():
     states = [jnp.full(6, 12345.0), _seed(jax.random.key(0), jnp.float64)]
     step = jax.jit(_uniform)
     for s in states:
-        want = mrg32k3a_integers([int(x) for x in s[:3]], [int(x) for x in s[3:]], 500)
+        want = mrg32k3a_integers([int(x) for x in s[:3]], [int(x) for x in s[3:]], 200)
         got = []
-        for _ in range(500):
+        for _ in range(200):
             u, s = step(s)
             got.append(float(u))
         assert got == want
