@@ -19,6 +19,7 @@ from jaxtyping import Array, PyTree
 from ._checks import attach_check, is_concrete
 from ._custom_types import Frame
 from ._modes import both_modes
+from .solvers.exact_free_body import AbstractFlowSolver
 from .solvers.explicit_rk import unrolled
 from .solvers.rkmk import RKMK, LieTerm
 from .solvers.step_end_map import StepEndMap
@@ -286,7 +287,9 @@ def solve_saved(
     _warn_unattainable(ts.dtype, options.rtol, options.atol)
     steps = (controller, options.max_steps, meter)
     try:
-        if options.adjoint is None and type(term) in (diffrax.ODETerm, LieTerm):
+        # (the flow solvers read their `RigidBodyField` from the term: left as given)
+        flows = isinstance(method, AbstractFlowSolver)
+        if options.adjoint is None and type(term) in (diffrax.ODETerm, LieTerm) and not flows:
             one_field = cast(diffrax.ODETerm | LieTerm, term)  # (not a subclass: rebuilt)
             ys, stats, result = _in_every_mode(one_field, solver_for, steps, ts, y0, args, dt0)
         else:

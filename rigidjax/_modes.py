@@ -11,7 +11,7 @@ Its tangent is one primitive, `tangent_p`, linear in the inputs' tangents:
   primitive's operands), so reverse mode runs the fast adjoint once, as `reverse` alone would;
 - differentiated again (`jax.hessian`, `jacfwd` of `jacfwd`): `second`'s derivatives, which
   JAX takes to any order;
-- batched (`jax.vmap`): the same primitive on a leading batch axis (`nbatch`).
+- batched (`jax.vmap`): the same primitive with one more batch level (`Levels`).
 
 This is the structure JAX's docs recommend for a primitive with rules for both modes ("Custom
 derivative rules with hijax primitives", JAX 301; `linear_call` has no batching rule)."""
@@ -37,12 +37,12 @@ Aval = tuple[tuple[int, ...], Any]
 class _Fns(NamedTuple):
     """What the primitive's rules need, hashable (by the functions' identity)."""
 
-    forward: Callable  # (*float leaves of xs) -> ys leaves: jvp-able
+    forward: Callable  # (*leaves of xs) -> ys leaves: jvp-able
     second: Callable  # the same, differentiable in every mode and order
-    n_x: int  # float leaves of xs
-    live: tuple[bool, ...]  # which of them have a tangent (the operands `dx`)
+    n_x: int  # leaves of xs
+    live: tuple[bool, ...]  # which of them have a tangent (floating, differentiated: `dx`)
     res_tree: Any  # the reverse pullback's tree (its leaves: the residual operands)
-    out_avals: tuple[Aval, ...]  # ys leaves of one call (nbatch = 0)
+    out_avals: tuple[Aval, ...]  # ys leaves of one call (unbatched)
 
 
 def _float(x: Any) -> bool:
@@ -53,7 +53,10 @@ _NONE = object()  # the tangent of a float leaf that has none (not differentiate
 
 
 def _is_zero(t: Any) -> bool:
-    return t is _NONE or isinstance(t, SymbolicZero | ad.Zero)
+    """A tangent that is zero by construction: none, symbolic, or of an integer (`float0`)."""
+    if t is _NONE or isinstance(t, SymbolicZero | ad.Zero):
+        return True
+    return getattr(t, "dtype", None) == jax.dtypes.float0
 
 
 def _jvp_live(fn: Callable, args: list, tangents: list) -> tuple[Any, Any]:
@@ -79,12 +82,9 @@ def both_modes(reverse: Callable, forward: Callable, second: Callable) -> Callab
     (module docstring); `forward(*xs)` and `second(*xs)` return the same `ys`, `aux` has no
     derivative (counts, flags). `xs` leaves that are not floating point get none either."""
 
-    def on_floats(fn: Callable, leaves: list, tree, floats: list[int]) -> Callable:
-        def g(*fl):
-            full = list(leaves)
-            for k, x in zip(floats, fl, strict=True):
-                full[k] = x
-            return jtu.tree_leaves(fn(*jtu.tree_unflatten(tree, full)))
+    def on_leaves(fn: Callable, tree) -> Callable:
+        def g(*leaves):
+            return jtu.tree_leaves(fn(*jtu.tree_unflatten(tree, leaves)))
 
         return g
 
@@ -93,36 +93,32 @@ def both_modes(reverse: Callable, forward: Callable, second: Callable) -> Callab
         return reverse(*xs)
 
     def f_jvp(primals, tangents):
+        # every leaf an operand (integer ones too: closing over them would leak a trace into
+        # the primitive's rules), the floating ones with a tangent `live`
         leaves, tree = jtu.tree_flatten(primals)
-        floats = [k for k, x in enumerate(leaves) if _float(x)]
-        fl = [leaves[k] for k in floats]
         dl = jtu.tree_flatten(tangents, is_leaf=_is_zero)[0]
-        dfl = [dl[k] for k in floats]
+        live = tuple(_float(x) and not _is_zero(d) for x, d in zip(leaves, dl, strict=True))
         ys_tree: list = []
 
-        def value(*fl):  # `reverse` on the float leaves, its states flattened
-            full = list(leaves)
-            for k, x in zip(floats, fl, strict=True):
-                full[k] = x
-            ys, aux = reverse(*jtu.tree_unflatten(tree, full))
+        def value(*leaves):  # `reverse`, its states flattened
+            ys, aux = reverse(*jtu.tree_unflatten(tree, leaves))
             ys_leaves, tree_ys = jtu.tree_flatten(ys)
             ys_tree.append(tree_ys)
             return ys_leaves, aux
 
-        second_on = on_floats(second, leaves, tree, floats)
-        live = tuple(not _is_zero(d) for d in dfl)
-        ys_leaves, aux, res, res_tree = _primal_run(value, second_on, fl, live)
+        second_on = on_leaves(second, tree)
+        ys_leaves, aux, res, res_tree = _primal_run(value, second_on, leaves, live)
         fns = _Fns(
-            forward=on_floats(forward, leaves, tree, floats),
+            forward=on_leaves(forward, tree),
             second=second_on,
-            n_x=len(fl),
+            n_x=len(leaves),
             live=live,
             res_tree=res_tree,
             out_avals=tuple((tuple(y.shape), jnp.result_type(y)) for y in ys_leaves),
         )
-        dx = [d for d, on in zip(dfl, live, strict=True) if on]
+        dx = [d for d, on in zip(dl, live, strict=True) if on]
         if dx:
-            dys = tangent_p.bind(*fl, *res, *dx, fns=fns, nbatch=0)
+            dys = tangent_p.bind(*leaves, *res, *dx, fns=fns, levels=())
         else:
             dys = [jnp.zeros_like(y) for y in ys_leaves]
         aux_zero = jtu.tree_map(_zero_tangent, aux)
@@ -182,9 +178,16 @@ tangent_p = Primitive("rigidjax_tangent")
 tangent_p.multiple_results = True
 
 
-def _mapped(fn: Callable, nbatch: int) -> Callable:
-    for _ in range(nbatch):
-        fn = jax.vmap(fn)
+Levels = tuple[tuple[int, tuple[int | None, ...]], ...]
+"""The batch levels of a `tangent_p` (outermost first): each `(size, axes)`, `axes` per operand
+0 (mapped, on its leading axis) or None (shared: never broadcast, so a backend sees it as it
+would under `jax.vmap`, e.g. Diffrax's unbatched step counter)."""
+
+
+def _vmapped(fn: Callable, levels: Levels, in_axes: Callable[[tuple], tuple]) -> Callable:
+    """`fn` mapped over `levels` (innermost last), `in_axes(axes)` its arguments' axes."""
+    for _, axes in reversed(levels):
+        fn = jax.vmap(fn, in_axes=in_axes(axes))
     return fn
 
 
@@ -194,68 +197,83 @@ def _split_ops(ops, fns: _Fns):
 
 
 def _tangents(fns: _Fns, dx: list) -> list:
-    """The tangents of all float leaves from those of the live ones (zeros elsewhere)."""
+    """The tangents of all leaves from those of the live ones (none elsewhere)."""
     it = iter(dx)
     return [next(it) if on else _NONE for on in fns.live]
 
 
-def _tangent(*ops, fns: _Fns, nbatch: int) -> list:
+def _tangent(*ops, fns: _Fns, levels: Levels) -> list:
     """The tangent of `forward` at `x` along `dx` (the residuals unused)."""
-    x, _, dx = _split_ops(ops, fns)
 
-    def one(x, dx):
-        return _jvp_live(fns.forward, x, _tangents(fns, dx))[1]
+    def one(*ops):
+        x, _, dx = _split_ops(ops, fns)
+        return list(_jvp_live(fns.forward, x, _tangents(fns, dx))[1])
 
-    return list(_mapped(one, nbatch)(x, dx))
+    return _vmapped(one, levels, lambda axes: axes)(*ops)
 
 
 @functools.lru_cache(maxsize=32)
-def _compiled_tangent(fns: _Fns, nbatch: int) -> Callable:
-    return jax.jit(functools.partial(_tangent, fns=fns, nbatch=nbatch))
+def _compiled_tangent(fns: _Fns, levels: Levels) -> Callable:
+    return jax.jit(functools.partial(_tangent, fns=fns, levels=levels))
 
 
-def _impl(*ops, fns: _Fns, nbatch: int) -> list:
-    return _compiled_tangent(fns, nbatch)(*ops)
+def _impl(*ops, fns: _Fns, levels: Levels) -> list:
+    return _compiled_tangent(fns, levels)(*ops)
 
 
-def _abstract(*ops, fns: _Fns, nbatch: int) -> list:
-    lead = ops[0].shape[:nbatch] if nbatch else ()
+def _abstract(*ops, fns: _Fns, levels: Levels) -> list:
+    lead = tuple(size for size, _ in levels)
     return [ShapedArray((*lead, *shape), dtype) for shape, dtype in fns.out_avals]
 
 
-def _jvp(primals, tangents, *, fns: _Fns, nbatch: int):
+def _jvp(primals, tangents, *, fns: _Fns, levels: Levels):
     """`d/dε T(x + ε u, dx + ε v)`: the tangent map differentiated once more, through
     `second` (any order, either mode)."""
     x, _, dx = _split_ops(primals, fns)
     u, _, v = _split_ops(tangents, fns)
+    n, m = len(x), len(dx)
 
     def T(*args):
-        x, dx = args[: fns.n_x], args[fns.n_x :]
-        return _jvp_live(fns.second, list(x), _tangents(fns, list(dx)))[1]
+        return _jvp_live(fns.second, list(args[:n]), _tangents(fns, list(args[n:])))[1]
 
-    def one(args, targs):
-        return _jvp_live(T, args, targs)
+    def one(*args):
+        return _jvp_live(T, list(args[: n + m]), list(args[n + m :]))
 
-    if nbatch:
+    if levels:  # (vmap takes arrays: the zeros made)
         u = [ad.instantiate_zeros(t) for t in u]
         v = [ad.instantiate_zeros(t) for t in v]
-    out, dout = _mapped(one, nbatch)([*x, *dx], [*u, *v])
+
+    def in_axes(axes):
+        xa, da = axes[:n], axes[len(axes) - m :]
+        return (*xa, *da, *xa, *da)
+
+    out, dout = _vmapped(one, levels, in_axes)(*x, *dx, *u, *v)
     return list(out), list(dout)
 
 
-def _transpose(cts, *ops, fns: _Fns, nbatch: int):
+def _transpose(cts, *ops, fns: _Fns, levels: Levels):
     """The cotangents of `dx`: the pullback of `reverse` (its residuals among the operands),
-    differentiable again through `second` (`_adjoint`)."""
+    differentiable again through `second` (`_adjoint`); summed over the batch levels where a
+    `dx` is shared."""
     x, res, dx = _split_ops(ops, fns)
-    avals = _abstract(*x, fns=fns, nbatch=nbatch)
+    avals = _abstract(*x, fns=fns, levels=levels)
     cts = [
         jnp.zeros(a.shape, a.dtype) if type(ct) is ad.Zero else ct
         for ct, a in zip(cts, avals, strict=True)
     ]
-    bars = _mapped(_adjoint(fns), nbatch)(tuple(x), tuple(res), tuple(cts))
-    # (a tangent known to be zero, e.g. of an argument not differentiated, gets no cotangent)
-    live = [b if ad.is_undefined_primal(d) else None for d, b in zip(dx, bars, strict=True)]
-    return [None] * (len(x) + len(res)) + live
+    n, r = len(x), len(res)
+    adjoint = _adjoint(fns)
+
+    def one(*args):
+        return adjoint(args[:n], args[n : n + r], args[n + r :])
+
+    bars = _vmapped(one, levels, lambda axes: (*axes[: n + r], *(0,) * len(cts)))(*x, *res, *cts)
+    out = []
+    for k, (d, bar) in enumerate(zip(dx, bars, strict=True)):
+        shared = [i for i, (_, axes) in enumerate(levels) if axes[n + r + k] is None]
+        # (a tangent known to be zero, e.g. of an argument not differentiated: no cotangent)
+        out.append(jnp.sum(bar, axis=tuple(shared)) if ad.is_undefined_primal(d) else None)
+    return [None] * (n + r) + out
 
 
 @functools.lru_cache(maxsize=32)
@@ -286,13 +304,11 @@ def _adjoint(fns: _Fns) -> Callable:
     return adjoint
 
 
-def _batch(args, dims, *, fns: _Fns, nbatch: int):
+def _batch(args, dims, *, fns: _Fns, levels: Levels):
     size = next(a.shape[d] for a, d in zip(args, dims, strict=True) if d is not None)
-    moved = [
-        jnp.broadcast_to(a, (size, *jnp.shape(a))) if d is None else jnp.moveaxis(a, d, 0)
-        for a, d in zip(args, dims, strict=True)
-    ]
-    out = tangent_p.bind(*moved, fns=fns, nbatch=nbatch + 1)
+    moved = [a if d is None else jnp.moveaxis(a, d, 0) for a, d in zip(args, dims, strict=True)]
+    axes = tuple(None if d is None else 0 for d in dims)
+    out = tangent_p.bind(*moved, fns=fns, levels=((size, axes), *levels))
     return out, [0] * len(out)
 
 

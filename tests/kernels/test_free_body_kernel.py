@@ -207,6 +207,7 @@ def test_gradient_of_a_jitted_function():
     np.testing.assert_allclose(jax.grad(jax.jit(f))(x), jax.jit(jax.grad(f))(x), rtol=1e-13)
 
 
+@pytest.mark.slow  # ~45 s: forward mode and second order compile the Diffrax path twice
 def test_forward_mode_and_hessian_with_default_options():
     """`jax.jvp` and `jax.hessian` through the kernel with the default adjoint (issue 34): the
     tangent equals `jax.jacrev`'s Jacobian applied to it and central differences; the

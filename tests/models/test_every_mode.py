@@ -47,6 +47,7 @@ def test_kernel_torque_gain_and_initial_state():
     _agree(f, jnp.concatenate([jnp.array([0.2]), W0]))
 
 
+@pytest.mark.slow
 def test_full_tensor_adaptive():
     """A full inertia tensor at the default tolerances (the Diffrax path: `solve_saved`'s rule,
     its field's closure converted)."""
@@ -135,19 +136,27 @@ def test_fallback_equals_its_twin(primitive):
     np.testing.assert_allclose(got.quat, twin.quat, rtol=0, atol=1e-14)
 
 
-def test_fallback_without_parameters_and_in_every_mode():
+def _omega(t, a):
+    return rj.euler.to_matrix(jnp.stack([t, 0.2, 0.3]), "ZXZ") @ a
+
+
+@pytest.mark.parametrize("method", ["quat", "rotvec", "matrix"])
+def test_fallback_without_parameters(method):
     """`darboux` with `ω(t)` built by `euler.to_matrix` (an indexed update: no kernel, and a
-    model without parameters) at fixed steps: the attitude of an adaptive solve at tight
-    tolerances, and derivatives w.r.t. a closed-over amplitude in both modes."""
-
-    def omega(t, a):
-        return rj.euler.to_matrix(jnp.stack([t, 0.2, 0.3]), "ZXZ") @ a
-
+    model without parameters) at fixed steps: one warning, and the attitude of an adaptive
+    solve at tight tolerances."""
     a0 = jnp.array([0.1, 0.2, 0.3])
     with pytest.warns(RuntimeWarning, match="scatter"):
-        fixed = rj.darboux(lambda t: omega(t, a0), TS, P0=jnp.eye(3), method="quat", **FIXED)
-    tight = rj.darboux(lambda t: omega(t, a0), TS, P0=jnp.eye(3), rtol=1e-12, atol=1e-12)
+        fixed = rj.darboux(lambda t: _omega(t, a0), TS, P0=jnp.eye(3), method=method, **FIXED)
+    tight = rj.darboux(lambda t: _omega(t, a0), TS, P0=jnp.eye(3), rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(fixed, tight, rtol=0, atol=1e-8)
+
+
+@pytest.mark.slow
+def test_fallback_in_every_mode():
+    """The same fallback differentiated w.r.t. a closed-over amplitude in both modes."""
+    omega = _omega
+    a0 = jnp.array([0.1, 0.2, 0.3])
 
     def f(a):
         with warnings.catch_warnings():
