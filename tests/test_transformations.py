@@ -534,7 +534,13 @@ def test_every_public_function_is_covered():
     assert len(TESTED) > 50  # the generator found the rotation maps
 
 
-@pytest.mark.parametrize("name", TESTED)
+# the classes and Wahba's problem compile the most (10-15 s each): with the slow tests
+SLOW = {"spline.RotationSpline", "align.align_vectors", "slerp.Slerp"}
+
+
+@pytest.mark.parametrize(
+    "name", [pytest.param(n, marks=pytest.mark.slow) if n in SLOW else n for n in TESTED]
+)
 def test_transformations(name):
     """Every case of `name`, all run (one test per function: the inputs, the eager values and
     the derivatives' references are shared), the failures reported together."""

@@ -146,6 +146,7 @@ def test_static_case_matches_davenport():
     np.testing.assert_allclose(jnp.diagonal(res.cov[-1])[:3], want, rtol=1e-6)
 
 
+@pytest.mark.slow  # ~12 s: the filter and its NumPy twin compiled with NaN rows
 def test_nan_rows_skipped():
     """A row with a NaN is no update: the state is the prediction (the NumPy filter skips it),
     the innovation and NIS are NaN, the log-likelihood sums the other rows."""

@@ -178,6 +178,7 @@ def test_heavy_top_through_gpu_kernel(on_gpu_kernel):
         np.testing.assert_allclose(mapped[i], one(coms[i], ExplicitRK(rj.RK4())), atol=2e-15)
 
 
+@pytest.mark.slow  # ~18 s: Pallas' interpreter
 def test_darboux_rotation_vector_through_gpu_kernel(on_gpu_kernel):
     """The Darboux rotation-vector model with its shadow switch (the step-end map, evaluated in
     the kernel after every step) at 6 rad/s, where |θ| passes π: the Diffrax path's rotations,
@@ -396,3 +397,20 @@ def test_step_end_map_lowers_to_triton(triton_modules):
         text = jax.jit(f).trace(*args).lower(lowering_platforms=("cuda",)).as_text()
         assert text.count("__gpu$xla.gpu.triton") == 1
     assert len(triton_modules) == 2 and all("__nv_floor" in m for m in triton_modules)
+
+
+@pytest.mark.slow  # forward mode compiles the Diffrax path beside the Pallas kernel
+def test_gpu_kernel_forward_mode(on_gpu_kernel):
+    """`jax.jacfwd` through the Pallas kernel with default options (issue 34) equals its own
+    reverse mode (the Pallas adjoint) and central differences, w.r.t. a traced gain."""
+    w, q = _inputs(2)
+
+    def f(g):
+        torque = _gravity_gradient(g[0])
+        return rj.simulate(BODY, w, q, TS, torque=torque, solver=rj.RK4(), **FIXED).omega[:, -1]
+
+    g = jnp.array([0.3])
+    forward, reverse = jax.jacfwd(f)(g), jax.jacrev(f)(g)
+    np.testing.assert_allclose(forward, reverse, rtol=0, atol=1e-12)
+    eps = 1e-6
+    np.testing.assert_allclose(forward[..., 0], (f(g + eps) - f(g - eps)) / (2 * eps), atol=1e-8)

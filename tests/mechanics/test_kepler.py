@@ -81,6 +81,7 @@ def test_elements_against_perihelion_closed_forms():
     np.testing.assert_allclose(kepler.orbit_radius(0.0, el.p, el.eccentricity, True), rt)
 
 
+@pytest.mark.slow  # ~23 s: long orbits at tight tolerances
 def test_period_and_third_law_from_simulation():
     el = kepler.elements(R0, V0, M_, ALPHA)
     assert float(el.eccentricity) > 0.3  # a properly eccentric orbit

@@ -34,6 +34,7 @@ def _end(traj):
     return jnp.concatenate([traj.omega[-1], traj.quat[-1]])
 
 
+@pytest.mark.slow  # ~17 s: forward mode compiles the Diffrax path beside the kernel
 def test_kernel_torque_gain_and_initial_state():
     """The CPU kernel with a torque whose gain is closed over (lifted into the kernel's
     parameters): derivatives w.r.t. the gain and the initial rate."""
@@ -165,3 +166,26 @@ def test_fallback_in_every_mode():
         return P[-1].reshape(-1)
 
     _agree(f, a0)
+
+
+@pytest.mark.parametrize(
+    "body, kinematics",
+    [
+        (rj.RigidBody(jnp.array([[2.0, 0.1, 0.0], [0.1, 3.0, 0.0], [0.0, 0.0, 4.0]])), "quat"),
+        (rj.RigidBody(jnp.array([1.0, 2.0, 3.0])), "rotvec"),
+    ],
+    ids=["full_tensor", "rotvec"],
+)
+def test_simulate_under_jit_on_captured_constants(body, kinematics):
+    """`simulate` inside `jax.jit` with `q0` captured from outside (the rotation maps it calls
+    compile nothing of their own there): the eager values."""
+    eager = rj.simulate(body, W0, Q0, TS, kinematics=kinematics, **FIXED)
+
+    @jax.jit
+    def jitted(s):
+        traj = rj.simulate(body, s * W0, Q0, TS, kinematics=kinematics, **FIXED)
+        return traj.quat, traj.omega
+
+    quat, omega = jitted(1.0)
+    np.testing.assert_allclose(quat, eager.quat, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(omega, eager.omega, rtol=0, atol=1e-14)

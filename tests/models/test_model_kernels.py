@@ -161,6 +161,7 @@ def test_scalar_program_equals_jax():
     np.testing.assert_allclose(got, want, rtol=1e-14, atol=1e-14)
 
 
+@pytest.mark.slow  # ~15 s: the gradient compiled on both paths
 def test_sixdof_gradient_through_the_kernel():
     """Reverse mode through the 6-DOF body's kernel (the point of application of the force, a
     constant traced into the kernel's parameters, and the mass): equal to the Diffrax path's
