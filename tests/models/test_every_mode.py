@@ -63,10 +63,11 @@ def test_full_tensor_adaptive():
 @pytest.mark.slow
 def test_heavy_top_sixdof_darboux():
     """The heavy top (kernel), the 6-DOF body with a wrench (kernel) and `darboux`."""
-    top = rj.HeavyTop(rj.RigidBody(jnp.array([1.0, 1.0, 0.5])), com=jnp.array([0.0, 0.0, 1.0]))
+    top = rj.HeavyTop([1.0, 1.4, 1.9], 1.0, [0.1, -0.05, 0.2])
 
     def heavy(w0):
-        traj = rj.simulate_heavy_top(top, w0, jnp.array([0.0, 0.1, 1.0]), TS, **FIXED)
+        gamma0 = jnp.array([0.0, 0.6, 0.8])
+        traj = rj.simulate_heavy_top(top, w0, gamma0, TS, **FIXED)
         return traj.omega[-1]
 
     _agree(heavy, W0)
