@@ -9,9 +9,10 @@ from typing import Any, NamedTuple
 import equinox as eqx
 import jax
 import jax.core
-from jax._src import core as _jax_core  # `trace_state_clean`, not yet in the public `jax.core`
 import jax.numpy as jnp
 import numpy as np
+from jax._src import core as _jax_core  # the trace stack, not in the public `jax.core`
+from jax._src.interpreters import partial_eval as _pe
 from jaxtyping import Array, DTypeLike, Float
 
 from ._custom_types import Mat33, RealLike
@@ -61,14 +62,22 @@ def matrix(x: RealLike, name: str) -> Mat33:
     return x
 
 
-def top_level() -> bool:
-    """True where no JAX transformation is being traced (no `jit`, `scan` body, `vmap`, `grad`,
-    custom rule): only there may a program be compiled with its own XLA options (a `jit` with
-    `compiler_options` cannot be nested), whatever the arguments (arrays captured from outside a
-    `jit` are concrete inside it). JAX's own test of its trace state; where a JAX lacks it,
-    False (the plain program: the same values)."""
-    clean = getattr(_jax_core, "trace_state_clean", None)
-    return bool(clean()) if clean is not None else False
+def staging() -> bool:
+    """True where a program is being traced to be compiled (inside `jax.jit`, a `scan` body, a
+    custom rule's trace...), False in eager code, also under eager `jax.vmap`, `jax.jvp` or
+    `jax.grad`, whose operations on concrete arrays run at once. Only where nothing is staged
+    may a program be compiled with its own XLA options (a `jit` with `compiler_options` cannot
+    be nested), whatever the arguments (arrays captured from outside a `jit` are concrete
+    inside it). Read from JAX's trace stack; where a JAX lacks it, True (the plain program: the
+    same values)."""
+    trace = getattr(getattr(_jax_core, "trace_ctx", None), "trace", None)
+    if trace is None:
+        return True
+    while trace is not None and not isinstance(trace, _jax_core.EvalTrace):
+        if isinstance(trace, _pe.DynamicJaxprTrace | _pe.JaxprTrace):
+            return True
+        trace = getattr(trace, "parent_trace", None)
+    return trace is None
 
 
 def is_concrete(x: object) -> bool:

@@ -26,7 +26,7 @@ from typing import Any
 import equinox as eqx
 import jax
 
-from ._checks import top_level
+from ._checks import staging
 
 QUICK_COMPILE = {"xla_cpu_use_fusion_emitters": False}
 SMALL_PROGRAM = {**QUICK_COMPILE, "xla_backend_optimization_level": 0}
@@ -37,10 +37,10 @@ class quick_compile_jit:  # noqa: N801 - used as a decorator, like eqx.filter_ji
     the first call (the options need a backend, which importing rigidjax must not start). An XLA
     that does not know the options rejects them at that first compile ("No such compile
     option"): then `fn` is compiled with its defaults, for good. (No probe compile to find out
-    first: it cost 5-10 ms of a rotation map's 50 ms first call, measured here.) Inside any
-    transformation (`_checks.top_level` false: a `jit` with its arguments or constants captured
-    from outside, a `scan` body, a custom rule) it is the plain `eqx.filter_jit(fn)`, nested in
-    the caller's program: XLA takes options only at the top."""
+    first: it cost 5-10 ms of a rotation map's 50 ms first call, measured here.) Where a program
+    is being staged (`_checks.staging`: a `jit` with its arguments or constants captured from
+    outside, a `scan` body, a custom rule's trace) it is the plain `eqx.filter_jit(fn)`, nested
+    in the caller's program: XLA takes options only at the top."""
 
     def __init__(self, fn: Callable, small: bool = False):
         self._fn = fn
@@ -50,7 +50,7 @@ class quick_compile_jit:  # noqa: N801 - used as a decorator, like eqx.filter_ji
         functools.update_wrapper(self, fn)
 
     def __call__(self, *args, **kwargs):
-        if not top_level():  # inside a transformation: the plain program, nested in the caller's
+        if staging():  # the plain program, nested in the one being staged
             return self._plain(*args, **kwargs)
         if self._jitted is None:
             self._jitted = self._build(self._options)

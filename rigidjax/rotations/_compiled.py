@@ -4,9 +4,10 @@ and an eager `jax.jacfwd`/`jacrev`/`grad` of it, costs one compilation (issue 26
 Op by op, an eager call of a map dispatches (and on its first call compiles) dozens of small
 programs, its derivatives several times more: seconds in a fresh process. Instead:
 
-- concrete arrays outside any transformation (`_checks.top_level`: not inside a `jit` that
-  captured them, a `scan` body, ...): one program, `rigidjax._compile.quick_compile_jit` (XLA's classic CPU
-  emitters, which compile these small programs about twice as fast; for single elements also
+- concrete arrays where no program is being staged (`_checks.staging`: not inside a `jit`
+  that captured them, a `scan` body, ...; eager `vmap`/`jvp` stage nothing): one program,
+  `rigidjax._compile.quick_compile_jit` (XLA's classic CPU emitters, which compile these small
+  programs about twice as fast; for single elements also
   LLVM's lowest optimisation level, `SMALL_PROGRAM`);
 - tracers of an eager `jvp`/`grad`/`jacfwd`/`jacrev` (their primal known, `concrete_value`) of
   single elements (no batch dimensions): a `jax.custom_jvp` whose tangent is `J · dx`, with the
@@ -31,7 +32,7 @@ import jax
 import jax.numpy as jnp
 from jax.custom_derivatives import SymbolicZero
 
-from .._checks import concrete_value, is_concrete, top_level
+from .._checks import concrete_value, is_concrete, staging
 from .._compile import quick_compile_jit
 
 
@@ -57,7 +58,7 @@ class _Compiled:
 
     def __call__(self, *arrays: Any, **static: Hashable) -> Any:
         single = all(jnp.ndim(a) == n for a, n in zip(arrays, self._ndims, strict=True))
-        if all(map(is_concrete, arrays)) and top_level():
+        if all(map(is_concrete, arrays)) and not staging():
             return (self._small if single else self._quick)(*arrays, **static)
         if single and all(concrete_value(a) is not None for a in arrays):
             return self._differentiated(tuple(sorted(static.items())))(*arrays)
@@ -91,7 +92,7 @@ class _Compiled:
         def f_jvp(primals: tuple, tangents: tuple) -> tuple[Any, Any]:
             # Jacobians only for the arguments with a tangent (`so3.distance(E, P)`: P's)
             live = tuple(k for k, t in enumerate(tangents) if not isinstance(t, SymbolicZero))
-            vj = quick if all(map(is_concrete, primals)) and top_level() else plain
+            vj = quick if all(map(is_concrete, primals)) and not staging() else plain
             out, jacobians = vj(*primals, argnums=live)
             if not live:
                 return out, jnp.zeros_like(out)
