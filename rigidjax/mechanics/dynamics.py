@@ -209,6 +209,7 @@ def simulate(
     controller: Callable[..., Array] | None = None,
     control_period: float | None = None,
     controller_params: Any = None,
+    controller_key: Any = None,
     torque_frame: Frame = "body",
     options: SolveOptions | None = None,
     check: bool = True,
@@ -254,7 +255,8 @@ def simulate(
 
     A `rigidjax.Gyrostat` as `body` integrates `I Ω̇ + Ω × (IΩ + h) = τ − ḣ` instead
     (`gyrostat.simulate_gyrostat`, which takes `wheel_speed0`, `h_rate`, and a sampled-data
-    `controller` with `control_period` and `controller_params`).
+    `controller` with `control_period` and `controller_params`; `controller_key`, a PRNG key
+    per body, seeds a `rigidjax.control.StatefulController`'s memory: its simulated sensors).
     """
     if isinstance(body, Gyrostat):
         from .gyrostat import simulate_gyrostat  # it imports this module
@@ -262,8 +264,8 @@ def simulate(
         return simulate_gyrostat(
             body, omega0, q0, ts, torque, kinematics, wheel_speed0=wheel_speed0,
             h_rate=h_rate, controller=controller, control_period=control_period,
-            controller_params=controller_params, torque_frame=torque_frame, options=options,
-            check=check, **solve_kwargs,
+            controller_params=controller_params, controller_key=controller_key,
+            torque_frame=torque_frame, options=options, check=check, **solve_kwargs,
         )  # fmt: skip
     gyro = dict(
         wheel_speed0=wheel_speed0,
@@ -271,6 +273,7 @@ def simulate(
         controller=controller,
         control_period=control_period,
         controller_params=controller_params,
+        controller_key=controller_key,
     )
     given = sorted(k for k, v in gyro.items() if v is not None)
     if given:

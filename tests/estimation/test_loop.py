@@ -98,6 +98,14 @@ def test_closed_loop_errors_consistent_and_reproducible():
     again = _run(keys[::-1])
     np.testing.assert_array_equal(again.controller_log, tr.controller_log[::-1])
     np.testing.assert_array_equal(again.quat, tr.quat[::-1])
+    # the keys given to `simulate` itself: the same draws
+    fixed = dict(solver=rj.RK4(), stepsize_controller=diffrax.ConstantStepSize(), dt0=0.25)
+    _, _, ctrl = _setup()
+    keyed = rj.simulate(
+        sc, jnp.zeros((16, 3)), None, tr.ts, controller=ctrl, controller_key=keys,
+        control_period=0.5, **fixed,
+    )  # fmt: skip
+    np.testing.assert_array_equal(keyed.quat, tr.quat)
 
 
 @pytest.mark.slow  # ~40 s: the Diffrax path with jumps compiles slowly
