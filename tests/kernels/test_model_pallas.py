@@ -285,6 +285,7 @@ def test_kernel_lowers_to_triton(triton_modules, dtype):
         assert module.count("scf.for") == 2  # the intervals and, inside, their steps
 
 
+@pytest.mark.slow  # ~15 s: Pallas' interpreter
 def test_forward_kernel_writes_the_checkpoints():
     """The forward kernel of a differentiated solve (`run(..., longest=12)`: checkpoints every
     L = 4 steps, C = 3 slots per interval) gives the plain kernel's states bit for bit, and in

@@ -106,6 +106,7 @@ def test_rotation_vector_with_its_shadow_switch(frame):
     assert np.all(np.linalg.norm(theta, axis=-1) <= np.pi * (1 + 1e-12))
 
 
+@pytest.mark.slow  # ~19 s: the gradient compiled on both paths
 def test_rotation_vector_gradient_across_shadow_switches():
     """The kernel's adjoint through the shadow map (Model::ET): the gradient w.r.t. a parameter
     of ω(t) and w.r.t. the output times (the reverse mode that carries the steps' times)

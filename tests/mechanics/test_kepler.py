@@ -109,6 +109,7 @@ def test_period_and_third_law_from_simulation():
     assert abs(T_sim**2 / a**3 / (4 * np.pi**2 * M_ / ALPHA) - 1) <= 1e-8
 
 
+@pytest.mark.slow  # ~15 s: long orbits at tight tolerances
 def test_lrl_conserved_points_to_perihelion_and_orbit_equation():
     ts = TS
     tr = kepler.simulate_central(R0, V0, ts, mass=M_, alpha=ALPHA)
