@@ -3,6 +3,7 @@ every backend (`rigidjax.models.solve`)."""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from collections.abc import Callable
@@ -59,7 +60,11 @@ class TreeModel(eqx.Module):
         size, params = int(starts[-1]), sum(math.prod(s) for s in self.p_shapes)
         jump = None if self.jump_vf is None else self.jump
         record = (0, 0) if self.record is None else (int(starts[self.record]), sizes[self.record])
-        end = None if self.end_vf is None else self.end
+        # the step-end map of a copy without the field: the field may hold the tracers of a
+        # transformation (traced constants, lifted for the kernels), which a map used in
+        # another trace (`_modes`' forward mode) must not carry along
+        bare = dataclasses.replace(self, vf=_no_field, jump_vf=None)
+        end = None if self.end_vf is None else bare.end
         return Model(self.field, size, params, unit, self.name, jump, record, end)
 
     def unravel(self, flat: Array, which: str) -> Any:
@@ -88,6 +93,10 @@ class TreeModel(eqx.Module):
 
     def _on_trees(self, fn: Callable, t, y, p):
         return _joined(fn(t, self.unravel(y, "y"), self.unravel(p, "p")), y.dtype)
+
+
+def _no_field(t, y, args):
+    raise AssertionError("the step-end map's copy of a tree model has no field")
 
 
 def _joined(tree: Any, dtype) -> Array:
