@@ -261,12 +261,10 @@ def solve_saved(
     adjoint = diffrax.RecursiveCheckpointAdjoint() if options.adjoint is None else options.adjoint
     meter = diffrax.NoProgressMeter() if options.progress_meter is None else options.progress_meter
 
-    def solver_for(
-        adjoint: diffrax.AbstractAdjoint, end: Callable | None
-    ) -> diffrax.AbstractSolver:
-        return method if end is None else StepEndMap.wrap(method, end, adjoint)
+    def solver_for(adjoint: diffrax.AbstractAdjoint) -> diffrax.AbstractSolver:
+        return method if step_end is None else StepEndMap.wrap(method, step_end, adjoint)
 
-    solver = solver_for(adjoint, step_end)
+    solver = solver_for(adjoint)
     controller = options.stepsize_controller
     if controller is None:
         d_rtol, d_atol = default_tolerances(ts.dtype, tight=tight)
@@ -293,8 +291,7 @@ def solve_saved(
         flows = isinstance(method, AbstractFlowSolver)
         if options.adjoint is None and type(term) in (diffrax.ODETerm, LieTerm) and not flows:
             one_field = cast(diffrax.ODETerm | LieTerm, term)  # (not a subclass: rebuilt)
-            maps = (one_field, step_end, solver_for)
-            ys, stats, result = _in_every_mode(maps, steps, ts, y0, args, dt0)
+            ys, stats, result = _in_every_mode(one_field, solver_for, steps, ts, y0, args, dt0)
         else:
             ys, stats, result = _solve_intervals(
                 term, solver, controller, ts, y0, args, dt0, options.max_steps, adjoint, meter
@@ -310,28 +307,26 @@ def solve_saved(
     return ys, stats, result
 
 
-def _in_every_mode(maps: tuple, steps: tuple, ts, y0, args, dt0):
+def _in_every_mode(
+    term: diffrax.ODETerm | LieTerm, solver_for: Callable, steps: tuple, ts, y0, args, dt0
+):
     """`_solve_intervals` with the default adjoint, differentiable in every mode and order
     (`_modes.both_modes`): Diffrax's checkpointed reverse mode, forward mode by `ForwardMode`,
-    higher orders by `DirectAdjoint`. `maps`: the term, the step-end map (or None) and
-    `solver_for(adjoint, end)`. The tracers that the field, the step-end map and the
-    controller close over (a torque's gain under `jax.grad`) become explicit inputs
-    (`equinox.filter_closure_convert`), as a custom rule needs: the rule traces its other
-    modes later, where a closed-over tracer would have escaped its trace."""
-    term, step_end, solver_for = maps
+    higher orders by `DirectAdjoint`. The field's closed-over tracers (a torque's gain under
+    `jax.grad`) become explicit inputs (`equinox.filter_closure_convert`), as a custom rule
+    needs."""
     controller, max_steps, meter = steps
     kind = type(term)  # a term of one vector field: an `ODETerm`, or a `LieTerm` (RKMK)
     field = eqx.filter_closure_convert(term.vf, ts[0], y0, args)
-    end = None if step_end is None else eqx.filter_closure_convert(step_end, y0)
-    dynamic, static = eqx.partition((field, end, controller), eqx.is_array)
+    dynamic, static = eqx.partition(field, eqx.is_array)
 
     def run(adjoint: diffrax.AbstractAdjoint, values: bool) -> Callable:
         def solve(y0, args, ts, dt0, dynamic):
-            field, end, controller = eqx.combine(dynamic, static)
+            term = kind(eqx.combine(dynamic, static))
+            solver = solver_for(adjoint)
             out = _solve_intervals(
-                kind(field), solver_for(adjoint, end), controller, ts, y0, args, dt0,
-                max_steps, adjoint, meter,
-            )  # fmt: skip
+                term, solver, controller, ts, y0, args, dt0, max_steps, adjoint, meter
+            )
             return out[0] if values else (out[0], out[1:])
 
         return solve
