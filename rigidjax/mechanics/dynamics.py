@@ -232,14 +232,15 @@ def simulate(
     quaternions, no interpolation; `max_steps` bounds each output interval). Bodies in
     principal axes with quaternion kinematics, with or without a torque, at fixed steps
     (`diffrax.ConstantStepSize()` and `dt0`) of an explicit Runge–Kutta method (`RK4()`, the
-    default Tsit5, `diffrax.Dopri8()`, ...: `rigidjax.kernels.tableau.METHODS`; reverse-mode or
-    no derivatives) run on the CPU in a kernel written from the JAX field and the torque
+    default Tsit5, `diffrax.Dopri8()`, ...: `rigidjax.kernels.tableau.METHODS`; the default
+    adjoint) run on the CPU in a kernel written from the JAX field and the torque
     (`rigidjax.models`, `rigidjax.kernels.model`), built on first use: the same steps and
-    numbers as the Diffrax path, with its own adjoint for `jax.grad`; 0.8–0.9× a hand-written C
-    kernel of the same model (benchmarks/results/models.json); a torque the kernel cannot take
-    runs through Diffrax with one warning. On a GPU the same model, torque included, runs in a
-    Pallas kernel that fuses the time loop (`rigidjax.kernels.model_pallas`; gradients
-    through Diffrax);
+    numbers as the Diffrax path, with its own adjoint for `jax.grad` (forward mode, `jax.jacfwd`
+    and `jax.hessian` through the Diffrax path on the same steps: `rigidjax._modes`); at least
+    the speed of a hand-written C kernel of the same model (benchmarks/results/models.json); a
+    torque the kernel cannot take runs through Diffrax with one warning. On a GPU the same
+    model, torque included, runs in a Pallas kernel that fuses the time loop
+    (`rigidjax.kernels.model_pallas`, with its own reverse kernel);
     `ExplicitRK(method)` runs the same scheme through Diffrax.
     `solver=rigidjax.ExactFreeBody()` (no torque) steps by the exact Euler–Poinsot flow, exact
     to rounding for any step (by default one step from `ts[0]` to each output time, without a
