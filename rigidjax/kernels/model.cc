@@ -539,6 +539,10 @@ ffi::Error ModelStepsBack(ffi::Buffer<DT> y, ffi::Buffer<ffi::S32> n, ffi::Buffe
                     group);
 }
 
+#ifdef RJ_ADAPTIVE
+#include "model_adaptive.h"  // adaptive steps: AdaptiveSteps, AdaptiveStepsBack
+#endif
+
 }  // namespace
 
 RJ_KERNEL

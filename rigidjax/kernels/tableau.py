@@ -32,12 +32,35 @@ def coefficients(method: type[diffrax.AbstractERK]) -> Float[np.ndarray, "rows s
     return a[np.append(keep, a.shape[1])][:, keep]
 
 
-def stage_times(method: type[diffrax.AbstractERK]) -> Float[np.ndarray, " stages"]:
-    """The stage times `c_i` (stage i at `t + c_i h`) of the stages `coefficients` keeps."""
+ADAPTIVE: tuple[type[diffrax.AbstractERK], ...] = (
+    diffrax.Bosh3,
+    diffrax.Tsit5,
+    diffrax.Dopri5,
+    diffrax.Dopri8,
+)
+"""The embedded pairs with an adaptive kernel (`model_adaptive.h`)."""
+
+
+def embedded(method: type[diffrax.AbstractERK]) -> Float[np.ndarray, "rows stages"]:
+    """The whole tableau of an embedded pair as one `(S + 2, S)` array: rows `i < S` the stage
+    coefficients, row `S` the weights `b_l`, row `S + 1` the error weights `e_l` (Diffrax's
+    `b_error`); every stage kept (the last one of a first-same-as-last pair feeds the error)."""
+    a = _tableau(method)[0]
+    tab = method.tableau
+    assert isinstance(tab, diffrax.ButcherTableau) and tab.b_error is not None
+    return np.vstack([a, np.asarray(tab.b_error, dtype=float)[None]])
+
+
+def all_stage_times(method: type[diffrax.AbstractERK]) -> Float[np.ndarray, " stages"]:
+    """The stage times `c_i` of every stage."""
     tab = method.tableau
     assert isinstance(tab, diffrax.ButcherTableau)
-    c = np.concatenate([[float(tab.c1)], np.asarray(tab.c, dtype=float)])
-    return c[_tableau(method)[1]]
+    return np.concatenate([[float(tab.c1)], np.asarray(tab.c, dtype=float)])
+
+
+def stage_times(method: type[diffrax.AbstractERK]) -> Float[np.ndarray, " stages"]:
+    """The stage times `c_i` (stage i at `t + c_i h`) of the stages `coefficients` keeps."""
+    return all_stage_times(method)[_tableau(method)[1]]
 
 
 def _tableau(method: type[diffrax.AbstractERK]) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,214 @@
+"""Any model's ODE at adaptive steps of an embedded Runge–Kutta pair (Bosh3, Tsit5, Dopri5,
+Dopri8) on the CPU, each body its own step size: the model kernel (`kernels.model`, `model.cc`)
+built with `model_adaptive.h`, step for step Diffrax's `PIDController` on the Diffrax path of one
+body (its error norm, coefficients, initial-step heuristic and the clipping of the last step to
+each output time), so that a body's trajectory is the same alone, in a batch or under
+`jax.vmap`. Reverse mode: the kernel's discrete adjoint of the accepted steps (whose sizes are
+constants, as Diffrax's `stop_gradient` of the controller makes them), recomputed interval by
+interval from the saved states."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from typing import NamedTuple, cast
+
+import diffrax
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.custom_derivatives import SymbolicZero
+from jaxtyping import Array, Float, Int
+
+from . import tableau
+from ._build import load
+from .model import _NAME, Hoisted, _header, _headers
+
+__all__ = ["AdaptiveKernel", "build", "controls", "run"]
+
+CONTROLS = 12
+"""The controller's values, as `Ctl` of `model_adaptive.h` reads them: rtol, atol, safety,
+factormin, factormax, dtmax (∞ for none), dt0 (NaN: the heuristic), the exponents β1, β2, β3
+of the inverse scaled errors, 1 / the error order, max_steps."""
+
+
+class AdaptiveKernel(NamedTuple):
+    """A built adaptive kernel: its forward handler's name, the header of its reverse mode
+    (built and registered on the first gradient), sizes (P counts the lifted constants) and the
+    components `(R0, NR)` that each jump records."""
+
+    forward: str
+    backward_header: tuple[str, str]
+    n: int
+    p: int
+    record: tuple[int, int]
+
+    def backward(self) -> str:
+        """The reverse mode's handler, built and registered on the first call."""
+        text, name = self.backward_header
+        if load(_NAME, (name,), _headers(text, adaptive=True)) is None:
+            raise RuntimeError(
+                "the reverse mode of rigidjax's adaptive model kernel could not be built (see "
+                "the warning); pass solver=rigidjax.ExplicitRK(method) to differentiate "
+                "through Diffrax"
+            )
+        return name
+
+
+def controls(
+    controller: diffrax.AbstractStepSizeController,
+    solver: diffrax.AbstractSolver,
+    dt0: float | Array | None,
+    max_steps: int,
+    dtype,
+) -> Array | None:
+    """The controller's values for the kernel (`CONTROLS`), or None where `controller` asks for
+    what the kernel does not do: a controller other than a plain `diffrax.PIDController`
+    (`dtmin`, `step_ts`, `jump_ts` unset), or a solver without an adaptive kernel."""
+    if type(solver) not in tableau.ADAPTIVE or type(controller) is not diffrax.PIDController:
+        return None
+    pid = cast(diffrax.PIDController, controller)
+    if pid.dtmin is not None or pid.error_order is not None:
+        return None
+    if getattr(pid, "step_ts", None) is not None or getattr(pid, "jump_ts", None) is not None:
+        return None
+    order = solver.error_order(diffrax.ODETerm(lambda t, y, args: y))
+    assert order is not None
+    coeffs = (
+        pid.icoeff + pid.pcoeff + pid.dcoeff,
+        -(pid.pcoeff + 2 * pid.dcoeff),
+        pid.dcoeff,
+    )
+    values = [
+        pid.rtol,
+        pid.atol,
+        pid.safety,
+        pid.factormin,
+        pid.factormax,
+        math.inf if pid.dtmax is None else pid.dtmax,
+        math.nan if dt0 is None else dt0,
+        *(c / order for c in coeffs),
+        1 / order,
+        max_steps,
+    ]
+    return jnp.stack([jnp.asarray(v, dtype) for v in values])
+
+
+def build(
+    hoisted: Hoisted,
+    unit: tuple[tuple[int, int], ...],
+    solver: diffrax.AbstractSolver,
+    record: tuple[int, int] = (0, 0),
+) -> AdaptiveKernel | None:
+    """The adaptive kernel of `hoisted` for `solver` (one of `tableau.ADAPTIVE`) in its dtype,
+    its forward part built and registered on first use; None where kernels cannot run here."""
+    dtype = hoisted.dtype
+    if not (
+        type(solver) in tableau.ADAPTIVE
+        and jax.default_backend() == "cpu"
+        and dtype.name in tableau.DTYPES
+    ):
+        return None
+    method = cast(type[diffrax.AbstractERK], type(solver))
+    source = hoisted.source(unit, record)
+    text, name = _header(method, dtype, source, "forward", adaptive=True)
+    if load(_NAME, (name,), _headers(text, adaptive=True)) is None:
+        return None
+    back = _header(method, dtype, source, "backward", False, adaptive=True)
+    return AdaptiveKernel(name, back, hoisted.n, hoisted.p + hoisted.c.shape[0], record)
+
+
+def _call(target: str, shapes: list[jax.ShapeDtypeStruct], *args: Array | np.ndarray) -> list:
+    """The handler `target` on `args` (as `model._call`: an operand `jax.vmap` does not map keeps
+    a leading dimension of 1)."""
+    dtype = shapes[0].dtype
+    call = jax.ffi.ffi_call(target, shapes, vmap_method="expand_dims")
+    cast_args = [a.astype(jnp.int32 if jnp.issubdtype(a.dtype, jnp.integer) else dtype) for a in args]
+    return list(call(*cast_args))
+
+
+Through = Callable[[Array, tuple, Array], tuple[Array, Array]]
+"""`(y0, blocks, ts) -> (ys (B, S, N), recorded (B, R, NR))`: the same solve through Diffrax,
+whose reverse mode differentiates the output times."""
+
+
+def run(
+    kernel: AdaptiveKernel,
+    y0: Float[Array, "B N"],
+    blocks: Sequence[Float[Array, "#B _"]],
+    ts: Float[Array, " T"],
+    ctl: Float[Array, " 12"],
+    through: Through,
+    jump: np.ndarray | None = None,
+    keep: np.ndarray | None = None,
+) -> tuple[Float[Array, "B S N"], Float[Array, "B R NR"], Int[Array, "B 5"]]:
+    """The states `(B, S, N)` at the times `keep (T,)` selects (all by default), the components
+    `kernel.record` after each jump `(B, R, NR)` (the intervals `jump (T − 1,)` flags start with
+    the jump map), and per body `(B, 5)`: attempted, accepted and rejected steps, the leading
+    output times reached, and the result (0 successful, 1 max_steps reached, 2 non-finite).
+    The parameters and lifted constants come in `blocks`, each `(B or 1, Pj)`; the controller
+    in `ctl` (`controls`). Reverse mode by the kernel's adjoint of the accepted steps; where the
+    output times are differentiated, by `through`'s."""
+    K, B, dtype = ts.shape[0] - 1, y0.shape[0], y0.dtype
+    jumps = np.zeros(K, bool) if jump is None else np.asarray(jump, bool)
+    kept = np.arange(K + 1) if keep is None else np.flatnonzero(np.asarray(keep, bool))
+    R0, NR = kernel.record
+    at = np.flatnonzero(jumps) if NR else np.zeros(0, int)
+    slots = np.zeros(K, np.int32)
+    slots[at] = np.arange(1, at.size + 1)
+    jmp = np.where(jumps, np.maximum(slots, 1), 0).astype(np.int32)
+    every = np.arange(1, K + 2, dtype=np.int32)
+    save = np.zeros(K + 1, np.int32)
+    save[kept] = np.arange(1, kept.size + 1)
+    widths = np.cumsum([0, *(b.shape[1] for b in blocks)])
+    every_kept = kept.size == K + 1
+
+    def call(y0, blocks, ts, ctl, save, S):
+        shapes = [
+            jax.ShapeDtypeStruct((B, S, kernel.n), dtype),
+            jax.ShapeDtypeStruct((B, at.size, NR), dtype),
+            jax.ShapeDtypeStruct((B, K), dtype),
+            jax.ShapeDtypeStruct((B, 5), jnp.int32),
+        ]
+        return _call(kernel.forward, shapes, y0, ts, jmp, save, ctl, *blocks)
+
+    def forward(y0, blocks, ts, ctl):
+        y, rec, _, st = call(y0, blocks, ts, ctl, save, kept.size)
+        return y, rec, st
+
+    def run_fwd(y0, blocks, ts, ctl):
+        perturbed = ts.perturbed
+        y0, ts, ctl = y0.value, ts.value, ctl.value
+        blocks = tuple(b.value for b in blocks)
+        if perturbed:
+            out = forward(y0, blocks, ts, ctl)
+            _, pullback = jax.vjp(through, y0, blocks, ts)
+            return out, (pullback,)
+        y, rec, hk, st = call(y0, blocks, ts, ctl, every, K + 1)
+        return (y if every_kept else y[:, kept], rec, st), (y, blocks, ts, ctl, hk)
+
+    def run_bwd(residuals, g):
+        shapes = [(B, kept.size, kernel.n), (B, at.size, NR)]
+        gy_kept, g_rec = (
+            jnp.zeros(shape, dtype) if isinstance(x, SymbolicZero) else x
+            for x, shape in zip(g[:2], shapes, strict=True)
+        )
+        if len(residuals) == 1:
+            y0b, gb, tb = residuals[0]((gy_kept, g_rec))
+            return y0b, gb, tb, None
+        y, blocks, ts, ctl, hk = residuals
+        gy = gy_kept if every_kept else jnp.zeros_like(y).at[:, kept].add(gy_kept)
+        if at.size:  # a command is held after its jump to the next time
+            gy = gy.at[:, at + 1, R0 : R0 + NR].add(g_rec)
+        out = [jax.ShapeDtypeStruct((B, kernel.n), dtype), jax.ShapeDtypeStruct((B, kernel.p), dtype)]
+        args = (y, ts, jmp, every, ctl, hk, gy, *blocks)
+        y0b, pb = _call(kernel.backward(), out, *args)
+        gb = [
+            pb[:, a:b].sum(axis=0, keepdims=True) if block.shape[0] == 1 else pb[:, a:b]
+            for block, a, b in zip(blocks, widths[:-1], widths[1:], strict=True)
+        ]
+        return y0b, tuple(gb), None, None
+
+    solve = jax.custom_vjp(forward)
+    solve.defvjp(run_fwd, run_bwd, symbolic_zeros=True)
+    return solve(y0, tuple(blocks), ts, ctl)

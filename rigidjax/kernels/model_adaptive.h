@@ -1,0 +1,423 @@
+// Adaptive steps of an embedded explicit Runge–Kutta pair on rigidjax/kernels/model.cc's model,
+// each body its own step size: Diffrax's PIDController, step for step (included at the end of
+// model.cc's anonymous namespace in the builds whose model.h defines RJ_ADAPTIVE).
+//
+//   Tab (model.h)  all S stages (none dropped: the last one feeds the error estimate), row S
+//                  the weights b_l, row S + 1 the error weights e_l
+//   one attempt    u = y + h Σ b_l k_l, its unit groups normalised, then E;  err = h Σ e_l k_l
+//   scaled error   ε = RMS_j err_j / (atol + rtol max(|y_j|, |u_j|))  (u ← y where u has NaN,
+//                  err_j NaN ← ∞)
+//   accept         ε < 1;  next size h' = h · clip(safety ε^−β1 ε_prev^−β2 ε_prev2^−β3,
+//                  accepted: [1, factormax], rejected: [factormin, safety]), min(h', dtmax)
+//   the end        a proposal within 100 ulp of the interval's end t1 becomes t1 (accepted)
+//                  or halves the rest (rejected), as `diffrax.diffeqsolve`
+//   intervals      one solve per output interval [ts[k], ts[k+1]] from the previous one's mean
+//                  accepted step (the first from dt0 or Hairer's initial-step heuristic; a model
+//                  with a jump map from dt0 or the heuristic at every interval); at most
+//                  max_steps attempts each; a non-finite state is not integrated further
+//
+// Shapes (leading…: as model.cc): y0 (…, B, N);  ts (…, T);  jump (…, T − 1) int32 as model.cc's;
+// save (…, T) int32 0 or 1 + the slot of y;  ctl (…, 12) the controller (Ctl);  blocks as model.cc.
+// Forward: y (L…, B, S, N), rec (L…, B, R, NR), hk (L…, B, T − 1) each interval's first step,
+// st (L…, B, 5) int32 (attempts, accepted, rejected, valid output times, result: 0 successful,
+// 1 max_steps reached, 2 non-finite). Reverse: from y (…, B, T, N) (every state), ts, jump,
+// save, ctl, hk (…, B, T − 1), gy (…, B, T, N) and the blocks, y0b (L…, B, N), pb (L…, B, P):
+// the discrete adjoint of the accepted steps (the step sizes are constants, as Diffrax's
+// `stop_gradient` of the controller makes them), recomputed interval by interval.
+#pragma once
+
+template <typename T>
+struct Ctl {
+  T rtol, atol, safety, fmin, fmax, dtmax, dt0, c1, c2, c3, inv_order;
+  int64_t max_steps;
+  explicit Ctl(const T* c)
+      : rtol(c[0]), atol(c[1]), safety(c[2]), fmin(c[3]), fmax(c[4]), dtmax(c[5]), dt0(c[6]),
+        c1(c[7]), c2(c[8]), c3(c[9]), inv_order(c[10]), max_steps(static_cast<int64_t>(c[11])) {}
+};
+
+template <typename T>
+RJ_INLINE T Rms(T s) {
+  return std::sqrt(s / T(N));
+}
+
+template <typename T>
+RJ_INLINE bool Finite(const T* y) {
+  bool ok = true;
+  RJ_UNROLL
+  for (int j = 0; j < N; ++j) ok &= std::isfinite(y[j]);
+  return ok;
+}
+
+// Diffrax's `_select_initial_step` (Hairer, Nørsett & Wanner II.4) from y at t: the first
+// step's size.
+template <typename T>
+T InitialStep(const Ctl<T>& c, const T* y, const T* p, T t) {
+  T scale[N], f0[N], f1[N], y1[N];
+  T a = T(0), b = T(0);
+  Model::F(t, y, p, f0);
+  RJ_UNROLL
+  for (int j = 0; j < N; ++j) {
+    scale[j] = c.atol + std::abs(y[j]) * c.rtol;
+    const T u = y[j] / scale[j], v = f0[j] / scale[j];
+    a += u * u;
+    b += v * v;
+  }
+  const T d0 = Rms(a), d1 = Rms(b);
+  const bool small = d0 < T(1e-5) || d1 < T(1e-5);
+  const T h0 = small ? T(1e-6) : T(0.01) * (d0 / d1);
+  RJ_UNROLL
+  for (int j = 0; j < N; ++j) y1[j] = y[j] + h0 * f0[j];
+  Model::F(t + h0, y1, p, f1);
+  T s = T(0);
+  RJ_UNROLL
+  for (int j = 0; j < N; ++j) {
+    const T u = (f1[j] - f0[j]) / scale[j];
+    s += u * u;
+  }
+  const T d2 = Rms(s) / h0, most = std::max(d1, d2);
+  const T h1 = most <= T(1e-15) ? std::max(T(1e-6), h0 * T(1e-3))
+                                 : T(std::pow(T(0.01) / most, c.inv_order));
+  return std::min(T(100) * h0, h1);
+}
+
+// One attempt of size h from y at t: its end u (normalised, mapped; r the inverse norms of its
+// unit groups before) and scaled error.
+template <typename T>
+RJ_INLINE T Attempt(const Ctl<T>& c, const T* y, const T* p, T t, T h, T* u, T* r) {
+  constexpr int S = Tab::S;
+  T k[S][N], z[S][N], err[N];
+  Stages<S>(y, p, t, h, k, z);
+  Combine<S>(y, h, k, u);
+  RJ_UNROLL
+  for (int j = 0; j < N; ++j) err[j] = Model::still[j] ? T(0) : h * Row<S + 1, 0, true>(k, j, T(0));
+  Normalize(u, r);
+  if constexpr (Model::kEnd) {
+    T v[N];
+    Model::E(t + h, u, p, v);
+    RJ_UNROLL
+    for (int j = 0; j < N; ++j) u[j] = v[j];
+  }
+  bool nan = false;
+  RJ_UNROLL
+  for (int j = 0; j < N; ++j) nan |= std::isnan(u[j]);
+  T s = T(0);
+  RJ_UNROLL
+  for (int j = 0; j < N; ++j) {
+    const T e = std::isnan(err[j]) ? std::numeric_limits<T>::infinity() : err[j];
+    const T m = std::max(std::abs(y[j]), std::abs(nan ? y[j] : u[j]));
+    const T q = e / (c.atol + m * c.rtol);
+    s += q * q;
+  }
+  return Rms(s);
+}
+
+// `x^e`, or 1 for a coefficient 0 (as Diffrax skips it).
+template <typename T>
+RJ_INLINE T Power(T x, T e) {
+  return e == T(0) ? T(1) : T(std::pow(x, e));
+}
+
+// The accepted steps of one body in one interval, for the reverse sweep: each step's start
+// state, time, size and inverse norms of its end's unit groups.
+template <typename T>
+struct Taken {
+  std::vector<T> y, t, h, inv;
+  void clear() { y.clear(), t.clear(), h.clear(), inv.clear(); }
+};
+
+struct Count {
+  int64_t attempts = 0, accepted = 0;
+  bool done = true;  // the interval's end reached (false: max_steps reached)
+};
+
+// `diffrax.diffeqsolve` of one body over [a, b] from y (in place) with first step h0 under the
+// PID controller; returns the attempts and accepted steps. With `keep`, the accepted steps into
+// *keep.
+template <typename T>
+Count Interval(const Ctl<T>& c, T* y, const T* p, T a, T b, T h0, Taken<T>* keep = nullptr) {
+  T floor = b;
+  for (int i = 0; i < 100; ++i) floor = std::nextafter(floor, -std::numeric_limits<T>::infinity());
+  T tprev = a, tnext = std::min(a + std::min(h0, c.dtmax), b);
+  T inv1 = T(1), inv2 = T(1);
+  Count n;
+  while (tprev < b && n.attempts < c.max_steps) {
+    T u[N], r[NU];
+    const T h = tnext - tprev;
+    const T eps = Attempt(c, y, p, tprev, h, u, r);
+    ++n.attempts;
+    const bool ok = eps < T(1);
+    T inv = T(1) / eps;
+    const T f = c.safety * Power(inv, c.c1) * Power(inv1, c.c2) * Power(inv2, c.c3);
+    const T factor = std::min(std::max(f, ok ? T(1) : c.fmin), ok ? c.fmax : c.safety);
+    const T dt = std::min(h * factor, c.dtmax);
+    if (inv == T(0) || std::isinf(inv)) inv = T(1);
+    const T t0 = ok ? tnext : tprev, t1 = t0 + dt;
+    if (ok) {
+      if (keep) {
+        keep->y.insert(keep->y.end(), y, y + N);
+        keep->t.push_back(tprev);
+        keep->h.push_back(h);
+        RJ_UNROLL
+        for (int g = 0; g < Model::NU; ++g) keep->inv.push_back(r[g]);
+      }
+      RJ_UNROLL
+      for (int j = 0; j < N; ++j) y[j] = u[j];
+      inv2 = inv1, inv1 = inv;
+      ++n.accepted;
+    }
+    tprev = std::min(t0, b);
+    tnext = t1 > floor ? (ok ? b : tprev + T(0.5) * (b - tprev)) : t1;
+  }
+  n.done = !(tprev < b);
+  return n;
+}
+
+// One body over all intervals: the states at the saved times, each interval's first step, and
+// the counts. `y` holds the body's state (N) on entry.
+template <typename T>
+void Body(const Ctl<T>& c, T* y, const T* p, const T* ts, const int32_t* jump, const int32_t* save,
+          int64_t K, T* out, T* rec, T* hk, int32_t* st) {
+  int64_t attempts = 0, accepted = 0, valid = 1;
+  int32_t result = 0;
+  T h = T(0);
+  const bool guess = std::isnan(c.dt0);
+  if (save[0]) std::memcpy(out + (save[0] - 1) * N, y, N * sizeof(T));
+  for (int64_t k = 0; k < K; ++k) {
+    const T a = ts[k];
+    if constexpr (Model::kJump) {
+      if (jump[k]) {
+        T u[N];
+        Model::J(a, y, p, u);
+        std::memcpy(y, u, sizeof(u));
+        RJ_UNROLL
+        for (int j = 0; j < Model::NR; ++j) rec[(jump[k] - 1) * Model::NR + j] = y[Model::R0 + j];
+      }
+    }
+    const bool alive = Finite(y);
+    const T b = alive ? ts[k + 1] : a;
+    if (k == 0 || Model::kJump) h = guess ? (a + std::min(InitialStep(c, y, p, a), c.dtmax)) - a : c.dt0;
+    hk[k] = h;
+    const Count n = Interval(c, y, p, a, b, h);
+    attempts += n.attempts;
+    accepted += n.accepted;
+    int32_t r = n.done ? (Finite(y) ? 0 : 2) : 1;
+    if (alive) h = (b - a) / T(std::max<int64_t>(n.accepted, 1));
+    if (result == 0) result = r;
+    if (result == 0) ++valid;
+    if (save[k + 1]) std::memcpy(out + (save[k + 1] - 1) * N, y, N * sizeof(T));
+  }
+  st[0] = static_cast<int32_t>(attempts);
+  st[1] = static_cast<int32_t>(accepted);
+  st[2] = static_cast<int32_t>(attempts - accepted);
+  st[3] = static_cast<int32_t>(valid);
+  st[4] = result;
+}
+
+// A body's operands in a call: its row l and column b.
+struct Where {
+  int64_t l, b;
+};
+
+// The checks and strides both handlers share: Shapes (model_layout.h) with jump standing for
+// the fixed steps' n, h and t0, and the strides of ts and ctl.
+template <ffi::DataType DT>
+ffi::Error AdaptiveShapes(ffi::Span<const int64_t> lead, size_t base, ffi::Span<const int64_t> x0,
+                          size_t xbase, ffi::Buffer<DT>& ts, ffi::Buffer<ffi::S32>& jump,
+                          ffi::Buffer<ffi::S32>& save, ffi::Buffer<DT>& ctl,
+                          const ffi::RemainingArgs& blocks, Layout* at, Lead* tl, Lead* cl,
+                          Param<ffi::NativeType<DT>>* prm) {
+  const auto jd = jump.dimensions();
+  ffi::Error e = Shapes<DT>(lead, base, x0, xbase, jd, jd, jd, jd, save.dimensions(), blocks, at, prm);
+  if (e.failure()) return e;
+  if (!Strides(at->rows, ts.dimensions(), 1, tl) || ts.dimensions().back() != at->K + 1 ||
+      !Strides(at->rows, ctl.dimensions(), 1, cl) || ctl.dimensions().back() != 12) {
+    return ffi::Error::InvalidArgument("adaptive model kernel: inconsistent shapes of ts, ctl");
+  }
+  return ffi::Error::Success();
+}
+
+// f(i, where) for every body of the call, in blocks whose parameters are filled into C; the
+// blocks are handed out dynamically (bodies take different numbers of steps).
+template <typename T, class F>
+void EachBody(const Layout& at, const Param<T>* prm, F f) {
+  const int64_t count = at.rows.count() * at.B, blocks = (count + kBlock - 1) / kBlock;
+#pragma omp parallel for schedule(dynamic, 1)
+  for (int64_t blk = 0; blk < blocks; ++blk) {
+    alignas(64) T C[P][kBlock];
+    const int64_t start = blk * kBlock, m = std::min(kBlock, count - start);
+    int64_t row[kBlock], col[kBlock];
+    Place(0, start, m, at.B, row, col);
+    Fill<T>(m, row, col, prm, at.rows, C);
+    for (int64_t i = 0; i < m; ++i) {
+      T p[P];
+      RJ_UNROLL
+      for (int j = 0; j < P; ++j) p[j] = C[j][i];
+      f(p, Where{row[i], col[i]});
+    }
+  }
+}
+
+template <ffi::DataType DT>
+ffi::Error AdaptiveSteps(ffi::Buffer<DT> y0, ffi::Buffer<DT> ts, ffi::Buffer<ffi::S32> jump,
+                         ffi::Buffer<ffi::S32> save, ffi::Buffer<DT> ctl,
+                         ffi::RemainingArgs blocks, ffi::ResultBuffer<DT> y,
+                         ffi::ResultBuffer<DT> rec, ffi::ResultBuffer<DT> hk,
+                         ffi::ResultBuffer<ffi::S32> st) {
+  using T = ffi::NativeType<DT>;
+  Layout at;
+  Lead tl, cl;
+  Param<T> prm[kBlocks];
+  ffi::Error e = AdaptiveShapes<DT>(y->dimensions(), 3, y0.dimensions(), 2, ts, jump, save, ctl,
+                                    blocks, &at, &tl, &cl, prm);
+  if (e.failure()) return e;
+  const auto yd = y->dimensions(), rd = rec->dimensions();
+  const int nd = at.rows.nd;
+  at.S = yd[nd + 1];
+  at.R = rd.size() == yd.size() ? rd[nd + 1] : -1;
+  const size_t bodies = static_cast<size_t>(at.rows.count() * at.B);
+  if (yd[nd + 2] != N || at.R < 0 || rd[nd] != at.B || rd[nd + 2] != Model::NR ||
+      hk->element_count() != bodies * at.K || st->element_count() != bodies * 5) {
+    return ffi::Error::InvalidArgument("adaptive model kernel: inconsistent output shapes");
+  }
+  const T *x0 = y0.typed_data(), *tt = ts.typed_data(), *cc = ctl.typed_data();
+  const int32_t *jj = jump.typed_data(), *ss = save.typed_data();
+  T *yy = y->typed_data(), *rr = rec->typed_data(), *hh = hk->typed_data();
+  int32_t* so = st->typed_data();
+  EachBody<T>(at, prm, [&](const T* p, Where w) {
+    T x[N];
+    RJ_UNROLL
+    for (int j = 0; j < N; ++j) x[j] = x0[at.x0(w.l, w.b, j)];
+    const Ctl<T> c(cc + cl.at(at.rows, w.l));
+    const int64_t body = w.l * at.B + w.b;
+    Body<T>(c, x, p, tt + tl.at(at.rows, w.l), jj + at.jump.at(at.rows, w.l),
+            ss + at.save.at(at.rows, w.l), at.K, yy + at.out(w.l, w.b, 0, 0),
+            rr + (at.R > 0 ? at.rec(w.l, w.b, 0, 0) : 0), hh + body * at.K, so + body * 5);
+  });
+  return ffi::Error::Success();
+}
+
+// The reverse sweep of one body (lam: the cotangent of its last state on entry, of its first
+// on return; pbar: the parameters' cotangents, added to).
+template <typename T>
+void BodyBack(const Ctl<T>& c, const Layout& at, Where w, const T* p, const T* y, const T* ts,
+              const int32_t* jump, const T* hk, const T* gy, T* lam, T* pbar, Taken<T>& tk) {
+  alignas(64) T x[N][kBlock], nx[N][kBlock], inv[NU][kBlock], C[P][kBlock];
+  alignas(64) T lb[N][kBlock], pb[P][kBlock], hb[kBlock], tb[kBlock];
+  RJ_UNROLL
+  for (int j = 0; j < P; ++j) C[j][0] = p[j], pb[j][0] = T(0);
+  RJ_UNROLL
+  for (int j = 0; j < N; ++j) lb[j][0] = lam[j];
+  for (int64_t k = at.K - 1; k >= 0; --k) {
+    const T a = ts[k];
+    T s0[N], s[N];
+    RJ_UNROLL
+    for (int j = 0; j < N; ++j) s0[j] = s[j] = y[at.saved(w.l, w.b, k, j)];
+    const bool jumped = Model::kJump && jump[k];
+    if (jumped) Model::J(a, s0, p, s);
+    const T b = Finite(s) ? ts[k + 1] : a;
+    tk.clear();
+    Interval(c, s, p, a, b, hk[k], &tk);  // s: the interval's end
+    for (int64_t i = static_cast<int64_t>(tk.t.size()) - 1; i >= 0; --i) {
+      const T* start = tk.y.data() + i * N;
+      const T* end = i + 1 < static_cast<int64_t>(tk.t.size()) ? start + N : s;
+      RJ_UNROLL
+      for (int j = 0; j < N; ++j) x[j][0] = start[j], nx[j][0] = end[j];
+      RJ_UNROLL
+      for (int g = 0; g < Model::NU; ++g) inv[g][0] = tk.inv[i * NU + g];
+      hb[0] = tb[0] = T(0);
+      StepBack<T>(1, x, nx, inv, C, 0, tk.t[i], tk.h[i], lb, pb, hb, tb);
+    }
+    if (jumped) {
+      alignas(64) T xj[N][kBlock];
+      RJ_UNROLL
+      for (int j = 0; j < N; ++j) xj[j][0] = s0[j];
+      JumpBack<T>(1, xj, C, a, lb, pb, tb);
+    }
+    RJ_UNROLL
+    for (int j = 0; j < N; ++j) lb[j][0] += gy[at.cot(w.l, w.b, k, j)];
+  }
+  RJ_UNROLL
+  for (int j = 0; j < N; ++j) lam[j] = lb[j][0];
+  RJ_UNROLL
+  for (int j = 0; j < Model::P; ++j) pbar[j] += pb[j][0];
+}
+
+template <ffi::DataType DT>
+ffi::Error AdaptiveStepsBack(ffi::Buffer<DT> y, ffi::Buffer<DT> ts, ffi::Buffer<ffi::S32> jump,
+                             ffi::Buffer<ffi::S32> save, ffi::Buffer<DT> ctl,
+                             ffi::Buffer<DT> hk, ffi::Buffer<DT> gy, ffi::RemainingArgs blocks,
+                             ffi::ResultBuffer<DT> y0b, ffi::ResultBuffer<DT> pb) {
+  using T = ffi::NativeType<DT>;
+  Layout at;
+  Lead tl, cl, hl;
+  Param<T> prm[kBlocks];
+  ffi::Error e = AdaptiveShapes<DT>(y0b->dimensions(), 2, y.dimensions(), 3, ts, jump, save, ctl,
+                                    blocks, &at, &tl, &cl, prm);
+  if (e.failure()) return e;
+  at.S = at.K + 1;
+  at.R = 0;
+  const size_t rows = static_cast<size_t>(at.rows.count() * at.B);
+  if (y.dimensions()[at.rows.nd + 1] != at.K + 1 || !Strides(at.rows, gy.dimensions(), 3, &at.gy) ||
+      !std::equal(y.dimensions().begin() + at.rows.nd, y.dimensions().end(),
+                  gy.dimensions().begin() + at.rows.nd, gy.dimensions().end()) ||
+      !Strides(at.rows, hk.dimensions(), 2, &hl) || pb->element_count() != rows * Model::P) {
+    return ffi::Error::InvalidArgument("adaptive model kernel (reverse): inconsistent shapes");
+  }
+  const T *yy = y.typed_data(), *tt = ts.typed_data(), *cc = ctl.typed_data();
+  const T *hh = hk.typed_data(), *gg = gy.typed_data();
+  const int32_t* jj = jump.typed_data();
+  T *yb = y0b->typed_data(), *po = pb->typed_data();
+#pragma omp parallel
+  {
+    Taken<T> tk;
+    const int64_t count = at.rows.count() * at.B;
+#pragma omp for schedule(dynamic, 16)
+    for (int64_t i = 0; i < count; ++i) {
+      const Where w{i / at.B, i % at.B};
+      T p[P], pbar[P], lam[N];
+      // (the parameters of one body: Fill with one column)
+      alignas(64) T C[P][kBlock];
+      int64_t row[1] = {w.l}, col[1] = {w.b};
+      Fill<T>(1, row, col, prm, at.rows, C);
+      RJ_UNROLL
+      for (int j = 0; j < P; ++j) p[j] = C[j][0], pbar[j] = T(0);
+      RJ_UNROLL
+      for (int j = 0; j < N; ++j) lam[j] = gg[at.cot(w.l, w.b, at.K, j)];
+      const Ctl<T> c(cc + cl.at(at.rows, w.l));
+      BodyBack<T>(c, at, w, p, yy, tt + tl.at(at.rows, w.l), jj + at.jump.at(at.rows, w.l),
+                  hh + hl.at(at.rows, w.l) + w.b * at.K, gg, lam, pbar, tk);
+      RJ_UNROLL
+      for (int j = 0; j < N; ++j) yb[i * N + j] = lam[j];
+      RJ_UNROLL
+      for (int j = 0; j < Model::P; ++j) po[i * Model::P + j] = pbar[j];
+    }
+  }
+  return ffi::Error::Success();
+}
+
+#define RJ_ADAPTIVE_FORWARD(NAME, DT)                                                     \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(NAME, (AdaptiveSteps<ffi::DT>),                          \
+                                ffi::Ffi::Bind()                                          \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                          \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                          \
+                                    .Arg<ffi::Buffer<ffi::S32>>()                         \
+                                    .Arg<ffi::Buffer<ffi::S32>>()                         \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                          \
+                                    .RemainingArgs()                                      \
+                                    .Ret<ffi::Buffer<ffi::DT>>()                          \
+                                    .Ret<ffi::Buffer<ffi::DT>>()                          \
+                                    .Ret<ffi::Buffer<ffi::DT>>()                          \
+                                    .Ret<ffi::Buffer<ffi::S32>>());
+#define RJ_ADAPTIVE_BACKWARD(NAME, DT)                                                    \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(NAME, (AdaptiveStepsBack<ffi::DT>),                      \
+                                ffi::Ffi::Bind()                                          \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                          \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                          \
+                                    .Arg<ffi::Buffer<ffi::S32>>()                         \
+                                    .Arg<ffi::Buffer<ffi::S32>>()                         \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                          \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                          \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                          \
+                                    .RemainingArgs()                                      \
+                                    .Ret<ffi::Buffer<ffi::DT>>()                          \
+                                    .Ret<ffi::Buffer<ffi::DT>>());
