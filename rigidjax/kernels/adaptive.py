@@ -61,9 +61,9 @@ def controls(
     dt0: float | Array | None,
     max_steps: int,
     dtype,
-) -> Array | None:
+) -> np.ndarray | None:
     """The controller's values for the kernel (`CONTROLS`), or None where `controller` asks for
-    what the kernel does not do: a controller other than a plain `diffrax.PIDController`
+    what the kernel does not do (or its values are traced): a controller other than a plain `diffrax.PIDController`
     (`dtmin`, `step_ts`, `jump_ts` unset), or a solver without an adaptive kernel."""
     if type(solver) not in tableau.ADAPTIVE or type(controller) is not diffrax.PIDController:
         return None
@@ -91,7 +91,10 @@ def controls(
         1 / order,
         max_steps,
     ]
-    return jnp.stack([jnp.asarray(v, dtype) for v in values])
+    try:  # NumPy: constants of the program (no tracer for the custom rules to close over)
+        return np.asarray([float(v) for v in values], dtype=dtype)
+    except (TypeError, jax.errors.ConcretizationTypeError):
+        return None  # a traced tolerance: the Diffrax path
 
 
 def build(

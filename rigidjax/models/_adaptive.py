@@ -1,0 +1,71 @@
+"""The adaptive CPU kernel as a backend of `models.solve`: what options it serves, its solve,
+and its per-body results folded into `solve_saved`'s."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, cast
+
+import diffrax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from jaxtyping import Array
+
+from .._integrate import SolveOptions, default_tolerances
+from ..kernels import adaptive, tableau
+
+
+def controls(options: SolveOptions, norm: Callable, dtype) -> np.ndarray | None:
+    """The adaptive kernel's controller values (`kernels.adaptive.controls`) for `options`, or
+    None where they ask for what it does not do: fixed steps, a solver other than an embedded
+    pair of `tableau.ADAPTIVE` (`ExplicitRK(method)` asks for the Diffrax path), a controller
+    other than a plain `PIDController`, another adjoint than the default, a progress meter.
+    Without a controller, `solve_saved`'s: a `PIDController` at `options.rtol`, `options.atol`
+    (`default_tolerances`) with `norm`."""
+    solver = diffrax.Tsit5() if options.solver is None else options.solver
+    if (
+        type(solver) not in tableau.ADAPTIVE
+        or not isinstance(options.adjoint, None | diffrax.RecursiveCheckpointAdjoint)
+        or not isinstance(options.progress_meter, None | diffrax.NoProgressMeter)
+    ):
+        return None
+    controller = options.stepsize_controller
+    if controller is None:
+        rtol, atol = default_tolerances(dtype)
+        controller = diffrax.PIDController(
+            rtol=rtol if options.rtol is None else options.rtol,
+            atol=atol if options.atol is None else options.atol,
+            norm=norm,
+        )
+    elif isinstance(controller, diffrax.PIDController) and not (
+        controller.norm is optx.rms_norm or type(controller.norm) is type(norm)
+    ):
+        return None  # a norm of the user's (the kernel's is the RMS of one body's state)
+    return adaptive.controls(controller, solver, options.dt0, options.max_steps, dtype)
+
+
+def per_body(st: Array, single: bool, kept: np.ndarray) -> tuple[dict[str, Array], Any]:
+    """`(stats, result)` from the kernel's per-body counts `st (B, 5)`: the steps of each body
+    (`(B,)`; scalars for one body, `single`) and the batch's first failure (`num_valid`: the
+    leading kept output times every body reached; `result`: that of a body that failed first)."""
+    counts = st[0] if single else st.T
+    stats = {
+        "num_steps": counts[0],
+        "num_accepted_steps": counts[1],
+        "num_rejected_steps": counts[2],
+    }
+    valid = st[:, 3]
+    first = jnp.argmin(valid)
+    stats["num_valid"] = jnp.sum(jnp.asarray(kept) < valid[first])
+    code = st[first, 4]
+    result = diffrax.RESULTS.where(
+        code == 0,
+        diffrax.RESULTS.successful,
+        diffrax.RESULTS.where(
+            code == 1,
+            cast(diffrax.RESULTS, diffrax.RESULTS.max_steps_reached),
+            cast(diffrax.RESULTS, diffrax.RESULTS.nonfinite),
+        ),
+    )
+    return stats, result
