@@ -1,18 +1,23 @@
-"""The hand-written C reference kernel (`reference/free_body.c`): built at benchmark time with
-the system's C compiler, called in the same process through ctypes."""
+"""The hand-written references: C kernels (`reference/*.c`) built with the system's C compiler
+once per source, flags and compiler (cached on disk, keyed by their hash) and called through
+ctypes in the same process; the CUDA kernels (`reference/models.cu`) built once per process by
+NVRTC through CuPy (which caches the binaries on disk)."""
 
 from __future__ import annotations
 
 import ctypes
+import functools
+import hashlib
 import os
+import re
 import shlex
 import subprocess
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
-SOURCE = Path(__file__).resolve().parent / "reference" / "free_body.c"
+REFERENCE = Path(__file__).resolve().parent / "reference"
+SOURCE = REFERENCE / "free_body.c"
 FLAGS = ("-O3", "-march=native", "-fno-math-errno", "-fopenmp", "-shared", "-fPIC")
 FLOPS_PER_BODY_STEP = 238
 """Counted in reference/free_body.c as written (adds, multiplies, one sqrt, one divide): four
@@ -36,21 +41,61 @@ def peak_fp64_flops() -> dict:
     return dict(flops=value, cores=cores, mhz=mhz, flops_per_cycle_per_core=16)
 
 
-def build_library(source: Path) -> tuple[ctypes.CDLL, str, str] | str:
+def cache_folder() -> Path:
+    """Where built references are kept: `$RIGIDJAX_BENCH_CACHE`, else
+    `$XDG_CACHE_HOME/rigidjax-bench` (`~/.cache/rigidjax-bench`)."""
+    if "RIGIDJAX_BENCH_CACHE" in os.environ:
+        return Path(os.environ["RIGIDJAX_BENCH_CACHE"])
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "rigidjax-bench"
+
+
+def _sources(source: Path) -> bytes:
+    """The source and the local headers it includes (`#include "..."`), as one text."""
+    text = source.read_bytes()
+    for name in re.findall(rb'#include "([^"]+)"', text):
+        text += (source.parent / name.decode()).read_bytes()
+    return text
+
+
+@functools.cache
+def build_library(
+    source: Path, flags: tuple[str, ...] = FLAGS
+) -> tuple[ctypes.CDLL, str, str] | str:
     """`source` compiled with the system's C compiler ($CC) and loaded: the library, the
-    compiler's vectorisation report and the command; or a note saying why not."""
+    compiler's vectorisation report and the command; or a note saying why not. Built once: the
+    library and its report are kept in `cache_folder()` under the hash of the sources, flags and
+    compiler, and loaded from there while those stay the same."""
     cc = shlex.split(os.environ.get("CC", "cc"))
-    folder = Path(tempfile.mkdtemp(prefix="rigidjax-cref-"))
-    out = folder / f"{source.stem}.so"
-    cmd = [*cc, *FLAGS, "-fopt-info-vec-optimized", str(source), "-o", str(out)]
-    try:
-        done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
-    except (OSError, subprocess.SubprocessError) as e:
-        return f"no C compiler ({e}): the C reference rows are skipped"
-    if done.returncode != 0:
-        return f"building the C reference failed: {done.stderr[-1000:]}"
-    report = "\n".join(line for line in done.stderr.splitlines() if "loop vectorized" in line)
-    return ctypes.CDLL(str(out)), report, shlex.join(cmd)
+    key = hashlib.sha256(_sources(source) + repr((cc, flags)).encode()).hexdigest()[:16]
+    folder = cache_folder()
+    out = folder / f"{source.stem}-{key}.so"
+    report_file = out.with_suffix(".report")
+    cmd = [*cc, *flags, "-fopt-info-vec-optimized", str(source), "-o", str(out)]
+    if not (out.exists() and report_file.exists()):
+        folder.mkdir(parents=True, exist_ok=True)
+        try:
+            done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+        except (OSError, subprocess.SubprocessError) as e:
+            return f"no C compiler ({e}): the C reference rows are skipped"
+        if done.returncode != 0:
+            return f"building the C reference failed: {done.stderr[-1000:]}"
+        lines = done.stderr.splitlines()
+        report_file.write_text("\n".join(line for line in lines if "loop vectorized" in line))
+    return ctypes.CDLL(str(out)), report_file.read_text(), shlex.join(cmd)
+
+
+def bind(library: ctypes.CDLL, name: str, arrays: int, tail: int = 0):
+    """`library.name` with the references' calling convention: `arrays` pointers (the state,
+    first, advanced in place, then parameters), the batch size B, the steps, the step size, then
+    `tail` integers."""
+    fn = getattr(library, name)
+    fn.argtypes = (
+        [ctypes.c_void_p] * arrays
+        + [ctypes.c_long, ctypes.c_long, ctypes.c_double]
+        + [ctypes.c_long] * tail
+    )
+    return fn
 
 
 class CReference:
@@ -60,14 +105,7 @@ class CReference:
     note: str | None = None
 
     def __init__(self, library: ctypes.CDLL, vectorization_report: str, command: str):
-        self.function = library.free_body_rk4
-        self.function.argtypes = [
-            ctypes.c_void_p,
-            ctypes.c_void_p,
-            ctypes.c_long,
-            ctypes.c_long,
-            ctypes.c_double,
-        ]
+        self.function = bind(library, "free_body_rk4", 2)
         self.vectorization_report = vectorization_report
         self.vectorized = "loop vectorized" in vectorization_report
         self.command = command
@@ -99,3 +137,39 @@ class CReference:
         state, coef = self.pack(w0, q0, moments)
         state = self.advance(state, coef, N, dt)
         return state[:3].T.copy(), state[3:].T.copy()
+
+
+THREADS = 128
+
+
+class CudaReference:
+    """The CUDA references (`reference/models.cu`: one body per thread), built once per process
+    by NVRTC through CuPy; `runner(name, state0 (N, B), par, steps, dt)` returns `run(fetch)`,
+    which resets the state on the device, runs the kernel and synchronises."""
+
+    def __init__(self):
+        import cupy as cp
+
+        self.cp = cp
+        self.module = cp.RawModule(
+            code=(REFERENCE / "models.cu").read_text(),
+            options=("-std=c++17", f"-I{REFERENCE}"),
+            backend="nvrtc",
+        )
+
+    def runner(self, name: str, state0: np.ndarray, par: np.ndarray, steps: int, dt: float):
+        cp = self.cp
+        kernel = self.module.get_function(f"{name}_rk4")
+        B = state0.shape[1]
+        x0 = cp.asarray(np.ascontiguousarray(state0))  # (N, B) rows, as the kernel reads them
+        p = cp.asarray(np.ascontiguousarray(par))
+        work = cp.empty_like(x0)
+        grid = (-(-B // THREADS),)
+
+        def run(fetch: bool = False):
+            work[...] = x0
+            kernel(grid, (THREADS,), (work, p, np.int64(B), np.int64(steps), np.float64(dt)))
+            cp.cuda.Device().synchronize()
+            return cp.asnumpy(work) if fetch else work
+
+        return run

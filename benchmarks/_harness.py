@@ -1,4 +1,6 @@
-"""The benchmark harness shared by every bench script.
+"""The benchmark harness shared by every bench script (the machine record, the command line,
+the tables and the JSON writer are in `_record`, the C and CUDA references in `_c_reference`;
+this module re-exports `_record`).
 
 Timing: `measure` compiles a callable ahead of time (`aot_compile`, trace + lower and XLA compile
 timed separately), warms it up with one timed first call, then times repeated calls; every call
@@ -6,15 +8,13 @@ ends in `jax.block_until_ready` and records wall and process-CPU seconds (`timed
 `Timing`: `best`, `median`, `times`, `cpu_times`, the compile and first-call times and the latest
 output. `interleaved` times several `Timing`s in rounds (each round calls each once, so a change
 in machine load hits them alike); `fresh_process` runs a worker in a new interpreter, for
-first-call times. Machine record: `machine_info`, `load_average`. Output: the
-atomic JSON writer `write_json`."""
+first-call times, and `worker` reads its answer or its error."""
 
 from __future__ import annotations
 
-import importlib.metadata
 import json
 import os
-import platform
+import resource
 import statistics
 import subprocess
 import sys
@@ -23,69 +23,20 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
-PACKAGES = ("jax", "jaxlib", "diffrax", "equinox", "optimistix", "numpy", "scipy", "rigidjax")
-
-
-def load_average() -> list[float] | None:
-    """1/5/15-minute system load: other processes on the cores skew every timing."""
-    try:
-        return [round(x, 2) for x in os.getloadavg()]
-    except (OSError, AttributeError):  # pragma: no cover - not on every platform
-        return None
-
-
-def _git(*cmd: str) -> subprocess.CompletedProcess | None:
-    # read-only queries; GIT_OPTIONAL_LOCKS=0: never refresh (write) the index
-    try:
-        return subprocess.run(
-            ["git", *cmd],
-            capture_output=True,
-            text=True,
-            cwd=Path(__file__).resolve().parent,
-            env={**os.environ, "GIT_OPTIONAL_LOCKS": "0"},
-            check=False,
-        )
-    except OSError:
-        return None
-
-
-def _version(name: str) -> str | None:
-    try:
-        return importlib.metadata.version(name)
-    except importlib.metadata.PackageNotFoundError:
-        return None
-
-
-def machine_info() -> dict:
-    """Platform, cores, JAX backend and devices, package versions, git commit and whether
-    `rigidjax/` has uncommitted changes, and the load average now."""
-    import jax
-
-    rev = _git("rev-parse", "HEAD")
-    diff = _git("diff", "--quiet", "HEAD", "--", "rigidjax")
-    return dict(
-        platform=platform.platform(),
-        processor=platform.processor() or platform.machine(),
-        python=sys.version.split()[0],
-        cpu_count=os.cpu_count(),
-        jax_backend=jax.default_backend(),
-        jax_devices=[str(d) for d in jax.devices()],
-        versions={name: _version(name) for name in PACKAGES},
-        git_commit=rev.stdout.strip() if rev is not None else "",
-        rigidjax_has_uncommitted_changes=(
-            None if diff is None or diff.returncode > 1 else diff.returncode == 1
-        ),
-        loadavg_at_record=load_average(),
-    )
-
-
-def write_json(path: Path, obj) -> None:
-    """Write `obj` as indented JSON to `path` atomically (a killed run leaves the old file)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(obj, indent=2) + "\n")
-    tmp.replace(path)
-
+from _record import (  # noqa: F401  (re-exported: the scripts import one module)
+    RESULTS,
+    Log,
+    finish,
+    load_average,
+    load_report,
+    machine_info,
+    parser,
+    print_targets,
+    table,
+    target,
+    timestamp,
+    write_json,
+)
 
 # --------------------------------------------------------------------------- timing
 
@@ -167,6 +118,12 @@ class Timing:
             return None
         return self.trace_lower_compile_s + self.first_run_s
 
+    def first_call_record(self) -> dict:
+        """What the first call cost: `trace_lower_s`, `compile_s`, `trace_lower_compile_s`,
+        `first_run_s` and `first_call_s` (their sum)."""
+        keys = ("trace_lower_s", "compile_s", "trace_lower_compile_s", "first_run_s")
+        return {k: getattr(self, k) for k in (*keys, "first_call_s")}
+
     @property
     def repeats(self) -> int:
         return len(self.times)
@@ -238,18 +195,40 @@ def fresh_process(
     return json.loads(proc.stdout.strip().splitlines()[-1]), wall, proc
 
 
-def load_report(out: dict) -> str:
-    """The closing line of a run: load averages at start and end, and the total wall time."""
-    return (
-        f"load average start {out['load_average_start']}, end {out['load_average_end']}; "
-        f"total {out['total_wall_s']:.0f} s"
-    )
+def worker(script: str | Path, *args: str, env: dict | None = None, cold: bool = False) -> dict:
+    """`fresh_process`'s answer with its `process_wall_s`, or `{"error": the end of its stderr,
+    "returncode"}` where it failed; `cold`: with JAX's persistent compilation cache off."""
+    if cold:
+        env = {k: v for k, v in (env or os.environ).items() if "COMPILATION_CACHE" not in k}
+        env["JAX_ENABLE_COMPILATION_CACHE"] = "false"
+    res, wall, proc = fresh_process(script, *args, env=env)
+    if res is None:
+        return dict(error=proc.stderr[-4000:], returncode=proc.returncode)
+    res["process_wall_s"] = wall
+    return res
 
 
-def finish(out: dict, path: Path, t0: float) -> None:
-    """Close a run: the load average at the end and the wall time since `t0` into `out`,
-    written atomically to `path`, and the closing line printed."""
-    out["load_average_end"] = load_average()
-    out["total_wall_s"] = time.perf_counter() - t0
-    write_json(Path(path), out)
-    print(load_report(out))
+def maxrss_mib() -> float:
+    """This process's peak resident memory so far (`ru_maxrss`), MiB."""
+    r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # Linux: KiB, macOS: bytes
+    return round(r / (1024**2 if sys.platform == "darwin" else 1024), 1)
+
+
+MEMORY_FIELDS = (
+    "temp_size_in_bytes",
+    "argument_size_in_bytes",
+    "output_size_in_bytes",
+    "alias_size_in_bytes",
+    "generated_code_size_in_bytes",
+)
+
+
+def memory_analysis(compiled) -> dict | None:
+    """XLA's buffer sizes of a compiled program (`compiled.memory_analysis()`), bytes."""
+    try:
+        m = compiled.memory_analysis()
+    except Exception as e:  # pragma: no cover
+        return dict(error=repr(e))
+    if m is None:  # pragma: no cover
+        return None
+    return {k: int(getattr(m, k)) for k in MEMORY_FIELDS if hasattr(m, k)}

@@ -28,7 +28,6 @@ Usage
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
@@ -36,46 +35,14 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _harness import finish, interleaved, load_average, machine_info, measure  # noqa: E402
+from _c_reference import CudaReference  # noqa: E402
+from _harness import Log, finish, interleaved, machine_info, measure, parser  # noqa: E402
 from bench_models import models  # noqa: E402
 
-HERE = Path(__file__).resolve().parent
-DEFAULT_OUT = HERE / "results" / "gpu.json"
-THREADS = 128
 CUDA_MODELS = ("free_body", "damping", "gravity_gradient", "heavy_top", "sixdof", "satellite",
                "gyrostat", "darboux_quat", "darboux_rotvec")  # fmt: skip
 """The models with a CUDA reference (models.cu); the closed loop has none (and takes the Diffrax
 path on a GPU: the Pallas kernel has no jump maps)."""
-
-
-class Cuda:
-    """The CUDA references, built once (None with `.note` where CuPy or NVRTC is missing)."""
-
-    def __init__(self):
-        import cupy as cp
-
-        self.cp = cp
-        source = (HERE / "reference" / "models.cu").read_text()
-        self.module = cp.RawModule(
-            code=source, options=("-std=c++17", f"-I{HERE / 'reference'}"), backend="nvrtc"
-        )
-
-    def runner(self, name: str, state0: np.ndarray, par: np.ndarray, steps: int, dt: float):
-        cp = self.cp
-        kernel = self.module.get_function(f"{name}_rk4")
-        B = state0.shape[1]
-        x0 = cp.asarray(np.ascontiguousarray(state0))  # (N, B) rows, as the kernel reads them
-        p = cp.asarray(np.ascontiguousarray(par))
-        work = cp.empty_like(x0)
-        grid = (-(-B // THREADS),)
-
-        def run(fetch: bool = False):
-            work[...] = x0
-            kernel(grid, (THREADS,), (work, p, np.int64(B), np.int64(steps), np.float64(dt)))
-            cp.cuda.Device().synchronize()
-            return cp.asnumpy(work) if fetch else work
-
-        return run
 
 
 def speed(B: int, steps: int, repeats: int, log, names: str = "all") -> tuple[dict, dict]:
@@ -88,7 +55,7 @@ def speed(B: int, steps: int, repeats: int, log, names: str = "all") -> tuple[di
         table = {k: v for k, v in table.items() if k in names.split(",")}
     slow, _ = models(B, steps, rj.ExplicitRK(rj.RK4()))
     try:
-        cuda, note = Cuda(), None
+        cuda, note = CudaReference(), None
     except Exception as e:  # no CuPy, no NVRTC: the CUDA rows are skipped
         cuda, note = None, f"{type(e).__name__}: {e}"
     rows = {}
@@ -225,22 +192,16 @@ def first_call(log) -> dict:
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--bodies", type=int, default=1_000_000)
-    parser.add_argument("--steps", type=int, default=1000)
-    parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
-    parser.add_argument("--parts", default="first,speed,gradient", help="comma-separated")
-    parser.add_argument("--models", default="all", help="comma-separated (speed, gradient)")
-    args = parser.parse_args(argv)
+    p = parser(__doc__, "gpu.json", repeats=5)
+    p.add_argument("--bodies", type=int, default=1_000_000)
+    p.add_argument("--steps", type=int, default=1000)
+    p.add_argument("--parts", default="first,speed,gradient", help="comma-separated")
+    p.add_argument("--models", default="all", help="comma-separated (speed, gradient)")
+    args = p.parse_args(argv)
     import jax
 
     jax.config.update("jax_enable_x64", True)  # the benchmark's choice; rigidjax never sets it
-    start, load_start = time.perf_counter(), load_average()
-
-    def log(msg):
-        print(f"[{time.perf_counter() - start:6.1f} s] {msg}", flush=True)
-
+    log = Log()
     parts = set(args.parts.split(","))
     out: dict = dict(
         machine=dict(machine_info(), device_kind=jax.devices()[0].device_kind),
@@ -252,8 +213,8 @@ def main(argv=None) -> None:
         out["speed"] = speed(args.bodies, args.steps, args.repeats, log, args.models)[0]
     if "gradient" in parts:
         out["gradient"] = gradient(args.bodies, args.steps, args.repeats, log, args.models)
-    out["load_average_start"] = load_start
-    finish(out, args.out, start)
+    out["load_average_start"] = log.load_start
+    finish(out, args.out, log.t0)
 
 
 if __name__ == "__main__":

@@ -52,30 +52,18 @@ Usage
 
 from __future__ import annotations
 
-import argparse
-import ctypes
 import json
 import os
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _c_reference import build_library  # noqa: E402
-from _harness import (  # noqa: E402
-    fresh_process,
-    interleaved,
-    load_average,
-    machine_info,
-    measure,
-    write_json,
-)
+from _c_reference import REFERENCE, bind, build_library  # noqa: E402
+from _harness import Log, finish, fresh_process, interleaved, machine_info, measure, parser  # noqa: E402
 
-HERE = Path(__file__).resolve().parent
-DEFAULT_OUT = HERE / "results" / "models.json"
 GAIN = (0.3, 0.2, 0.1)
 MU, RADIUS = 398600.4418, 7000.0
 F_SPACE, POINT = (0.1, 0.0, -9.81), (0.1, 0.2, 0.0)
@@ -294,33 +282,23 @@ def models(B: int, steps: int, solver=None):
 def speed(B: int, steps: int, repeats: int, log) -> tuple[dict, dict]:
     import jax
 
-    built = build_library(HERE / "reference" / "models.c")
+    built = build_library(REFERENCE / "models.c")
     if isinstance(built, str):
         return {"c_note": built}, {}
     lib, report, command = built
     table, diffrax_path = models(B, steps)
     rows = {}
     for name, (fn, args, state0, par, dt) in table.items():
-        func = getattr(lib, f"{name}_rk4")
         par = np.ascontiguousarray(par, dtype=np.float64)
         state0 = np.array(state0, dtype=np.float64)  # a copy: the run works in place
         work = state0.copy()
         pointers = [work.ctypes.data, par.ctypes.data]
+        tail = []
         if name == "closed_loop":  # the law's constants, and the steps between samples
             ctl = closed_loop_constants(np.array(WHEELS).T)
             pointers.append(ctl.ctypes.data)
-            tail = [ctypes.c_long(EVERY)]
-        else:
-            tail = []
-        func.argtypes = (
-            [ctypes.c_void_p] * len(pointers)
-            + [
-                ctypes.c_long,
-                ctypes.c_long,
-                ctypes.c_double,
-            ]
-            + [ctypes.c_long] * len(tail)
-        )
+            tail = [EVERY]
+        func = bind(lib, f"{name}_rk4", len(pointers), len(tail))
 
         def c_run(work=work, state0=state0, func=func, pointers=pointers, tail=tail, dt=dt):
             work[...] = state0  # in place: reset (a copy of (N, B) doubles, ~1% of a call)
@@ -435,20 +413,14 @@ def first_calls(log) -> dict:
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--bodies", type=int, default=100_000)
-    parser.add_argument("--steps", type=int, default=200)
-    parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
-    args = parser.parse_args(argv)
+    p = parser(__doc__, "models.json")
+    p.add_argument("--bodies", type=int, default=100_000)
+    p.add_argument("--steps", type=int, default=200)
+    args = p.parse_args(argv)
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    start, load_start = time.perf_counter(), load_average()
-
-    def log(msg):
-        print(f"[{time.perf_counter() - start:6.1f} s] {msg}", flush=True)
-
+    log = Log()
     res, table = speed(args.bodies, args.steps, args.repeats, log)
     out = dict(
         machine=machine_info(),
@@ -456,12 +428,9 @@ def main(argv=None) -> None:
         speed=res,
         gradient=gradient(table, args.repeats, log) if table else {},
         first_calls=first_calls(log),
-        load_average_start=load_start,
-        load_average_end=load_average(),
-        total_wall_s=time.perf_counter() - start,
+        load_average_start=log.load_start,
     )
-    write_json(args.out, out)
-    log(f"wrote {args.out}")
+    finish(out, args.out, log.t0)
 
 
 if __name__ == "__main__":
