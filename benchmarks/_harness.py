@@ -26,6 +26,8 @@ from typing import Any
 from _record import (  # noqa: F401  (re-exported: the scripts import one module)
     RESULTS,
     Log,
+    execute,
+    figure,
     finish,
     load_average,
     load_report,

@@ -1,6 +1,7 @@
 """What every bench script writes around its numbers: the command line (`parser`), the progress
 log (`Log`), the machine record (`machine_info`, `load_average`), the verdicts (`target`), the
-printed table (`table`) and the JSON file (`write_json`, closed by `finish`)."""
+printed table (`table`), the figure (`figure`) and the JSON file (`write_json`, closed by
+`finish`)."""
 
 from __future__ import annotations
 
@@ -14,7 +15,8 @@ import re
 import subprocess
 import sys
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -124,6 +126,17 @@ class Log:
         return time.perf_counter() - self.t0
 
 
+def execute(run, args, show=None, stamp: bool = False) -> dict:
+    """The body of a script's `main`: `out = run(args, log)` with a fresh `Log`, `show(out)`
+    (its table), then `finish` into `args.out`; returns `out`."""
+    log = Log(stamp=stamp)
+    out = run(args, log)
+    if show is not None:
+        show(out)
+    finish(out, args.out, log.t0)
+    return out
+
+
 def parser(
     doc: str | None,
     out: str | None,
@@ -179,3 +192,21 @@ def table(columns: Sequence[tuple[str, str]], rows: Iterable[Sequence[Any]]) -> 
     for row in rows:
         lines.append("".join(_cell(v, spec) for v, (_, spec) in zip(row, columns, strict=True)))
     return "\n".join(lines)
+
+
+@contextmanager
+def figure(path: Path, *subplots: int, dpi: int = 110, **kw) -> Iterator[tuple[Any, Any]]:
+    """`(fig, axes)` of `plt.subplots(*subplots, **kw)` on the Agg backend, laid out and saved
+    to `path` at `dpi` when the block ends, then closed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(*subplots, **kw)
+    try:
+        yield fig, axes
+        fig.tight_layout()
+        fig.savefig(path, dpi=dpi)
+    finally:
+        plt.close(fig)

@@ -28,7 +28,6 @@ Usage
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
@@ -42,13 +41,7 @@ jax.config.update("jax_enable_x64", True)
 import diffrax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-from _harness import (  # noqa: E402
-    Timing,
-    finish,
-    interleaved,
-    load_average,
-    machine_info,
-)
+from _harness import Timing, finish, interleaved, load_average, machine_info, parser, timestamp  # noqa: E402
 
 import rigidjax as rj  # noqa: E402
 from rigidjax._checks import as_float, check_finite, check_times, check_unit_norm, vector  # noqa: E402
@@ -127,17 +120,13 @@ def one_size(B: int, N: int, repeats: int, seed: int, log) -> dict:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--quick", action="store_true", help="B in (1, 1000), N = 200: smoke run")
-    p.add_argument("--repeats", type=int, default=5)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", default=str(Path(__file__).parent / "results" / "checks.json"))
-    args = p.parse_args(argv)
+    quick = "B in (1, 1000), N = 200: smoke run"
+    args = parser(__doc__, "checks.json", quick=quick, repeats=5, seed=True).parse_args(argv)
     sizes = [(1, 200), (1000, 200)] if args.quick else [(1, 1000), (1000, 1000), (100_000, 200)]
     t0 = time.perf_counter()
     out = {
         "benchmark": "bench_checks",
-        "timestamp": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        "timestamp": timestamp(),
         "quick": args.quick,
         "parameters": {"dt": DT, "moments": MOMENTS, "seed": args.seed, "repeats": args.repeats},
         "machine": machine_info(),

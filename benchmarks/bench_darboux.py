@@ -1,44 +1,27 @@
 """Darboux problem (attitude from angular velocity): every formulation on a closed-form motion.
 
 Problem
-    Classical coning, ``P(t) = Rz(Ωt) Rx(β) Rz(−Ωt)`` with space angular velocity
+    Classical coning, ``P(t) = Rz(Ωt) Rx(β) Rz(−Ωt)``, space angular velocity
     ``ω(t) = Ω (−sin β sin Ωt, sin β cos Ωt, 1 − cos β)``, Ω = 2π rad/s, β = 0.3 rad,
-    ``P(0) = Rx(β)`` (the exact value), float64. The exact solution is computed in NumPy from the
-    closed form (independently of rigidjax).
+    ``P(0) = Rx(β)``, float64; the exact solution from the closed form in NumPy.
 
 Methods
-    ``matrix`` (Poisson equation on the 9 entries), ``rotvec`` (θ̇ = Z(θ) ω, shadow switching),
-    ``quat`` (normalised after each step), ``euler`` (sequence ``EULER_SEQ``; its distance from
-    gimbal lock along the motion is checked and recorded), ``cayley_klein`` (SU(2), normalised),
-    all with Tsit5 (unrolled stages, ``rigidjax.ExplicitRK``) wrapped in ``StepEndMap``, and
-    ``geometric`` (RKMK, Dopri5 tableau): the
-    defaults of ``rigidjax.darboux``. The benchmark replicates ``darboux``'s small setup and calls
-    ``diffrax.diffeqsolve`` itself to get ``sol.stats``; at every tolerance the result is compared
-    with ``rigidjax.darboux`` itself (``max_abs_diff_vs_darboux`` in the JSON).
+    ``matrix`` (Poisson equation), ``rotvec`` (shadow switching), ``quat``, ``euler``
+    (``EULER_SEQ``; its distance from gimbal lock is recorded), ``cayley_klein``, all with Tsit5
+    (unrolled) in ``StepEndMap``, and ``geometric`` (RKMK, Dopri5): the defaults of
+    ``rigidjax.darboux``, whose setup the benchmark replicates to read ``sol.stats`` (and checks
+    against ``rigidjax.darboux`` itself: ``max_abs_diff_vs_darboux``).
 
-What is measured (same run, same machine)
-    1. Work–precision, t ∈ [0, 10], 201 save times, PID controller with rtol = atol = tol:
-       ``err_max_abs`` = max over save times of max |P − P_exact| entrywise (the plotted error; it
-       is meaningful for the non-orthogonal Poisson matrix as well) and ``err_geodesic`` = max of
-       ``so3.distance`` (angle of the relative rotation; for ``matrix`` this is the angle of the
-       quaternion extracted from a non-orthogonal matrix). Right-hand-side evaluations are counted
-       exactly, in a separate compilation whose vector field increments a host counter through
-       ``jax.debug.callback`` (every execution, including FSAL re-evaluations after chart
-       switches and rejected steps). Wall time per solve is measured on a callback-free
-       compilation (``jax.jit``, compiled ahead of time; median and minimum of repeated solves;
-       the tolerance is passed as an array so one compilation serves all tolerances).
-    2. Orthogonality drift, constant step dt over t ∈ [0, T_drift]: ``so3.orthogonality_error``
-       ‖PᵀP − E‖_F of the returned matrices, and the attitude error max |P − P_exact|, at evenly
-       spaced save times; the Poisson matrix method with Tsit5 and with explicit Euler.
-    3. Batched throughput: ``jax.jit(jax.vmap(solve))`` over B initial attitudes
-       ``P0_b = exp(δ_b) P(0)``, δ_b ~ N(0, 0.3² E) (so the Euler chart stays regular), fixed 1000
-       steps of dt = 1e-3; trajectory-steps per second from the best of up to 3 runs, compile
-       time separately; the batch error at t = 1 against the superposed closed form
-       ``P_b(t) = P(t) P(0)ᵀ P0_b`` is recorded as a sanity check. A control row runs plain
-       diffrax Tsit5 on ẏ = −y with the same (3, 3) state: diffrax's own per-step cost.
-
-    Timings are wall-clock on a possibly shared machine; the load average at start and end is
-    recorded in the JSON.
+What is measured
+    1. Work–precision on [0, 10], 201 save times, PID at rtol = atol = tol: the max entrywise
+       and geodesic errors; right-hand-side evaluations counted exactly (a separate compilation
+       whose vector field counts through ``jax.debug.callback``); wall time of a callback-free
+       compilation (ahead of time; one compilation for all tolerances), median and minimum.
+    2. Orthogonality drift ‖PᵀP − E‖_F and attitude error at constant dt over [0, T_drift], and
+       the Poisson matrix method with explicit Euler.
+    3. Batched throughput: ``jax.jit(jax.vmap(solve))`` over B attitudes ``exp(δ_b) P(0)``,
+       δ_b ~ N(0, 0.3² E), 1000 steps of 1e-3: trajectory-steps per second (best of up to 3),
+       compile time, and the error at t = 1; a control row runs plain diffrax Tsit5 on ẏ = −y.
 
 Usage
     python benchmarks/bench_darboux.py [--quick] [--out-dir benchmarks/results] [--repeats 5]
@@ -46,9 +29,6 @@ Usage
 
 from __future__ import annotations
 
-import argparse
-import datetime
-import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -60,7 +40,19 @@ import diffrax  # noqa: E402
 import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-from _harness import Timing, aot_compile, block, load_average, machine_info, measure, write_json  # noqa: E402
+from _harness import (  # noqa: E402
+    RESULTS,
+    Log,
+    Timing,
+    aot_compile,
+    block,
+    figure,
+    machine_info,
+    measure,
+    parser,
+    timestamp,
+    write_json,
+)
 
 from rigidjax import darboux, euler, so3  # noqa: E402
 from rigidjax.kinematics import METHODS as KINEMATICS  # noqa: E402
@@ -73,8 +65,6 @@ METHODS = ["matrix", "rotvec", "quat", "euler", "cayley_klein", "geometric"]
 EULER_SEQ = "ZYX"  # Tait–Bryan: |det J| = |cos pitch| ≥ cos β on this motion (checked below)
 RATE = 2 * np.pi  # Ω, rad/s
 BETA = 0.3  # cone half-angle, rad
-DEFAULT_OUT = Path(__file__).resolve().parent / "results"
-LOADAVG_START = load_average()
 
 FULL = dict(
     tols=[1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10, 1e-11, 1e-12],
@@ -87,42 +77,24 @@ FULL = dict(
     batch_steps=1000,
     batch_dt=1e-3,
 )
-QUICK = dict(
-    tols=[1e-4, 1e-6, 1e-8, 1e-10, 1e-12],
-    t_end=10.0,
-    n_save=201,
-    drift_t=10.0,
-    drift_dt=1e-3,
-    drift_n_save=101,
-    batch=128,
-    batch_steps=1000,
-    batch_dt=1e-3,
-)
+QUICK = dict(FULL, tols=[1e-4, 1e-6, 1e-8, 1e-10, 1e-12], drift_t=10.0, drift_n_save=101, batch=128)
 
 
-# --------------------------------------------------------------------------- problem
-
-
-def rot_x(a):
+def rot(axis: int, a) -> np.ndarray:
+    """Rotations by the angles `a` about the coordinate axis `axis`, shape (..., 3, 3)."""
+    a = np.asarray(a, dtype=np.float64)
     c, s = np.cos(a), np.sin(a)
-    o, z = np.ones_like(a), np.zeros_like(a)
-    return np.stack(
-        [np.stack([o, z, z], -1), np.stack([z, c, -s], -1), np.stack([z, s, c], -1)], -2
-    )
-
-
-def rot_z(a):
-    c, s = np.cos(a), np.sin(a)
-    o, z = np.ones_like(a), np.zeros_like(a)
-    return np.stack(
-        [np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2
-    )
+    i, j = (k for k in range(3) if k != axis)
+    R = np.zeros((*a.shape, 3, 3))
+    R[..., axis, axis] = 1.0
+    R[..., i, i], R[..., j, j], R[..., i, j], R[..., j, i] = c, c, -s, s
+    return R
 
 
 def exact(ts) -> np.ndarray:
     """Closed-form coning attitude P(t) = Rz(Ωt) Rx(β) Rz(−Ωt), shape (T, 3, 3)."""
     ts = np.asarray(ts, dtype=np.float64)
-    return rot_z(RATE * ts) @ rot_x(np.full_like(ts, BETA)) @ rot_z(-RATE * ts)
+    return rot(2, RATE * ts) @ rot(0, np.full_like(ts, BETA)) @ rot(2, -RATE * ts)
 
 
 class ConingOmega(eqx.Module):
@@ -196,23 +168,26 @@ def _stats(sol):
     return {k: sol.stats[k] for k in ("num_steps", "num_accepted_steps", "num_rejected_steps")}
 
 
+def solve(term, solver, y0, t1: float, dt0, ts, controller, max_steps: int):
+    """`diffrax.diffeqsolve` from 0 to `t1`, saving at `ts`: the solution."""
+    return diffrax.diffeqsolve(
+        term, solver, 0.0, t1, dt0, y0, saveat=diffrax.SaveAt(ts=ts),
+        stepsize_controller=controller, max_steps=max_steps,
+    )  # fmt: skip
+
+
+def _matrices(method: str, sol, to_matrix):
+    return sol.ys[0] if method == "geometric" else jax.vmap(to_matrix)(sol.ys)
+
+
 def adaptive_solver(method: str, ts, count: bool):
     """`f(tol, P0) -> (P at ts, stats)`, PID with rtol = atol = tol (a traced scalar)."""
 
     def f(tol, P0):
         term, solver, y0, to_matrix = setup(method, P0, count)
-        sol = diffrax.diffeqsolve(
-            term,
-            solver,
-            ts[0],
-            ts[-1],
-            None,
-            y0,
-            saveat=diffrax.SaveAt(ts=ts),
-            stepsize_controller=diffrax.PIDController(rtol=tol, atol=tol),
-            max_steps=100_000,
-        )
-        return jax.vmap(to_matrix)(sol.ys) if method != "geometric" else sol.ys[0], _stats(sol)
+        pid = diffrax.PIDController(rtol=tol, atol=tol)
+        sol = solve(term, solver, y0, ts[-1], None, ts, pid, 100_000)
+        return _matrices(method, sol, to_matrix), _stats(sol)
 
     return jax.jit(f)
 
@@ -222,19 +197,9 @@ def fixed_solver(method: str, t_end: float, dt: float, n_steps: int, ts_save, ba
 
     def f(P0):
         term, solver, y0, to_matrix = setup(method, P0, False, base_solver)
-        sol = diffrax.diffeqsolve(
-            term,
-            solver,
-            0.0,
-            t_end,
-            dt,
-            y0,
-            saveat=diffrax.SaveAt(ts=ts_save),
-            stepsize_controller=diffrax.ConstantStepSize(),
-            max_steps=n_steps + 16,
-        )
-        P = sol.ys[0] if method == "geometric" else jax.vmap(to_matrix)(sol.ys)
-        return P, _stats(sol)
+        fixed = diffrax.ConstantStepSize()
+        sol = solve(term, solver, y0, t_end, dt, ts_save, fixed, n_steps + 16)
+        return _matrices(method, sol, to_matrix), _stats(sol)
 
     return f
 
@@ -247,17 +212,8 @@ CONTROL_NOTE = (
 
 def control_solver(t_end: float, dt: float, n_steps: int, ts_save):
     def f(P0):
-        sol = diffrax.diffeqsolve(
-            diffrax.ODETerm(lambda t, y, args: -y),
-            diffrax.Tsit5(),
-            0.0,
-            t_end,
-            dt,
-            P0,
-            saveat=diffrax.SaveAt(ts=ts_save),
-            stepsize_controller=diffrax.ConstantStepSize(),
-            max_steps=n_steps + 16,
-        )
+        term, fixed = diffrax.ODETerm(lambda t, y, args: -y), diffrax.ConstantStepSize()
+        sol = solve(term, diffrax.Tsit5(), P0, t_end, dt, ts_save, fixed, n_steps + 16)
         return sol.ys, _stats(sol)
 
     return f
@@ -411,121 +367,81 @@ def throughput(cfg, repeats: int, log) -> dict:
     )
 
 
-# --------------------------------------------------------------------------- output
-
-
-COLORS = {
-    "matrix": "tab:red",
-    "matrix_euler": "tab:pink",
-    "rotvec": "tab:blue",
-    "quat": "tab:green",
-    "euler": "tab:orange",
-    "cayley_klein": "tab:purple",
-    "geometric": "black",
-}
-MARKERS = {
-    "matrix": "s",
-    "rotvec": "o",
-    "quat": "^",
-    "euler": "D",
-    "cayley_klein": "v",
-    "geometric": "*",
-}
+COLORS = dict(matrix="tab:red", matrix_euler="tab:pink", rotvec="tab:blue", quat="tab:green",
+              euler="tab:orange", cayley_klein="tab:purple", geometric="black")  # fmt: skip
+MARKERS = dict(matrix="s", rotvec="o", quat="^", euler="D", cayley_klein="v", geometric="*")
 
 
 def plot(res: dict, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     floor = 1e-17
-    fig, axes = plt.subplots(2, 2, figsize=(13, 9.5))
-    ax = axes[0, 0]
-    for m, d in res["work_precision"].items():
-        ev = [r["rhs_evals"] for r in d["rows"]]
-        er = [max(r["err_max_abs"], floor) for r in d["rows"]]
-        solver = "RKMK-Dopri5" if m == "geometric" else "Tsit5"
-        ax.loglog(ev, er, marker=MARKERS[m], color=COLORS[m], label=f"{m} ({solver})", ms=5)
-    for r in res["work_precision"]["quat"]["rows"]:
-        ax.annotate(
-            f"{r['tol']:.0e}",
-            (r["rhs_evals"], r["err_max_abs"]),
-            textcoords="offset points",
-            xytext=(-8, -12),
-            ha="right",
-            fontsize=7,
-            color="green",
-        )
-    ax.set_xlabel("right-hand-side evaluations (counted)")
-    ax.set_ylabel("max over t of max |P − P_exact| (entrywise)")
-    ax.set_title("(a) Work–precision, PID rtol = atol (labels: tol for quat), t ∈ [0, 10]")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8, loc="upper right")
+    with figure(path, 2, 2, figsize=(13, 9.5)) as (fig, axes):
+        ax = axes[0, 0]
+        for m, d in res["work_precision"].items():
+            ev = [r["rhs_evals"] for r in d["rows"]]
+            er = [max(r["err_max_abs"], floor) for r in d["rows"]]
+            solver = "RKMK-Dopri5" if m == "geometric" else "Tsit5"
+            ax.loglog(ev, er, marker=MARKERS[m], color=COLORS[m], label=f"{m} ({solver})", ms=5)
+        for r in res["work_precision"]["quat"]["rows"]:
+            ax.annotate(f"{r['tol']:.0e}", (r["rhs_evals"], r["err_max_abs"]),
+                        textcoords="offset points", xytext=(-8, -12), ha="right", fontsize=7,
+                        color="green")  # fmt: skip
+        ax.set_xlabel("right-hand-side evaluations (counted)")
+        ax.set_ylabel("max over t of max |P − P_exact| (entrywise)")
+        ax.set_title("(a) Work–precision, PID rtol = atol (labels: tol for quat), t ∈ [0, 10]")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8, loc="upper right")
 
-    dr = res["drift"]
-    ts = np.asarray(dr["ts"])
-    for col, key, title in [
-        (axes[0, 1], "orthogonality", "(b) Orthogonality drift ‖PᵀP − E‖_F"),
-        (axes[1, 0], "err_max_abs", "(c) Attitude error max |P − P_exact|"),
-    ]:
-        for name, d in dr["methods"].items():
-            y = np.maximum(np.asarray(d[key]), floor)
-            col.semilogy(ts[1:], y[1:], color=COLORS[name], label=f"{name} ({d['solver']})", lw=1.3)
-        col.set_xlabel("t [s]")
-        col.set_title(f"{title}, constant dt = {dr['dt']:g}")
-        col.grid(True, which="both", alpha=0.3)
-        col.legend(fontsize=8, loc="center right")
-    axes[0, 1].set_ylabel(f"‖PᵀP − E‖_F (values < {floor:g} drawn at {floor:g})")
-    axes[1, 0].set_ylabel("max |P − P_exact|")
+        dr = res["drift"]
+        ts = np.asarray(dr["ts"])
+        for col, key, title in [
+            (axes[0, 1], "orthogonality", "(b) Orthogonality drift ‖PᵀP − E‖_F"),
+            (axes[1, 0], "err_max_abs", "(c) Attitude error max |P − P_exact|"),
+        ]:
+            for name, d in dr["methods"].items():
+                y = np.maximum(np.asarray(d[key]), floor)
+                label = f"{name} ({d['solver']})"
+                col.semilogy(ts[1:], y[1:], color=COLORS[name], label=label, lw=1.3)
+            col.set_xlabel("t [s]")
+            col.set_title(f"{title}, constant dt = {dr['dt']:g}")
+            col.grid(True, which="both", alpha=0.3)
+            col.legend(fontsize=8, loc="center right")
+        axes[0, 1].set_ylabel(f"‖PᵀP − E‖_F (values < {floor:g} drawn at {floor:g})")
+        axes[1, 0].set_ylabel("max |P − P_exact|")
 
-    ax = axes[1, 1]
-    tp = res["throughput"]
-    names = list(tp["methods"])
-    rates = [tp["methods"][m]["traj_steps_per_s"] for m in names]
-    labels = [m if m != "control" else "control:\nTsit5 ẏ=−y" for m in names]
-    bars = ax.bar(labels, rates, color=[COLORS.get(m, "lightgray") for m in names])
-    bars[-1].set_hatch("//")
-    for b, m in zip(bars, names, strict=True):
-        d = tp["methods"][m]
-        ax.annotate(
-            f"{d['traj_steps_per_s']:.2g}\ncompile {d['compile_s']:.1f} s",
-            (b.get_x() + b.get_width() / 2, b.get_height()),
-            ha="center",
-            va="bottom",
-            fontsize=8,
+        ax = axes[1, 1]
+        tp = res["throughput"]
+        names = list(tp["methods"])
+        rates = [tp["methods"][m]["traj_steps_per_s"] for m in names]
+        labels = [m if m != "control" else "control:\nTsit5 ẏ=−y" for m in names]
+        bars = ax.bar(labels, rates, color=[COLORS.get(m, "lightgray") for m in names])
+        bars[-1].set_hatch("//")
+        for b, m in zip(bars, names, strict=True):
+            d = tp["methods"][m]
+            ax.annotate(f"{d['traj_steps_per_s']:.2g}\ncompile {d['compile_s']:.1f} s",
+                        (b.get_x() + b.get_width() / 2, b.get_height()), ha="center",
+                        va="bottom", fontsize=8)  # fmt: skip
+        ax.set_yscale("log")
+        ax.set_ylabel("trajectory·steps per second (log)")
+        ax.set_title(
+            f"(d) Throughput: jit(vmap), B = {tp['batch']}, {tp['steps']} steps of {tp['dt']:g}"
         )
-    ax.set_yscale("log")
-    ax.set_ylabel("trajectory·steps per second (log)")
-    ax.set_title(
-        f"(d) Throughput: jit(vmap), B = {tp['batch']}, {tp['steps']} steps of {tp['dt']:g}"
-    )
-    ax.set_ylim(min(rates) / 3, max(rates) * 8)
-    ax.tick_params(axis="x", labelsize=8)
-    ax.grid(True, axis="y", which="both", alpha=0.3)
-    m, v = res["machine"], res["machine"]["versions"]
-    fig.suptitle(
-        f"rigidjax Darboux benchmark: coning Ω = 2π rad/s, β = {BETA} rad, float64 — "
-        f"{m['jax_backend']} ({m['cpu_count']} cores), jax {v['jax']}, diffrax {v['diffrax']}",
-        fontsize=11,
-    )
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+        ax.set_ylim(min(rates) / 3, max(rates) * 8)
+        ax.tick_params(axis="x", labelsize=8)
+        ax.grid(True, axis="y", which="both", alpha=0.3)
+        m, v = res["machine"], res["machine"]["versions"]
+        fig.suptitle(
+            f"rigidjax Darboux benchmark: coning Ω = 2π rad/s, β = {BETA} rad, float64 — "
+            f"{m['jax_backend']} ({m['cpu_count']} cores), jax {v['jax']}, diffrax {v['diffrax']}",
+            fontsize=11,
+        )
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="fewer tolerances, shorter drift, B=128")
-    ap.add_argument("--out-dir", type=Path, default=DEFAULT_OUT)
-    ap.add_argument("--repeats", type=int, default=5)
+    ap = parser(__doc__, None, quick="fewer tolerances, shorter drift, B=128", repeats=5)
+    ap.add_argument("--out-dir", type=Path, default=RESULTS)
     args = ap.parse_args(argv)
     cfg = QUICK if args.quick else FULL
-    t_start = time.perf_counter()
-
-    def log(msg):
-        print(f"[{time.perf_counter() - t_start:7.1f} s] {msg}", flush=True)
-
+    log = Log()
     ts_check = np.linspace(0.0, cfg["t_end"], cfg["n_save"])
     margin = euler_chart_margin(exact(ts_check))
     log(f"Euler chart {EULER_SEQ!r}: min |det J| along the coning motion = {margin:.4f}")
@@ -535,35 +451,29 @@ def main(argv=None) -> int:
     dr = drift(cfg, log)
     log("3. batched throughput")
     tp = throughput(cfg, max(1, min(args.repeats, 3)), log)
+    parameters = dict(
+        problem="coning P(t) = Rz(Ωt) Rx(β) Rz(−Ωt), space angular velocity",
+        rate_rad_s=RATE, beta_rad=BETA, P0="exact(0) = Rx(β)", dtype="float64",
+        euler_seq=EULER_SEQ, euler_chart_min_abs_det=margin,
+        error_metric="err_max_abs: max over save times of max_ij |P - P_exact|; err_geodesic: "
+        "max of rigidjax.so3.distance",
+        rhs_count="exact, jax.debug.callback in the vector field (separate compilation)",
+        wall_time="median (and min) of repeated solves of a callback-free jax.jit compilation",
+        solvers="Tsit5 in StepEndMap for the kinematics classes; RKMK (Dopri5 tableau)",
+        controller="diffrax.PIDController(rtol=tol, atol=tol), dt0=None",
+        repeats=args.repeats, **cfg,
+    )  # fmt: skip
     res = dict(
         benchmark="darboux",
-        date=datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        date=timestamp(),
         quick=args.quick,
-        machine=dict(machine_info(), loadavg_at_start=LOADAVG_START),
-        parameters=dict(
-            problem="coning P(t) = Rz(Ωt) Rx(β) Rz(−Ωt), space angular velocity",
-            rate_rad_s=RATE,
-            beta_rad=BETA,
-            P0="exact(0) = Rx(β)",
-            dtype="float64",
-            euler_seq=EULER_SEQ,
-            euler_chart_min_abs_det=margin,
-            error_metric=(
-                "err_max_abs: max over save times of max_ij |P - P_exact|; err_geodesic: max of "
-                "rigidjax.so3.distance"
-            ),
-            rhs_count="exact, jax.debug.callback in the vector field (separate compilation)",
-            wall_time="median (and min) of repeated solves of a callback-free jax.jit compilation",
-            solvers="Tsit5 in StepEndMap for the kinematics classes; RKMK (Dopri5 tableau)",
-            controller="diffrax.PIDController(rtol=tol, atol=tol), dt0=None",
-            repeats=args.repeats,
-            **cfg,
-        ),
+        machine=dict(machine_info(), loadavg_at_start=log.load_start),
+        parameters=parameters,
         work_precision=wp,
         drift=dr,
         throughput=tp,
     )
-    res["total_s"] = time.perf_counter() - t_start
+    res["total_s"] = log.elapsed()
     write_json(args.out_dir / "darboux.json", res)
     plot(res, args.out_dir / "darboux.png")
     log(f"wrote {args.out_dir / 'darboux.json'} and {args.out_dir / 'darboux.png'}")

@@ -60,7 +60,7 @@ from _harness import (  # noqa: E402
     Log,
     Timing,
     block,
-    finish,
+    execute,
     interleaved,
     load_average,
     machine_info,
@@ -490,10 +490,7 @@ def main(argv=None) -> None:
     if args._probe:
         print(json.dumps(compile_probe(args._probe, args._B, args._N, FULL["dt"], args.seed)))
         return
-    log = Log(stamp=False)
-    out = run(args, log)
-    print_table(out)
-    finish(out, args.out, log.t0)
+    execute(run, args, print_table)
 
 
 if __name__ == "__main__":

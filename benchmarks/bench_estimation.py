@@ -16,7 +16,6 @@ Usage
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
@@ -24,7 +23,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent / "reference"))
 
-from _harness import Timing, finish, load_average, machine_info  # noqa: E402
+from _harness import Timing, finish, load_average, machine_info, parser  # noqa: E402
 
 ARW, RRW, SIGMA, DT = 1e-5, 1e-7, 2e-5, 0.1
 
@@ -53,10 +52,8 @@ def data(runs: int, steps: int):
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--quick", action="store_true", help="1000 runs × 200 steps: a smoke run")
-    p.add_argument("--out", default=str(Path(__file__).parent / "results" / "estimation.json"))
-    args = p.parse_args(argv)
+    quick = "1000 runs × 200 steps: a smoke run"
+    args = parser(__doc__, "estimation.json", quick=quick, repeats=None).parse_args(argv)
     t0 = time.perf_counter()
     import jax
 

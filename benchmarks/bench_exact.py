@@ -28,10 +28,7 @@ Usage
 
 from __future__ import annotations
 
-import argparse
-import datetime
 import time
-from pathlib import Path
 
 import jax
 
@@ -41,14 +38,12 @@ import diffrax  # noqa: E402
 import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-from _harness import load_average, load_report, machine_info, measure, write_json  # noqa: E402
+from _harness import figure, finish, load_average, machine_info, measure, parser, timestamp  # noqa: E402
 from scipy.integrate import solve_ivp  # noqa: E402
 
 import rigidjax as rj  # noqa: E402
 from rigidjax.solvers import RK4, ExactFreeBody, LiePoissonSplitting  # noqa: E402
 
-ROOT = Path(__file__).resolve().parent
-DEFAULT_OUT = ROOT / "results" / "exact.json"
 FULL = dict(T_FREE=1000.0, T_TOP=20.0, N_DRIFT=200_000, DT_DRIFT=0.05, REPEATS=2)
 QUICK = dict(T_FREE=100.0, T_TOP=10.0, N_DRIFT=20_000, DT_DRIFT=0.05, REPEATS=1)
 
@@ -119,6 +114,50 @@ def sweep(name, run, values, refs, repeats, key):
     return rows
 
 
+def by_dt(**kw):
+    return "dt", lambda h: dict(kw, dt0=h)
+
+
+def by_tol(**kw):
+    return "tol", lambda tol: dict(kw, rtol=jnp.asarray(tol), atol=jnp.asarray(tol))
+
+
+METHODS = {  # name: (the swept value's key, simulate's options of the value)
+    "ExactFreeBody": ("default", lambda _: dict(solver=ExactFreeBody())),
+    "LiePoissonSplitting": by_dt(solver=LiePoissonSplitting()),
+    "LiePoissonSplitting4": by_dt(solver=LiePoissonSplitting(4)),
+    "RK4": by_dt(solver=RK4(), stepsize_controller=diffrax.ConstantStepSize()),
+    "Tsit5": by_tol(),
+    "Dopri8": by_tol(solver=diffrax.Dopri8()),
+    "RKMK": by_tol(kinematics="geometric"),
+}
+FREE_BODY_VALUES = dict(
+    ExactFreeBody=[0],
+    LiePoissonSplitting=[10.0, 1.0],
+    RK4=[0.1, 0.03, 0.01, 0.003],
+    Tsit5=[1e-6, 1e-8, 1e-10, 1e-12, 1e-14],
+    Dopri8=[1e-8, 1e-10, 1e-12, 1e-13, 1e-14],
+    RKMK=[1e-6, 1e-8, 1e-10],
+)
+HEAVY_TOP_VALUES = dict(
+    LiePoissonSplitting=[0.04, 0.01, 0.0025],
+    LiePoissonSplitting4=[0.04, 0.01],
+    RK4=[0.04, 0.01, 0.0025],
+    Tsit5=[1e-6, 1e-8, 1e-10, 1e-12],
+    Dopri8=[1e-8, 1e-10, 1e-12],
+    RKMK=[1e-6, 1e-8, 1e-10],
+)
+
+
+def sweeps(sim, values: dict, refs: dict, repeats: int) -> dict:
+    """Every method of `values` ({name: the values swept}) through `sim(**options)`."""
+    out = {}
+    for name, vals in values.items():
+        key, options = METHODS[name]
+        out[name] = sweep(name, lambda v, o=options: sim(**o(v)), vals, refs, repeats, key)
+    return out
+
+
 def free_body(cfg):
     T = cfg["T_FREE"]
     ts = jnp.array([0.0, T])
@@ -133,57 +172,12 @@ def free_body(cfg):
         f"free body, T = {T}: DOP853 reference {ref_s:.2f} s, "
         f"|ref − closed form| = {max(np.abs(w_ref - w_ex).max(), np.abs(q_ref - q_ex).max()):.2e}"
     )
-    r = cfg["REPEATS"]
     w0 = jnp.asarray(W_FREE)
 
     def sim(**kw):
         return rj.simulate(body, w0, q0, ts, max_steps=10**7, **kw)
 
-    out = {
-        "ExactFreeBody": sweep(
-            "ExactFreeBody", lambda _: sim(solver=ExactFreeBody()), [0], refs, r, "default"
-        ),
-        "LiePoissonSplitting": sweep(
-            "LiePoissonSplitting",
-            lambda h: sim(solver=LiePoissonSplitting(), dt0=h),
-            [10.0, 1.0],
-            refs,
-            r,
-            "dt",
-        ),
-        "RK4": sweep(
-            "RK4",
-            lambda h: sim(solver=RK4(), stepsize_controller=diffrax.ConstantStepSize(), dt0=h),
-            [0.1, 0.03, 0.01, 0.003],
-            refs,
-            r,
-            "dt",
-        ),
-        "Tsit5": sweep(
-            "Tsit5",
-            lambda tol: sim(rtol=jnp.asarray(tol), atol=jnp.asarray(tol)),
-            [1e-6, 1e-8, 1e-10, 1e-12, 1e-14],
-            refs,
-            r,
-            "tol",
-        ),
-        "Dopri8": sweep(
-            "Dopri8",
-            lambda tol: sim(solver=diffrax.Dopri8(), rtol=jnp.asarray(tol), atol=jnp.asarray(tol)),
-            [1e-8, 1e-10, 1e-12, 1e-13, 1e-14],
-            refs,
-            r,
-            "tol",
-        ),
-        "RKMK": sweep(
-            "RKMK",
-            lambda tol: sim(kinematics="geometric", rtol=jnp.asarray(tol), atol=jnp.asarray(tol)),
-            [1e-6, 1e-8, 1e-10],
-            refs,
-            r,
-            "tol",
-        ),
-    }
+    out = sweeps(sim, FREE_BODY_VALUES, refs, cfg["REPEATS"])
     return dict(T=T, reference_seconds=ref_s, results=out)
 
 
@@ -193,65 +187,14 @@ def heavy_top(cfg):
     body = rj.RigidBody(jnp.asarray(I_TOP))
     torque = Gravity(jnp.asarray(MGR))
     w_ref, q_ref, ref_s = dop853(I_TOP, W_TOP, Q_TOP, T, MGR)
-    refs = {"dop853": (w_ref, q_ref)}
     print(f"heavy top, T = {T}: DOP853 reference {ref_s:.2f} s")
-    r = cfg["REPEATS"]
     # a batch of one body (shape (1, 3)): the batched state layout of every method
     w0, q0 = jnp.asarray(W_TOP)[None], jnp.asarray(Q_TOP)[None]
 
     def sim(**kw):
         return rj.simulate(body, w0, q0, ts, torque=torque, max_steps=10**7, **kw)
 
-    out = {
-        "LiePoissonSplitting": sweep(
-            "LiePoissonSplitting",
-            lambda h: sim(solver=LiePoissonSplitting(), dt0=h),
-            [0.04, 0.01, 0.0025],
-            refs,
-            r,
-            "dt",
-        ),
-        "LiePoissonSplitting4": sweep(
-            "LiePoissonSplitting4",
-            lambda h: sim(solver=LiePoissonSplitting(4), dt0=h),
-            [0.04, 0.01],
-            refs,
-            r,
-            "dt",
-        ),
-        "RK4": sweep(
-            "RK4",
-            lambda h: sim(solver=RK4(), stepsize_controller=diffrax.ConstantStepSize(), dt0=h),
-            [0.04, 0.01, 0.0025],
-            refs,
-            r,
-            "dt",
-        ),
-        "Tsit5": sweep(
-            "Tsit5",
-            lambda tol: sim(rtol=jnp.asarray(tol), atol=jnp.asarray(tol)),
-            [1e-6, 1e-8, 1e-10, 1e-12],
-            refs,
-            r,
-            "tol",
-        ),
-        "Dopri8": sweep(
-            "Dopri8",
-            lambda tol: sim(solver=diffrax.Dopri8(), rtol=jnp.asarray(tol), atol=jnp.asarray(tol)),
-            [1e-8, 1e-10, 1e-12],
-            refs,
-            r,
-            "tol",
-        ),
-        "RKMK": sweep(
-            "RKMK",
-            lambda tol: sim(kinematics="geometric", rtol=jnp.asarray(tol), atol=jnp.asarray(tol)),
-            [1e-6, 1e-8, 1e-10],
-            refs,
-            r,
-            "tol",
-        ),
-    }
+    out = sweeps(sim, HEAVY_TOP_VALUES, {"dop853": (w_ref, q_ref)}, cfg["REPEATS"])
     return dict(T=T, reference_seconds=ref_s, results=out)
 
 
@@ -323,34 +266,25 @@ def time_to(rows, target):
 
 
 def plot(out, path):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
-    for ax, key, label in (
-        (axes[0], "free_body", f"free body, T = {out['free_body']['T']:g}"),
-        (axes[1], "heavy_top", f"heavy top, T = {out['heavy_top']['T']:g}"),
-    ):
-        for name, rows in out[key]["results"].items():
-            errs = [max(r["error_vs_dop853"], 1e-17) for r in rows]
-            ax.loglog([r["seconds"] for r in rows], errs, "o-", label=name)
-        ax.set_xlabel("wall time per solve [s]")
-        ax.set_ylabel("max error at T vs SciPy DOP853 (1e-13)")
-        ax.set_title(label)
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    with figure(path, 1, 2, dpi=90, figsize=(11, 4.2)) as (_, axes):
+        for ax, key, label in (
+            (axes[0], "free_body", f"free body, T = {out['free_body']['T']:g}"),
+            (axes[1], "heavy_top", f"heavy top, T = {out['heavy_top']['T']:g}"),
+        ):
+            for name, rows in out[key]["results"].items():
+                errs = [max(r["error_vs_dop853"], 1e-17) for r in rows]
+                ax.loglog([r["seconds"] for r in rows], errs, "o-", label=name)
+            ax.set_xlabel("wall time per solve [s]")
+            ax.set_ylabel("max error at T vs SciPy DOP853 (1e-13)")
+            ax.set_title(label)
+            ax.grid(True, which="both", alpha=0.3)
+            ax.legend(fontsize=8)
 
 
-def main():
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--quick", action="store_true")
-    p.add_argument("--out", type=Path, default=DEFAULT_OUT)
-    args = p.parse_args()
+def main(argv=None):
+    args = parser(__doc__, "exact.json", quick="shorter spans and drift", repeats=None).parse_args(
+        argv
+    )
     cfg = QUICK if args.quick else FULL
     t_start = time.perf_counter()
     load_start = load_average()
@@ -378,7 +312,7 @@ def main():
         "drift_steps": dr["steps"],
     }
     out = dict(
-        created=datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        created=timestamp(),
         config=dict(cfg, quick=args.quick),
         description=dict(
             error_metric="max of |Ω − Ω_ref| and min(|q − q_ref|, |q + q_ref|) at t = T",
@@ -398,14 +332,10 @@ def main():
         drift=dr,
         free_body_rk_seconds_to_1e10=best_rk,
         summary=summary,
-        load_average_end=load_average(),
-        total_wall_s=time.perf_counter() - t_start,
     )
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    write_json(args.out, out)
-    plot(out, args.out.with_suffix(".png"))
     print(summary)
-    print(load_report(out))
+    finish(out, args.out, t_start)
+    plot(out, args.out.with_suffix(".png"))
 
 
 if __name__ == "__main__":

@@ -26,7 +26,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _harness import finish, fresh_process, load_average, machine_info  # noqa: E402
+from _harness import finish, fresh_process, load_average, machine_info, parser  # noqa: E402
 
 DERIVATIVES = ("value", "jacfwd", "jacrev")
 
@@ -131,10 +131,8 @@ def check_agreement(name: str) -> float | None:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
-    p.add_argument("--repeats", type=int, default=3, help="rounds of fresh processes")
+    p = parser(__doc__, "first_call.json")
     p.add_argument("--maps", nargs="*", default=list(MAPS), help="a subset of the maps")
-    p.add_argument("--out", default=str(Path(__file__).parent / "results" / "first_call.json"))
     p.add_argument(
         "--worker", nargs=3, metavar=("LIB", "MAP", "DERIVATIVE"), help=argparse.SUPPRESS
     )

@@ -1,48 +1,27 @@
 """Inertia identification and gradient cost through `simulate`: time, compile, memory.
 
-Part 1: identification (``identify_inertia``), every mode
-    A body with a full (non-diagonal) inertia tensor ``I = R diag(1, 2, 2.6) Rᵀ`` (the one in
-    ``tests/fit/data.py``), torque-free; body angular velocity and attitude sampled at T equally
-    spaced times on [0, 8], generated with SciPy ``solve_ivp`` (DOP853, rtol = atol = 1e-13;
-    independent of rigidjax), plus Gaussian noise σ = 1e-3 (rad/s for the gyro, rad for the
-    attitude). Modes (``MODES``): gyro data (T = 201 and 1001), attitude only, gyro + attitude,
-    three experiments with a gyro bias fitted, gyro data with 5% outliers and the Huber loss
-    (T = 201). Each mode and T runs in a fresh Python process (no persistent compilation
-    cache): the first call (trace + compile + fit) and then ``--repeats`` calls with NEW data of
-    the same shape (another initial Ω0 and another noise draw; the compiled program is
-    reused). Wall and CPU time with ``block_until_ready``; data generation is not timed. Also
-    recorded: convergence, Levenberg–Marquardt steps, the error of the trace-normalised tensor
-    relative to its trace, the largest |error|/std, the bias error, and the peak RSS.
+Part 1: identification (``identify_inertia``), every mode (``MODES``)
+    A torque-free body with a full inertia tensor ``I = R diag(1, 2, 2.6) Rᵀ`` (the one in
+    ``tests/fit/data.py``); Ω and the attitude at T equally spaced times on [0, 8] from SciPy
+    DOP853 (rtol = atol = 1e-13), plus noise σ = 1e-3. Each mode and T in a fresh process (no
+    persistent compilation cache): the first call (trace + compile + fit), then ``--repeats``
+    calls with new data of the same shape (another Ω0 and noise draw; the program is reused).
+    Recorded: wall and CPU times, convergence, LM steps, the trace-relative error, the largest
+    |error|/std, the bias error, the peak RSS.
 
 Part 1b: experiment design (``design_excitation``) against PRBS
     Body diag(1, 2, 2.6), Ω0 = (0.1, 0.05, −0.05), 20 s, 8 segments, |u_i| ≤ 0.1, 10 gyro
-    samples per segment (σ = 1e-3). Recorded: the design time (first call, compile included),
-    the criterion log det (inertia-block information) of the design and of 20 PRBS draws of
-    the same duration, segments and bound, their Cramér–Rao std of the six inertia entries,
-    and actual known-torque fits of SciPy data (5 noise draws with the design, 5 PRBS draws).
+    samples per segment: the design time, log det of the design's information against 20 PRBS
+    draws, their Cramér–Rao std, and known-torque fits of SciPy data (5 draws each).
 
 Part 2: gradient / forward cost through ``simulate``
-    Scalar loss ``L(I, Ω0) = c·Ω(T) + (q(T)·q_c)²`` of ``simulate(RigidBody(I), Ω0, None,
-    [0, T], solver=RK4(), stepsize_controller=ConstantStepSize(), dt0=T/N)`` with T = 10 and N =
-    10³ and 10⁴ fixed RK4 steps; gradient with ``jax.grad`` (reverse mode) w.r.t. the full 3×3
-    tensor and Ω0. Both the forward function and its gradient are compiled ahead of time
-    (``jax.jit(f).lower(...).compile()``), warmed up, then timed in ``--repeats`` interleaved
-    rounds; ratio = best gradient time / best forward time. Adjoints compared:
-        ``default``    simulate's default ``RecursiveCheckpointAdjoint()`` with its default
-                       ``max_steps = 100_000`` (the headline);
-        ``tight``      the same adjoint with ``max_steps = N``;
-        ``store_all``  ``RecursiveCheckpointAdjoint(checkpoints=N)``: every step stored, no
-                       recomputation (contrast: memory ∝ N).
-    and, for contrast, the same loss with a hand-written RK4 in ``lax.scan`` (quaternion
-    renormalised each step, as simulate does): ``lean_scan`` (plain reverse mode, all stage
-    intermediates stored) and ``lean_scan_remat`` (``jax.checkpoint`` on the step: the state is
-    stored per step, the stages recomputed). Not run with ``--quick``.
-    Memory: XLA's ``compiled.memory_analysis()`` (temp / argument / output bytes of the compiled
-    gradient program; available on CPU) is the primary measure. Each N runs in its own process,
-    which also records ``resource.getrusage(RUSAGE_SELF).ru_maxrss`` (peak RSS of the whole
-    process) after import, after compiling and after running the gradients; the peak is set by
-    JAX/XLA start-up and compilation, so it says little about the gradient itself.
-    The gradient is checked against central finite differences of the forward function.
+    ``L(I, Ω0) = c·Ω(T) + (q(T)·q_c)²`` with RK4 at T/N, T = 10, N = 10³ and 10⁴; ``jax.grad``
+    w.r.t. the 3×3 tensor and Ω0; forward and gradient compiled ahead of time, warmed up, timed
+    in ``--grad-repeats`` interleaved rounds. Adjoints: ``default`` (max_steps = 100 000),
+    ``tight`` (max_steps = N), ``store_all`` (checkpoints = N), and a hand-written RK4 in
+    ``lax.scan`` (``lean_scan``, ``lean_scan_remat``); not with ``--quick``. Memory: XLA's
+    ``memory_analysis()`` of the compiled programs, and the process's peak RSS. The gradient is
+    checked against central finite differences.
 
 Usage
     python benchmarks/bench_identify.py [--quick] [--repeats 3] [--seed 0]
@@ -52,41 +31,28 @@ Usage
 from __future__ import annotations
 
 import argparse
-import datetime
 import json
-import math
-import resource
 import statistics
-import sys
 import time
-from pathlib import Path
 
-from _harness import (  # noqa: E402
-    Timing,
-    fresh_process,
-    interleaved,
-    load_average,
-    load_report,
+from _gradient_cost import GRAD_T, SIM_CONFIGS, grad_worker
+from _harness import (
+    Log,
+    execute,
     machine_info,
+    parser,
+    table,
     timed,
-    write_json,
+    timestamp,
+    worker,
 )
+from _harness import maxrss_mib as _maxrss_mib
 
-DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "identify.json"
 ROTVEC = (0.3, -0.5, 0.2)
 MOMENTS = (1.0, 2.0, 2.6)
 W0 = (0.4, 1.1, -0.7)
 SPAN = 8.0
 NOISE = 1e-3
-GRAD_T = 10.0
-SIM_DEFAULT_MAX_STEPS = 100_000  # simulate's default
-SIM_CONFIGS = ["default", "tight", "store_all"]
-
-
-def _maxrss_mib() -> float:
-    # Linux reports kilobytes (macOS bytes)
-    r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return round(r / (1024**2 if sys.platform == "darwin" else 1024), 1)
 
 
 def _setup_jax():
@@ -102,14 +68,6 @@ def true_inertia():
 
     R = Rotation.from_rotvec(ROTVEC).as_matrix()
     return R @ np.diag(MOMENTS) @ R.T
-
-
-def default_checkpoints(max_steps: int) -> int:
-    """Checkpoints used by RecursiveCheckpointAdjoint(checkpoints=None) (equinox's rule:
-    ~sqrt(2 max_steps), the fewest for which the recomputation stays O(n log n))."""
-    if max_steps == 1:
-        return 1
-    return min(math.floor(-1.5 + math.sqrt(2 * max_steps + 0.25)) + 1, max_steps)
 
 
 # --------------------------------------------------------------------------- part 1
@@ -135,12 +93,6 @@ def motion(T: int, w0, q0=(1.0, 0.0, 0.0, 0.0), I=None, torque=None, span=SPAN):
     sol = solve_ivp(rhs, (0.0, span), y0, t_eval=ts, method="DOP853", rtol=1e-13, atol=1e-13)
     q = sol.y.T[:, 3:]
     return ts, sol.y.T[:, :3], q / np.linalg.norm(q, axis=1, keepdims=True)
-
-
-def gyro_data(T: int, w0, rng):
-    """Noisy body angular velocity of the torque-free body, SciPy DOP853."""
-    ts, w, _ = motion(T, w0)
-    return ts, w + NOISE * rng.normal(size=(T, 3))
 
 
 def attitude_noise(q, rng):
@@ -338,247 +290,46 @@ def design_worker(seed: int) -> dict:
     )
 
 
-# --------------------------------------------------------------------------- part 2
-
-
-def make_loss(N: int, config: str):
-    import diffrax
-    import jax.numpy as jnp
-
-    from rigidjax import RK4, RigidBody, simulate
-
-    if config == "default":
-        kw = {}
-    elif config == "tight":
-        kw = dict(max_steps=N)
-    elif config == "store_all":
-        kw = dict(max_steps=N, adjoint=diffrax.RecursiveCheckpointAdjoint(checkpoints=N))
-    elif not config.startswith("lean_scan"):  # pragma: no cover
-        raise ValueError(config)
-    c = jnp.array([0.3, -0.2, 0.5])
-    qc = jnp.array([0.5, 0.5, -0.5, 0.5])
-    if config in ("lean_scan", "lean_scan_remat"):
-        return _lean_loss(N, config == "lean_scan_remat", c, qc)
-
-    def loss(I, w0):
-        traj = simulate(
-            RigidBody(I, check=False),
-            w0,
-            None,
-            jnp.array([0.0, GRAD_T]),
-            solver=RK4(),
-            stepsize_controller=diffrax.ConstantStepSize(),
-            dt0=GRAD_T / N,
-            **kw,
-        )
-        return c @ traj.omega[-1] + (traj.quat[-1] @ qc) ** 2
-
-    return loss
-
-
-def _lean_loss(N: int, remat: bool, c, qc):
-    """The same loss with a hand-written RK4 in ``lax.scan`` (quaternion renormalised after each
-    step, as simulate does); ``remat``: ``jax.checkpoint`` on the step (stores only the state
-    per step and recomputes the stages in the backward pass)."""
-    import jax
-    import jax.numpy as jnp
-
-    h = GRAD_T / N
-
-    def rhs(y, I, Iinv):
-        w, q = y[:3], y[3:]
-        dw = Iinv @ (-jnp.cross(w, I @ w))
-        dq = 0.5 * jnp.concatenate([-(q[1:] @ w)[None], q[0] * w + jnp.cross(q[1:], w)])
-        return jnp.concatenate([dw, dq])
-
-    def loss(I, w0):
-        Iinv = jnp.linalg.inv(I)
-
-        def step(y, _):
-            k1 = rhs(y, I, Iinv)
-            k2 = rhs(y + h / 2 * k1, I, Iinv)
-            k3 = rhs(y + h / 2 * k2, I, Iinv)
-            k4 = rhs(y + h * k3, I, Iinv)
-            y = y + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-            return y.at[3:].set(y[3:] / jnp.linalg.norm(y[3:])), None
-
-        y0 = jnp.concatenate([w0, jnp.array([1.0, 0.0, 0.0, 0.0], w0.dtype)])
-        y, _ = jax.lax.scan(jax.checkpoint(step) if remat else step, y0, None, length=N)
-        return c @ y[:3] + (y[3:] @ qc) ** 2
-
-    return loss
-
-
-def _mem(compiled) -> dict | None:
-    try:
-        m = compiled.memory_analysis()
-    except Exception as e:  # pragma: no cover
-        return dict(error=repr(e))
-    if m is None:  # pragma: no cover
-        return None
-    return {
-        k: int(getattr(m, k))
-        for k in (
-            "temp_size_in_bytes",
-            "argument_size_in_bytes",
-            "output_size_in_bytes",
-            "alias_size_in_bytes",
-            "generated_code_size_in_bytes",
-        )
-        if hasattr(m, k)
-    }
-
-
-def grad_worker(N: int, configs: list[str], repeats: int) -> dict:
-    jax = _setup_jax()
-    import jax.numpy as jnp
-    import numpy as np
-
-    rss = dict(after_import=_maxrss_mib())
-    I = jnp.asarray(true_inertia())
-    w0 = jnp.asarray(W0)
-    out = {}
-    timings = {}  # config -> (forward, gradient), compiled ahead of time
-    for cfg in configs:
-        loss = make_loss(N, cfg)
-        f, g = timings[cfg] = Timing(loss, I, w0), Timing(jax.grad(loss, argnums=(0, 1)), I, w0)
-        ms = {"default": SIM_DEFAULT_MAX_STEPS, "tight": N, "store_all": N}.get(cfg)
-        out[cfg] = dict(
-            max_steps=ms,
-            checkpoints=(
-                N
-                if cfg in ("store_all", "lean_scan", "lean_scan_remat")
-                else default_checkpoints(ms)
-            ),
-            forward_trace_lower_s=round(f.trace_lower_s, 3),
-            forward_compile_s=round(f.compile_s, 3),
-            grad_trace_lower_s=round(g.trace_lower_s, 3),
-            grad_compile_s=round(g.compile_s, 3),
-            forward_memory=_mem(f.fn),
-            grad_memory=_mem(g.fn),
-        )
-    rss["after_compile"] = _maxrss_mib()
-    for f, g in timings.values():
-        f.warm_up()
-        g.warm_up()
-    rss["after_first_runs"] = _maxrss_mib()
-    interleaved([t for pair in timings.values() for t in pair], repeats)
-    rss["after_timing"] = _maxrss_mib()
-    for cfg, (f, g) in timings.items():
-        out[cfg].update(
-            forward_s=f.best,
-            forward_s_median=f.median,
-            grad_s=g.best,
-            grad_s_median=g.median,
-            grad_over_forward=g.best / f.best,
-            grad_over_forward_median=g.median / f.median,
-            forward_cpu_s=f.cpu_best,
-            grad_cpu_s=g.cpu_best,
-            grad_over_forward_cpu=g.cpu_best / f.cpu_best,
-            forward_us_per_step=f.best / N * 1e6,
-        )
-    # gradient check: central finite differences of the forward program (default config)
-    f, g = (t.fn for t in timings[configs[0]])
-    gI, gw = g(I, w0)
-    h = 1e-6
-    fd_w = np.array([(f(I, w0.at[i].add(h)) - f(I, w0.at[i].add(-h))) / (2 * h) for i in range(3)])
-    fd_I = np.array(
-        [
-            (f(I.at[i, j].add(h), w0) - f(I.at[i, j].add(-h), w0)) / (2 * h)
-            for i in range(3)
-            for j in range(3)
-        ]
-    ).reshape(3, 3)
-    ad = np.concatenate([np.asarray(gI).ravel(), np.asarray(gw)])
-    fd = np.concatenate([fd_I.ravel(), fd_w])
-    grad_check = float(np.abs(ad - fd).max() / np.abs(fd).max())
-    return dict(
-        N=N,
-        T=GRAD_T,
-        dt=GRAD_T / N,
-        configs=out,
-        grad_check_max_abs_diff_vs_central_fd_rel=grad_check,
-        grad_consistency_across_configs=float(
-            max(
-                np.abs(
-                    np.concatenate([np.asarray(x).ravel() for x in timings[c][1].fn(I, w0)]) - ad
-                ).max()
-                for c in configs
-            )
-        ),
-        maxrss_mib=rss,
-    )
-
-
 # --------------------------------------------------------------------------- driver
 
 
-def run_worker(args: list[str]) -> dict:
-    res, wall, p = fresh_process(__file__, *args)
-    if res is None:
-        return dict(error=p.stderr[-4000:], returncode=p.returncode)
-    res["process_wall_s"] = round(wall, 2)
-    return res
+def run_worker(args: list[str], log: Log, what: str, line) -> dict:
+    """One worker of this script in a fresh process; logs `line(result)` or its error."""
+    r = worker(__file__, *args)
+    if "process_wall_s" in r:
+        r["process_wall_s"] = round(r["process_wall_s"], 2)
+    log(f"  {what}: " + (f"ERROR\n{r['error']}" if "error" in r else line(r)))
+    return r
 
 
-def run(args) -> dict:
-    t_start = time.perf_counter()
-    load_start = load_average()
+def run(args, log: Log) -> dict:
     Ts = [201] if args.quick else [201, 1001]
     Ns = [1000, 10_000]
     configs = ["default"] if args.quick else [*SIM_CONFIGS, "lean_scan", "lean_scan_remat"]
-    print(f"bench_identify: T={Ts}, N={Ns}, configs={configs}, load {load_start}", flush=True)
-    ident = {}
+    log(f"bench_identify: T={Ts}, N={Ns}, configs={configs}, load {log.load_start}")
+    ident, design, grad = {}, None, {}
     runs = [("gyro", T) for T in Ts] + [(m, 201) for m in MODES if m != "gyro"]
     for mode, T in runs if "identify" in args.parts else []:
-        r = run_worker(
-            ["--_identify", str(T), "--_mode", mode]
-            + ["--repeats", str(args.repeats), "--seed", str(args.seed)]
-        )
-        ident[f"{mode}_T{T}"] = r
-        if "error" in r:
-            print(f"  identify {mode} T={T}: ERROR\n{r['error']}", flush=True)
-        else:
-            print(
-                f"  identify {mode} T={T}: first call {r['first_call_s']:.2f} s "
-                f"(CPU {r['first_call_cpu_s']:.2f} s), repeat {r['repeat_call_s_min']:.3f} s "
-                f"(min), max error {max(c['max_abs_error_rel_trace'] for c in r['calls']):.1e}",
-                flush=True,
-            )
-    design = None
+        ident[f"{mode}_T{T}"] = run_worker(
+            ["--_identify", str(T), "--_mode", mode, "--repeats", str(args.repeats),
+             "--seed", str(args.seed)], log, f"identify {mode} T={T}",
+            lambda r: f"first call {r['first_call_s']:.2f} s (CPU {r['first_call_cpu_s']:.2f} s), "
+            f"repeat {r['repeat_call_s_min']:.3f} s (min), max error "
+            f"{max(c['max_abs_error_rel_trace'] for c in r['calls']):.1e}",
+        )  # fmt: skip
     if "design" in args.parts:
-        design = run_worker(["--_design", "--seed", str(args.seed)])
-        if "error" in design:
-            print(f"  design: ERROR\n{design['error']}", flush=True)
-        else:
-            print(
-                f"  design: {design['design_s']:.1f} s, log det {design['log_det_designed']:.2f} "
-                f"vs PRBS mean {design['log_det_prbs_mean']:.2f} "
-                f"(max {design['log_det_prbs_max']:.2f})",
-                flush=True,
-            )
-    grad = {}
+        design = run_worker(
+            ["--_design", "--seed", str(args.seed)], log, "design",
+            lambda d: f"{d['design_s']:.1f} s, log det {d['log_det_designed']:.2f} vs PRBS mean "
+            f"{d['log_det_prbs_mean']:.2f} (max {d['log_det_prbs_max']:.2f})",
+        )  # fmt: skip
     for N in Ns if "grad" in args.parts else []:
-        r = run_worker(
-            [
-                "--_grad",
-                str(N),
-                "--repeats",
-                str(args.grad_repeats),
-                "--_configs",
-                ",".join(configs),
-            ]
-        )
-        grad[str(N)] = r
-        if "error" in r:
-            print(f"  grad N={N}: ERROR\n{r['error']}", flush=True)
-        else:
-            d = r["configs"]["default"]
-            print(
-                f"  grad N={N}: forward {d['forward_s'] * 1e3:.2f} ms, grad "
-                f"{d['grad_s'] * 1e3:.1f} ms, ratio {d['grad_over_forward']:.1f}",
-                flush=True,
-            )
+        grad[str(N)] = run_worker(
+            ["--_grad", str(N), "--repeats", str(args.grad_repeats), "--_configs",
+             ",".join(configs)], log, f"grad N={N}",
+            lambda r: "forward {forward_s:.2e} s, grad {grad_s:.2e} s, ratio "
+            "{grad_over_forward:.1f}".format(**r["configs"]["default"]),
+        )  # fmt: skip
     notes = {}  # parts not re-run keep their last recorded results
     previous = json.loads(args.out.read_text()) if args.out.exists() else {}
     for part in ("grad", "design"):
@@ -590,99 +341,89 @@ def run(args) -> dict:
                 grad = previous["grad"]
             else:
                 design = previous["design"]
-    summary = {}
     ok = all("error" not in r for r in (*ident.values(), *grad.values()))
-    if ok:
-        for key, r in ident.items():
-            summary[f"identify_{key}_first_call_s"] = r["first_call_s"]
-            summary[f"identify_{key}_first_call_cpu_s"] = r["first_call_cpu_s"]
-            summary[f"identify_{key}_repeat_call_s"] = r["repeat_call_s_min"]
-            summary[f"identify_{key}_max_abs_error"] = max(
-                c["max_abs_error_rel_trace"] for c in r["calls"]
-            )
-        if design is not None and "error" not in design:
-            summary["design_s"] = design["design_s"]
-            summary["design_log_det_over_prbs_mean"] = round(
-                design["log_det_designed"] - design["log_det_prbs_mean"], 3
-            )
-            summary["design_cramer_rao_std_over_prbs_mean_max"] = round(
-                max(
-                    a / b
-                    for a, b in zip(
-                        design["cramer_rao_std_designed"],
-                        design["cramer_rao_std_prbs_mean"],
-                        strict=True,
-                    )
-                ),
-                3,
-            )
-        for N, r in grad.items():
-            for cfg, d in r["configs"].items():
-                summary[f"grad_over_forward_N{N}_{cfg}"] = round(d["grad_over_forward"], 2)
-                summary[f"grad_temp_bytes_N{N}_{cfg}"] = (d["grad_memory"] or {}).get(
-                    "temp_size_in_bytes"
-                )
-            if "lean_scan_remat" in r["configs"]:
-                summary[f"grad_time_default_over_lean_scan_remat_N{N}"] = round(
-                    r["configs"]["default"]["grad_s"] / r["configs"]["lean_scan_remat"]["grad_s"], 2
-                )
     return dict(
         benchmark="bench_identify",
-        timestamp=datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        timestamp=timestamp(),
         quick=args.quick,
-        parameters=dict(
-            inertia_true=dict(moments=MOMENTS, rotvec=ROTVEC, note="I = R diag(moments) Rᵀ"),
-            identify=dict(
-                omega0=W0,
-                span=SPAN,
-                T=Ts,
-                noise_sigma=NOISE,
-                repeats=args.repeats,
-                seed=args.seed,
-                data="SciPy solve_ivp DOP853 rtol=atol=1e-13; repeated calls use new Ω0 "
-                "(W0 + 0.1 N(0,1)) and new noise",
-            ),
-            grad=dict(
-                loss="c·Ω(T) + (q(T)·q_c)², grad w.r.t. (I 3×3, Ω0), jax.grad (reverse mode)",
-                T=GRAD_T,
-                N=Ns,
-                solver="RK4(), ConstantStepSize(), dt0 = T/N",
-                configs=configs,
-                repeats=args.grad_repeats,
-                memory_measure="compiled.memory_analysis() (XLA buffer sizes of the jitted "
-                "program) and, per process, resource.getrusage(RUSAGE_SELF).ru_maxrss (MiB)",
-            ),
-        ),
+        parameters=parameters(args, Ts, Ns, configs),
         machine=machine_info(),
-        load_average_start=load_start,
-        load_average_end=load_average(),
-        total_wall_s=round(time.perf_counter() - t_start, 1),
+        load_average_start=log.load_start,
         identify=ident,
         design=design,
         grad=grad,
         parts_run=args.parts,
         notes=notes,
-        summary=summary,
+        summary=summarise(ident, design, grad) if ok else {},
     )
+
+
+def parameters(args, Ts, Ns, configs) -> dict:
+    return dict(
+        inertia_true=dict(moments=MOMENTS, rotvec=ROTVEC, note="I = R diag(moments) Rᵀ"),
+        identify=dict(
+            omega0=W0, span=SPAN, T=Ts, noise_sigma=NOISE, repeats=args.repeats, seed=args.seed,
+            data="SciPy solve_ivp DOP853 rtol=atol=1e-13; repeated calls use new Ω0 "
+            "(W0 + 0.1 N(0,1)) and new noise",
+        ),
+        grad=dict(
+            loss="c·Ω(T) + (q(T)·q_c)², grad w.r.t. (I 3×3, Ω0), jax.grad (reverse mode)",
+            T=GRAD_T, N=Ns, solver="RK4(), ConstantStepSize(), dt0 = T/N", configs=configs,
+            repeats=args.grad_repeats,
+            memory_measure="compiled.memory_analysis() (XLA buffer sizes of the jitted "
+            "program) and, per process, resource.getrusage(RUSAGE_SELF).ru_maxrss (MiB)",
+        ),
+    )  # fmt: skip
+
+
+def summarise(ident: dict, design: dict | None, grad: dict) -> dict:
+    summary = {}
+    for key, r in ident.items():
+        summary[f"identify_{key}_first_call_s"] = r["first_call_s"]
+        summary[f"identify_{key}_first_call_cpu_s"] = r["first_call_cpu_s"]
+        summary[f"identify_{key}_repeat_call_s"] = r["repeat_call_s_min"]
+        summary[f"identify_{key}_max_abs_error"] = max(
+            c["max_abs_error_rel_trace"] for c in r["calls"]
+        )
+    if design is not None and "error" not in design:
+        summary["design_s"] = design["design_s"]
+        summary["design_log_det_over_prbs_mean"] = round(
+            design["log_det_designed"] - design["log_det_prbs_mean"], 3
+        )
+        ratios = zip(design["cramer_rao_std_designed"], design["cramer_rao_std_prbs_mean"],
+                     strict=True)  # fmt: skip
+        summary["design_cramer_rao_std_over_prbs_mean_max"] = round(
+            max(a / b for a, b in ratios), 3
+        )
+    for N, r in grad.items():
+        for cfg, d in r["configs"].items():
+            summary[f"grad_over_forward_N{N}_{cfg}"] = round(d["grad_over_forward"], 2)
+            summary[f"grad_temp_bytes_N{N}_{cfg}"] = (d["grad_memory"] or {}).get(
+                "temp_size_in_bytes"
+            )
+        if "lean_scan_remat" in r["configs"]:
+            c = r["configs"]
+            summary[f"grad_time_default_over_lean_scan_remat_N{N}"] = round(
+                c["default"]["grad_s"] / c["lean_scan_remat"]["grad_s"], 2
+            )
+    return summary
 
 
 def print_table(out: dict) -> None:
     print("\nidentification (fresh process per mode and T)")
-    print(
-        f"{'mode':>20} {'first call s':>13} {'first CPU s':>12} {'repeat s (min)':>15} "
-        f"{'err/tr':>9} {'err/std':>8} {'peak RSS MiB':>13}"
-    )
+    columns = [("mode", ">20"), ("first call s", ">14.2f"), ("first CPU s", ">13.2f"),
+               ("repeat s (min)", ">16.3f"), ("err/tr", ">10.1e"), ("err/std", ">9.2f"),
+               ("peak RSS MiB", ">14.0f")]  # fmt: skip
+    rows = []
     for key, r in out["identify"].items():
         if "error" in r:
-            print(f"{key:>20} ERROR")
+            rows.append([key, *[None] * 6])
             continue
-        err = max(c["max_abs_error_rel_trace"] for c in r["calls"])
-        z = max(c["max_abs_error_over_std"] for c in r["calls"])
-        print(
-            f"{key:>20} {r['first_call_s']:>13.2f} {r['first_call_cpu_s']:>12.2f} "
-            f"{r['repeat_call_s_min']:>15.3f} {err:>9.1e} {z:>8.2f} "
-            f"{r['maxrss_mib_end']:>13.0f}"
-        )
+        err, z = (max(c[k] for c in r["calls"]) for k in ("max_abs_error_rel_trace",
+                                                          "max_abs_error_over_std"))  # fmt: skip
+        rows.append([key, r["first_call_s"], r["first_call_cpu_s"], r["repeat_call_s_min"], err, z,
+                     r["maxrss_mib_end"]])  # fmt: skip
+    print(table(columns, rows))
     d = out.get("design")
     if d and "error" not in d:
         print(
@@ -694,35 +435,28 @@ def print_table(out: dict) -> None:
             f"{max(d['fit_max_abs_error_prbs']):.1e}"
         )
     print("\ngradient through simulate (RK4, fixed steps)")
-    print(
-        f"{'N':>6} {'config':>15} {'ckpts':>6} {'fwd ms':>8} {'grad ms':>9} {'ratio':>7} "
-        f"{'ratio CPU':>9} "
-        f"{'grad temp B':>12} {'fwd temp B':>11}"
-    )
+    columns = [("N", ">6"), ("config", ">16"), ("ckpts", ">7"), ("fwd ms", ">9.2f"),
+               ("grad ms", ">10.1f"), ("ratio", ">8.1f"), ("ratio CPU", ">10.1f"),
+               ("grad temp B", ">13"), ("fwd temp B", ">12")]  # fmt: skip
+    rows, notes = [], []
     for N, r in out["grad"].items():
         if "error" in r:
-            print(f"{N:>6} ERROR")
+            rows.append([N, *[None] * 8])
             continue
         for cfg, d in r["configs"].items():
-            print(
-                f"{N:>6} {cfg:>15} {d['checkpoints']:>6} {d['forward_s'] * 1e3:>8.2f} "
-                f"{d['grad_s'] * 1e3:>9.1f} {d['grad_over_forward']:>7.1f} "
-                f"{d['grad_over_forward_cpu']:>9.1f} "
-                f"{(d['grad_memory'] or {}).get('temp_size_in_bytes')!s:>12} "
-                f"{(d['forward_memory'] or {}).get('temp_size_in_bytes')!s:>11}"
-            )
+            rows.append([N, cfg, d["checkpoints"], d["forward_s"] * 1e3, d["grad_s"] * 1e3,
+                         d["grad_over_forward"], d["grad_over_forward_cpu"],
+                         (d["grad_memory"] or {}).get("temp_size_in_bytes"),
+                         (d["forward_memory"] or {}).get("temp_size_in_bytes")])  # fmt: skip
         fd = r["grad_check_max_abs_diff_vs_central_fd_rel"]
-        print(f"{'':>6} peak RSS MiB {r['maxrss_mib']}; grad vs central FD (rel) {fd:.1e}")
-    print(load_report(out))
+        notes.append(f"N={N}: peak RSS MiB {r['maxrss_mib']}; grad vs central FD (rel) {fd:.1e}")
+    print(table(columns, rows))
+    print("\n".join(notes))
 
 
-def parse_args(argv=None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--quick", action="store_true", help="T=201 only, default adjoint only")
-    p.add_argument("--repeats", type=int, default=3, help="identification calls after the first")
+def main(argv=None) -> None:
+    p = parser(__doc__, "identify.json", quick="T=201 only, default adjoint only", seed=True)
     p.add_argument("--grad-repeats", type=int, default=5, help="timed forward/grad rounds")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="JSON output path")
     p.add_argument(
         "--parts",
         type=lambda x: x.split(","),
@@ -735,24 +469,17 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--_design", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--_grad", type=int, default=None, help=argparse.SUPPRESS)
     p.add_argument("--_configs", default="default", help=argparse.SUPPRESS)
-    return p.parse_args(argv)
-
-
-def main(argv=None) -> None:
-    args = parse_args(argv)
+    args = p.parse_args(argv)
     if args._identify is not None:
         print(json.dumps(identify_worker(args._identify, args.repeats, args.seed, args._mode)))
-        return
-    if args._design:
+    elif args._design:
         print(json.dumps(design_worker(args.seed)))
-        return
-    if args._grad is not None:
-        print(json.dumps(grad_worker(args._grad, args._configs.split(","), args.grad_repeats)))
-        return
-    out = run(args)
-    write_json(args.out, out)
-    print_table(out)
-    print(f"wrote {args.out}")
+    elif args._grad is not None:
+        _setup_jax()
+        configs = args._configs.split(",")
+        print(json.dumps(grad_worker(args._grad, configs, args.grad_repeats, true_inertia(), W0)))
+    else:
+        execute(run, args, print_table)
 
 
 if __name__ == "__main__":

@@ -41,11 +41,9 @@ Usage
 from __future__ import annotations
 
 import argparse
-import datetime
 import json
 import resource
 import sys
-import time
 from pathlib import Path
 
 import jax
@@ -57,24 +55,25 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 from _c_reference import FLOPS_PER_BODY_STEP, CReference, peak_fp64_flops  # noqa: E402
 from _harness import (  # noqa: E402
+    Log,
     Timing,
-    fresh_process,
+    execute,
     interleaved,
-    load_average,
-    load_report,
     machine_info,
-    write_json,
+    parser,
+    print_targets,
+    target,
+    timestamp,
+    worker,
 )
 
 import rigidjax as rj  # noqa: E402
 
 MOMENTS = (1.0, 2.0, 3.0)
 DT = 1e-3
-DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "kernel.json"
 FULL_BATCHES = (1_000, 10_000, 100_000, 1_000_000, 10_000_000)
 QUICK_BATCHES = (1_000, 10_000, 100_000)
 TARGETS = dict(ratio_vs_c=0.8, flat_within=0.9, gradient_over_forward=3.0)
-LOADAVG_START = load_average()
 
 
 def make_inputs(B: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -251,23 +250,21 @@ def with_peak_fraction(res: dict, peak: dict) -> dict:
     return res
 
 
-def run(args) -> dict:
-    t_start = time.perf_counter()
+def probe_process(*args: str) -> dict:
+    """`worker` on this script, stopping the run where it failed."""
+    res = worker(__file__, *args)
+    if "error" in res:
+        raise SystemExit(f"probe {args} failed:\n{res['error']}")
+    return res
 
-    def log(msg):
-        print(msg, flush=True)
 
+def run(args, log: Log) -> dict:
     batches = QUICK_BATCHES if args.quick else FULL_BATCHES
     peak = peak_fp64_flops()
-    log(f"bench_kernel: batches {batches}, repeats {args.repeats}, load {LOADAVG_START}")
+    log(f"bench_kernel: batches {batches}, repeats {args.repeats}, load {log.load_start}")
     points = []
     for B in batches:
-        res, wall, proc = fresh_process(
-            __file__, "--_probe", str(B), "--repeats", str(args.repeats)
-        )
-        if res is None:
-            raise SystemExit(f"probe B={B} failed:\n{proc.stderr[-3000:]}")
-        res["process_wall_s"] = wall
+        res = probe_process("--_probe", str(B), "--repeats", str(args.repeats))
         points.append(with_peak_fraction(res, peak))
         log(
             f"  B={B:>9,} N={res['N']:>6}: rigidjax {res['rigidjax_body_steps_per_s']:.3g}, C "
@@ -277,12 +274,8 @@ def run(args) -> dict:
         )
     log("flat scaling: every batch size in one process, interleaved rounds")
     sizes = ",".join(map(str, batches))
-    flat_points, _, proc = fresh_process(
-        __file__, "--_flat", sizes, "--repeats", str(args.flat_repeats)
-    )
-    if flat_points is None:
-        raise SystemExit(f"flat-scaling probe failed:\n{proc.stderr[-3000:]}")
-    flat_points = [with_peak_fraction(p, peak) for p in flat_points["points"]]
+    flat = probe_process("--_flat", sizes, "--repeats", str(args.flat_repeats))
+    flat_points = [with_peak_fraction(p, peak) for p in flat["points"]]
     for p in flat_points:
         log(
             f"  B={p['B']:>9,}: rigidjax {p['rigidjax_body_steps_per_s']:.3g}, C "
@@ -314,25 +307,15 @@ def run(args) -> dict:
         float32_speedup=f32["speedup"],
     )
     targets = dict(
-        ratio_vs_c=dict(
-            target=TARGETS["ratio_vs_c"],
-            value=summary["min_ratio_vs_c_at_large_batches"],
-            passed=None if not large else bool(min(large) >= TARGETS["ratio_vs_c"]),
-        ),
-        flat_scaling=dict(
-            target=TARGETS["flat_within"],
-            value=flat,
-            passed=bool(flat >= TARGETS["flat_within"]),
-        ),
-        gradient_over_forward=dict(
-            target=TARGETS["gradient_over_forward"],
-            value=gradient["kernel_ratio"],
-            passed=bool(gradient["kernel_ratio"] <= TARGETS["gradient_over_forward"]),
+        ratio_vs_c=target(summary["min_ratio_vs_c_at_large_batches"], TARGETS["ratio_vs_c"]),
+        flat_scaling=target(flat, TARGETS["flat_within"]),
+        gradient_over_forward=target(
+            gradient["kernel_ratio"], TARGETS["gradient_over_forward"], at_least=False
         ),
     )
     return dict(
         benchmark="bench_kernel",
-        timestamp=datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        timestamp=timestamp(),
         quick=args.quick,
         parameters=dict(
             moments=list(MOMENTS),
@@ -347,15 +330,13 @@ def run(args) -> dict:
             "size and both kernels in one process)",
         ),
         machine=machine_info(),
-        load_average_start=LOADAVG_START,
-        load_average_end=load_average(),
+        load_average_start=log.load_start,
         scaling=points,
         flat=flat_points,
         gradient=gradient,
         float32=f32,
         summary=summary,
         targets=targets,
-        total_wall_s=time.perf_counter() - t_start,
     )
 
 
@@ -383,13 +364,10 @@ def plot(out: dict, path: Path) -> None:
 
 
 def main(argv=None) -> None:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--quick", action="store_true", help="1e3 … 1e5 bodies only")
-    p.add_argument("--repeats", type=int, default=3)
+    p = parser(__doc__, "kernel.json", quick="1e3 … 1e5 bodies only")
     p.add_argument(
         "--flat-repeats", type=int, default=3, help="rounds of the one-process flat-scaling part"
     )
-    p.add_argument("--out", type=Path, default=DEFAULT_OUT)
     p.add_argument("--_probe", type=int, default=None, help=argparse.SUPPRESS)
     p.add_argument("--_flat", default=None, help=argparse.SUPPRESS)
     args = p.parse_args(argv)
@@ -400,12 +378,8 @@ def main(argv=None) -> None:
         sizes = tuple(int(b) for b in args._flat.split(","))
         print(json.dumps(dict(points=flat_probe(sizes, args.repeats))))
         return
-    out = run(args)
-    write_json(args.out, out)
+    out = execute(run, args, lambda out: print_targets(out["targets"]))
     plot(out, args.out.with_suffix(".png"))
-    for k, t in out["targets"].items():
-        print(f"target {k}: {t['value']} (target {t['target']}) -> {t['passed']}")
-    print(load_report(out))
 
 
 if __name__ == "__main__":

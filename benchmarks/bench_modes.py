@@ -43,6 +43,7 @@ from _harness import (  # noqa: E402
     load_average,
     machine_info,
     measure,
+    parser,  # noqa: E402
 )
 
 import rigidjax as rj  # noqa: E402
@@ -100,11 +101,9 @@ def _measure(repeats: int, forward_mode: bool) -> dict:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--baseline", type=Path, default=None)
+    ap = parser(__doc__, "modes.json", repeats=5)
+    ap.add_argument("--baseline", type=Path, default=None, help="another checkout of rigidjax")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
-    ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "modes.json")
     args = ap.parse_args()
     if args.worker:  # the baseline checkout: reverse mode only
         print(json.dumps(_measure(args.repeats, forward_mode=False)))

@@ -36,14 +36,9 @@ Usage
 
 from __future__ import annotations
 
-import argparse
-import datetime
-import sys
-import time
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 
 import jax
 
@@ -51,7 +46,7 @@ jax.config.update("jax_enable_x64", True)  # the benchmark's choice; rigidjax ne
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-from _harness import Timing, load_average, machine_info, measure, write_json  # noqa: E402
+from _harness import Log, Timing, finish, machine_info, measure, parser, table, timestamp  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 from scipy.spatial.transform import RotationSpline as SciPySpline  # noqa: E402
 from scipy.spatial.transform import Slerp as SciPySlerp  # noqa: E402
@@ -67,7 +62,6 @@ else:
     JAX_SCIPY_NOTE = "jax.scipy.spatial.transform.Rotation available"
 
 DTYPES = {"float64": jnp.float64, "float32": jnp.float32}
-DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "rotations.json"
 
 
 # --------------------------------------------------------------------------- operations
@@ -75,7 +69,8 @@ DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "rotations.json"
 
 @dataclass(frozen=True)
 class Op:
-    """One rotation map in the three libraries.
+    """One rotation map in the three libraries: ``convert(R, x)`` is the SciPy expression with
+    ``R`` the ``Rotation`` class (SciPy's, or jax.scipy's if installed: the same code).
 
     ``scipy_in``/``rigidjax_in`` name the input arrays (they differ only in quaternion order);
     ``rigidjax_post`` maps rigidjax's output to SciPy's convention before comparison; ``compare``
@@ -84,86 +79,45 @@ class Op:
 
     name: str
     scipy_in: str
-    rigidjax_in: str
-    scipy_fn: Callable
-    jax_scipy_fn: Callable | None
+    convert: Callable
     rigidjax_fn: Callable
     compare: str = "plain"
     rigidjax_post: Callable = staticmethod(lambda y: y)
+    rigidjax_in: str = ""  # if not scipy_in
+
+    def scipy_fn(self, x):
+        return self.convert(Rotation, x)
+
+    @property
+    def jax_scipy_fn(self) -> Callable | None:
+        return None if JaxRotation is None else lambda x: self.convert(JaxRotation, x)
 
 
 def _wxyz_to_xyzw(q: np.ndarray) -> np.ndarray:
     return np.roll(q, -1, axis=-1)
 
 
-def _jsp(fn: Callable) -> Callable | None:
-    return fn if JaxRotation is not None else None
-
-
-def _euler_ops(seq: str) -> list[Op]:
-    key = f"euler_{seq}"
-    return [
-        Op(
-            f"euler_to_matrix_{seq}",
-            key,
-            key,
-            lambda x: Rotation.from_euler(seq, x).as_matrix(),
-            _jsp(lambda x: JaxRotation.from_euler(seq, x).as_matrix()),
-            lambda x: euler.to_matrix(x, seq),
-        ),
-        Op(
-            f"matrix_to_euler_{seq}",
-            "matrix",
-            "matrix",
-            lambda x: Rotation.from_matrix(x).as_euler(seq),
-            _jsp(lambda x: JaxRotation.from_matrix(x).as_euler(seq)),
-            lambda x: euler.from_matrix(x, seq),
-            compare="angle",
-        ),
-    ]
-
-
 def build_ops() -> list[Op]:
     """The benchmarked maps, in table order."""
-    return [
-        Op(
-            "rotvec_to_matrix",
-            "rotvec",
-            "rotvec",
-            lambda x: Rotation.from_rotvec(x).as_matrix(),
-            _jsp(lambda x: JaxRotation.from_rotvec(x).as_matrix()),
-            so3.exp,
-        ),
-        Op(
-            "matrix_to_rotvec",
-            "matrix",
-            "matrix",
-            lambda x: Rotation.from_matrix(x).as_rotvec(),
-            _jsp(lambda x: JaxRotation.from_matrix(x).as_rotvec()),
-            so3.log,
-            compare="rotvec",
-        ),
-        Op(
-            "matrix_to_quat",
-            "matrix",
-            "matrix",
-            lambda x: Rotation.from_matrix(x).as_quat(),
-            _jsp(lambda x: JaxRotation.from_matrix(x).as_quat()),
-            quat.from_matrix,
-            compare="quat",
-            rigidjax_post=_wxyz_to_xyzw,
-        ),
-        Op(
-            "quat_to_matrix",
-            "quat_xyzw",
-            "quat_wxyz",
-            lambda x: Rotation.from_quat(x).as_matrix(),
-            _jsp(lambda x: JaxRotation.from_quat(x).as_matrix()),
-            quat.to_matrix,
-        ),
-        *_euler_ops("ZXZ"),
-        *_euler_ops("xyz"),
-    ]
+    ops = [
+        Op("rotvec_to_matrix", "rotvec", lambda R, x: R.from_rotvec(x).as_matrix(), so3.exp),
+        Op("matrix_to_rotvec", "matrix", lambda R, x: R.from_matrix(x).as_rotvec(), so3.log,
+           compare="rotvec"),
+        Op("matrix_to_quat", "matrix", lambda R, x: R.from_matrix(x).as_quat(), quat.from_matrix,
+           compare="quat", rigidjax_post=_wxyz_to_xyzw),
+        Op("quat_to_matrix", "quat_xyzw", lambda R, x: R.from_quat(x).as_matrix(),
+           quat.to_matrix, rigidjax_in="quat_wxyz"),
+    ]  # fmt: skip
+    for seq in ("ZXZ", "xyz"):
+        ops += [
+            Op(f"euler_to_matrix_{seq}", f"euler_{seq}",
+               lambda R, x, seq=seq: R.from_euler(seq, x).as_matrix(),
+               lambda x, seq=seq: euler.to_matrix(x, seq)),
+            Op(f"matrix_to_euler_{seq}", "matrix",
+               lambda R, x, seq=seq: R.from_matrix(x).as_euler(seq),
+               lambda x, seq=seq: euler.from_matrix(x, seq), compare="angle"),
+        ]  # fmt: skip
+    return ops
 
 
 # --------------------------------------------------------------------------- inputs
@@ -245,9 +199,9 @@ class Extra:
     scipy_fn: Callable
     rigidjax_fn: Callable
     scipy_args: tuple
-    rigidjax_args: tuple
     size: int
     diff: Callable
+    rigidjax_args: tuple | None = None  # if not scipy_args
 
 
 def _q_diff(y, ref) -> float:
@@ -305,7 +259,6 @@ def build_extras(n: int, seed: int) -> list[Extra]:
             lambda a, b, w: Rotation.align_vectors(a, b, w)[0].as_quat(scalar_first=True),
             lambda a, b, w: quat.align_vectors(a, b, w)[0],
             (a, b, w),
-            (a, b, w),
             n,
             _q_diff,
         ),
@@ -313,7 +266,6 @@ def build_extras(n: int, seed: int) -> list[Extra]:
             "align_vectors_1000x8",
             sp_align_many,
             jax.vmap(lambda a, b: quat.align_vectors(a, b)[0]),
-            (ab, bb),
             (ab, bb),
             1000,
             _q_diff,
@@ -323,24 +275,23 @@ def build_extras(n: int, seed: int) -> list[Extra]:
             sp_spline,
             rj_spline,
             (kt, keys, t),
-            (kt, kq, t),
             n,
             _spline_diff,
+            (kt, kq, t),
         ),
         Extra(
             "slerp_100_keys",
             lambda kt, keys, t: SciPySlerp(kt, keys)(t).as_quat(scalar_first=True),
             lambda kt, kq, t: Slerp(kt, kq)(t),
             (kt, keys, t),
-            (kt, kq, t),
             n,
             _q_diff,
+            (kt, kq, t),
         ),
         Extra(
             "power_0.5",
             lambda x: (Rotation.from_quat(x, scalar_first=True) ** 0.5).as_quat(scalar_first=True),
             lambda x: quat.power(x, 0.5),
-            (q,),
             (q,),
             n,
             _q_diff,
@@ -349,7 +300,6 @@ def build_extras(n: int, seed: int) -> list[Extra]:
             "magnitude",
             lambda x: Rotation.from_quat(x, scalar_first=True).magnitude(),
             quat.magnitude,
-            (q,),
             (q,),
             n,
             _plain_diff,
@@ -361,7 +311,6 @@ def build_extras(n: int, seed: int) -> list[Extra]:
             ),
             lambda x, y: quat.approx_equal(x, y, 0.5),
             (q, q2),
-            (q, q2),
             n,
             _plain_diff,
         ),
@@ -370,7 +319,6 @@ def build_extras(n: int, seed: int) -> list[Extra]:
             lambda x: Rotation.from_quat(x, scalar_first=True).reduce(g, g).magnitude(),
             lambda x: quat.magnitude(quat.reduce(x, gq, gq)),
             (q[:n_reduce],),
-            (q[:n_reduce],),
             n_reduce,
             _plain_diff,
         ),
@@ -378,7 +326,6 @@ def build_extras(n: int, seed: int) -> list[Extra]:
             "euler_to_quat_xy_degrees",
             lambda x: Rotation.from_euler("xy", x, degrees=True).as_quat(scalar_first=True),
             lambda x: euler.to_quat(x, "xy", degrees=True),
-            (eul,),
             (eul,),
             n,
             _q_diff,
@@ -391,7 +338,7 @@ def bench_extra(e: Extra, repeats: int) -> dict:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         ts = measure(e.scipy_fn, *e.scipy_args, repeats=repeats, aot=False)
-    args = [jax.device_put(jnp.asarray(x)) for x in e.rigidjax_args]
+    args = [jax.device_put(jnp.asarray(x)) for x in (e.rigidjax_args or e.scipy_args)]
     tr = measure(e.rigidjax_fn, *args, repeats=repeats)
     sp = {**ts.summary(), "items_per_s": e.size / ts.best}
     rj = {
@@ -403,19 +350,14 @@ def bench_extra(e: Extra, repeats: int) -> dict:
     return {"items": e.size, "scipy": sp, "rigidjax": rj, "ratio_vs_scipy": sp["seconds"] / tr.best}
 
 
-def extra_rows(extras: dict) -> list[str]:
-    head = (
-        f"{'function (float64)':<26}{'items':>9}{'SciPy/s':>12}{'rigidjax/s':>12}"
-        f"{'rj/SciPy':>10}{'compile':>9}{'diff':>10}"
-    )
-    rows = [head, "-" * len(head)]
-    for name, r in extras.items():
-        rows.append(
-            f"{name:<26}{r['items']:>9}{r['scipy']['items_per_s']:>12.3g}"
-            f"{r['rigidjax']['items_per_s']:>12.3g}{r['ratio_vs_scipy']:>10.2f}"
-            f"{r['rigidjax']['compile_s']:>9.2f}{r['rigidjax']['max_abs_diff_vs_scipy']:>10.1e}"
-        )
-    return rows
+def extra_table(extras: dict) -> str:
+    columns = [("function (float64)", "<26"), ("items", ">9"), ("SciPy/s", ">12.3g"),
+               ("rigidjax/s", ">12.3g"), ("rj/SciPy", ">10.2f"), ("compile", ">9.2f"),
+               ("diff", ">10.1e")]  # fmt: skip
+    rows = [[name, r["items"], r["scipy"]["items_per_s"], rj["items_per_s"], r["ratio_vs_scipy"],
+             rj["compile_s"], rj["max_abs_diff_vs_scipy"]]
+            for name, r in extras.items() for rj in [r["rigidjax"]]]  # fmt: skip
+    return table(columns, rows)
 
 
 # --------------------------------------------------------------------------- driver
@@ -429,7 +371,7 @@ def _ratio(a: dict | None, b: dict | None) -> float | None:
 
 def bench_dtype(op: Op, inputs: dict, dtype, repeats: int, ref: np.ndarray, sp: dict) -> dict:
     """rigidjax and jax.scipy results for one op at one dtype, with ratios and accuracy."""
-    rj, y = time_jax(op.rigidjax_fn, inputs[op.rigidjax_in], dtype, repeats)
+    rj, y = time_jax(op.rigidjax_fn, inputs[op.rigidjax_in or op.scipy_in], dtype, repeats)
     rj["max_abs_diff_vs_scipy"] = max_abs_diff(op.rigidjax_post(y), ref, op.compare)
     js = None
     if op.jax_scipy_fn is not None:
@@ -452,85 +394,63 @@ def bench_op(op: Op, inputs: dict, repeats: int) -> dict:
     return result
 
 
-def _fmt_rate(entry: dict | None) -> str:
-    return "—" if entry is None else f"{entry['rotations_per_s'] / 1e6:8.2f}"
+def ops_table(results: dict) -> str:
+    columns = [("op", "<22"), ("dtype", "<9"), ("SciPy", ">9.2f"), ("rigidjax", ">10.2f"),
+               ("jax.sp", ">9.2f"), ("rj/SciPy", ">10.2f"), ("rj/jax.sp", ">11.2f"),
+               ("compile rj", ">12.3f"), ("compile js", ">12.3f"), ("diff rj", ">10.1e"),
+               ("diff js", ">10.1e")]  # fmt: skip
 
+    def rate(entry: dict | None):  # 10⁶ rotations/s
+        return None if entry is None else entry["rotations_per_s"] / 1e6
 
-def _fmt(x: float | None, spec: str) -> str:
-    return "—" if x is None else format(x, spec)
-
-
-def table_rows(results: dict) -> list[str]:
-    head = (
-        f"{'op':<22}{'dtype':<9}{'SciPy':>9}{'rigidjax':>10}{'jax.sp':>9}"
-        f"{'rj/SciPy':>10}{'rj/jax.sp':>11}{'compile rj':>12}{'compile js':>12}"
-        f"{'diff rj':>10}{'diff js':>10}"
-    )
-    rows = [head, "-" * len(head)]
+    rows = []
     for name, r in results.items():
         for dt in DTYPES:
             d = r[dt]
-            rj, js = d["rigidjax"], d["jax_scipy"]
-            rows.append(
-                f"{name:<22}{dt:<9}{_fmt_rate(r['scipy']):>9}{_fmt_rate(rj):>10}"
-                f"{_fmt_rate(js):>9}{_fmt(d['ratio_vs_scipy'], '.2f'):>10}"
-                f"{_fmt(d['ratio_vs_jax_scipy'], '.2f'):>11}"
-                f"{_fmt(rj['compile_s'], '.3f'):>12}"
-                f"{_fmt(js and js['compile_s'], '.3f'):>12}"
-                f"{_fmt(rj['max_abs_diff_vs_scipy'], '.1e'):>10}"
-                f"{_fmt(js and js['max_abs_diff_vs_scipy'], '.1e'):>10}"
-            )
-    return rows
+            rj, js = d["rigidjax"], d["jax_scipy"] or {}
+            rows.append([name, dt, rate(r["scipy"]), rate(rj), rate(d["jax_scipy"]),
+                         d["ratio_vs_scipy"], d["ratio_vs_jax_scipy"], rj["compile_s"],
+                         js.get("compile_s"), rj["max_abs_diff_vs_scipy"],
+                         js.get("max_abs_diff_vs_scipy")])  # fmt: skip
+    return table(columns, rows)
 
 
-def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def main(argv: list[str] | None = None) -> dict:
+    p = parser(__doc__, "rotations.json", repeats=5, seed=True)
     p.add_argument("--n", type=int, default=1_000_000, help="number of rotations")
     p.add_argument(
         "--n-extra", type=int, default=100_000, help="rotations / times / vector pairs (extras)"
     )
-    p.add_argument("--repeats", type=int, default=5, help="timed calls per measurement")
-    p.add_argument("--seed", type=int, default=0, help="seed of the random rotations")
-    p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="JSON output path")
-    return p.parse_args(argv)
-
-
-def main(argv: list[str] | None = None) -> dict:
-    args = parse_args(argv)
-    t_start = time.perf_counter()
-    load_start = load_average()
+    args = p.parse_args(argv)
+    log = Log()
     inputs = make_inputs(args.n, args.seed)
     results = {}
     for op in build_ops():
         results[op.name] = bench_op(op, inputs, args.repeats)
-        print(f"  done {op.name} ({time.perf_counter() - t_start:.1f} s)", file=sys.stderr)
+        log(f"  done {op.name}")
     extras = {}
     for e in build_extras(args.n_extra, args.seed):
         extras[e.name] = bench_extra(e, args.repeats)
-        print(f"  done {e.name} ({time.perf_counter() - t_start:.1f} s)", file=sys.stderr)
+        log(f"  done {e.name}")
     report = {
         "benchmark": "rotations",
-        "timestamp": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "timestamp": timestamp(),
         "n": args.n,
         "repeats": args.repeats,
         "seed": args.seed,
         "timing_statistic": "best of repeats (seconds); median in seconds_median",
         "jax_scipy_rotation": {"available": JaxRotation is not None, "note": JAX_SCIPY_NOTE},
         "machine": machine_info(),
-        "total_wall_s": time.perf_counter() - t_start,
-        "load_average_start": load_start,
-        "load_average_end": load_average(),
+        "load_average_start": log.load_start,
         "ops": results,
         "n_extra": args.n_extra,
         "extras": extras,
     }
     print(f"N = {args.n}, rates in 10⁶ rotations/s (best of {args.repeats}); diff = max |Δ|")
-    print("\n".join(table_rows(results)))
+    print(ops_table(results))
     print(f"\nCompleted against SciPy: items/s (best of {args.repeats}), diff = max |Δ| vs SciPy")
-    print("\n".join(extra_rows(extras)))
-    write_json(args.out, report)
-    print(f"load average start {load_start}, end {report['load_average_end']}")
-    print(f"wrote {args.out} (total {report['total_wall_s']:.1f} s)")
+    print(extra_table(extras))
+    finish(report, args.out, log.t0)
     return report
 
 

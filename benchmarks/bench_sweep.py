@@ -43,7 +43,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _harness import finish, fresh_process, load_average, machine_info  # noqa: E402
+from _harness import finish, fresh_process, load_average, machine_info, parser  # noqa: E402
 
 N_STEPS, DT = 100, 0.01
 
@@ -139,9 +139,7 @@ def _run(*args: str, devices: int | None = None) -> dict:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--quick", action="store_true", help="small sizes: a smoke run")
-    p.add_argument("--out", default=str(Path(__file__).parent / "results" / "sweep.json"))
+    p = parser(__doc__, "sweep.json", quick="small sizes: a smoke run", repeats=None)
     p.add_argument("--worker", nargs="+", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args.worker:
