@@ -132,7 +132,7 @@ def diag_diffeqsolve_soa_fn(N: int, dt: float) -> Callable:
             max_steps=N + 1,
             adjoint=adjoint,
         )
-        ys = [y[-1] for y in sol.ys]
+        ys = [y[-1] for y in sol.ys or ()]
         return jnp.stack(ys[:3], axis=-1), jnp.stack(ys[3:], axis=-1)
 
     return run

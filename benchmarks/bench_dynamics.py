@@ -36,6 +36,7 @@ _T_PROCESS_START = time.perf_counter()
 import argparse  # noqa: E402
 import json  # noqa: E402
 from collections.abc import Callable  # noqa: E402
+from typing import Any  # noqa: E402
 
 import jax  # noqa: E402
 
@@ -78,8 +79,8 @@ from rigidjax import RK4, ExactFreeBody, RigidBody, simulate  # noqa: E402
 
 _T_IMPORTED = time.perf_counter()
 
-FULL = dict(B=10_000, N=2000, dt=1e-3, scipy_subset=16, ref_refine=8)
-QUICK = dict(B=1000, N=500, dt=1e-3, scipy_subset=8, ref_refine=4)
+FULL: dict[str, Any] = dict(B=10_000, N=2000, dt=1e-3, scipy_subset=16, ref_refine=8)
+QUICK: dict[str, Any] = dict(B=1000, N=500, dt=1e-3, scipy_subset=8, ref_refine=4)
 DOPRI8_STEPS = (0.25, 0.2, 0.16, 0.125, 0.1, 0.08, 0.0625, 0.05, 0.04)
 SCIPY_TOLS = [1e-8, 1e-9, 1e-10, 1e-11, 3e-12, 1e-12, 3e-13, 1e-13, 5e-14, 2.5e-14]
 TARGETS = dict(ratio_vs_lean=0.7, scipy_speedup_per_trajectory=1000.0, first_compile_s=1.5)
@@ -270,7 +271,9 @@ def dopri8_part(cfg, wj, qj, refs, target_err: float, repeats: int, log) -> dict
     ``diffrax.Dopri8`` (the Dormand–Prince 8(5,3) tableau of SciPy's DOP853) at the largest
     constant step of ``DOPRI8_STEPS`` whose error is ≤ the target, on the whole batch."""
     S, T = cfg["scipy_subset"], cfg["N"] * cfg["dt"]
-    fixed = dict(solver=diffrax.Dopri8(), stepsize_controller=diffrax.ConstantStepSize())
+    fixed: dict[str, Any] = dict(
+        solver=diffrax.Dopri8(), stepsize_controller=diffrax.ConstantStepSize()
+    )
     timings = []
 
     def attempt(h):

@@ -45,6 +45,7 @@ import json
 import resource
 import sys
 from pathlib import Path
+from typing import Any
 
 import jax
 
@@ -117,7 +118,7 @@ def contenders(B: int) -> tuple[Timing, Timing | None, dict]:
     w0, q0 = make_inputs(B)
     t_rj = Timing(forward(N), jnp.asarray(w0), jnp.asarray(q0))
     w, q = (np.asarray(a) for a in t_rj.warm_up())
-    info = dict(
+    info: dict[str, Any] = dict(
         B=B,
         N=N,
         compile_s=t_rj.trace_lower_compile_s,
