@@ -7,21 +7,19 @@ Completed against SciPy's `Rotation`: `quat.align_vectors` (`align`), `RotationS
 `quat.rotation_group`/`reduce` (`groups`), `quat.from_scipy`/`to_scipy`/`from_jaxlie`/`to_jaxlie`
 (`interop`)."""
 
-# quat and euler first: the modules they re-export (align, groups, davenport, ...) import from
-# them, so they must not be the first to be imported
-from . import quat  # isort: skip
-from . import euler  # isort: skip
-from . import (  # noqa: E402
+from . import (
     align,
     andoyer,
     average,
     cayley_klein,
     davenport,
+    euler,
     gibbs,
     groups,
     interop,
     mrp,
     powers,
+    quat,
     slerp,
     so3,
     spline,

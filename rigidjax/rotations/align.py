@@ -48,7 +48,7 @@ from .._checks import Check, as_float, floats, is_concrete, validate_all
 from .._compile import quick_compile_jit
 from .._custom_types import Mat33, Quat, RealLike, Scalar
 from . import _validation as _v
-from .quat import _from_orthogonal, _from_rotvec, _to_matrix, canonical, mul, rotate
+from ._quat_core import _from_orthogonal, _from_rotvec, _to_matrix, canonical, mul, rotate
 
 # --------------------------------------------------------------------------- q-method
 

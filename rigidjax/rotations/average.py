@@ -14,7 +14,7 @@ from jaxtyping import Array, Float
 from .._checks import as_float, vector
 from .._custom_types import Quat, RealLike
 from . import _validation as _v
-from .quat import _unit, canonical
+from ._quat_core import _unit, canonical
 
 __all__ = ["mean", "top_eigvec"]
 

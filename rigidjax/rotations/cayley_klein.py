@@ -11,7 +11,7 @@ from jaxtyping import Array, Complex, DTypeLike
 from .._checks import as_float, check_shape, vector
 from .._custom_types import CMat22, CMat22Like, Quat, QuatLike, Vec3, Vec3Like
 from . import _validation as v
-from . import quat
+from ._quat_core import _unit, norm2
 
 __all__ = [
     "from_cayley_klein",
@@ -45,7 +45,7 @@ def to_cayley_klein(q: QuatLike) -> CMat22:
     It is the complex conjugate of `to_su2(q)`. complex64 for float32 input, complex128 for
     float64. `q` must be finite and non-zero.
     """
-    q = quat._unit(vector(q, 4, "q"), "q")
+    q = _unit(vector(q, 4, "q"), "q")
     l0, l1, l2, l3 = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     c = jax.lax.complex
     row0 = jnp.stack([c(l0, l3), c(-l2, l1)], axis=-1)
@@ -76,7 +76,7 @@ def from_cayley_klein(U: CMat22Like) -> Quat:
         detail,
         "; a Cayley–Klein matrix [[α, β], [−β̄, ᾱ]] needs |α|² + |β|² > 0",
     )
-    return q / jnp.sqrt(v.validate_all(q, [zero], quat.norm2(q)))[..., None]
+    return q / jnp.sqrt(v.validate_all(q, [zero], norm2(q)))[..., None]
 
 
 def pauli(dtype: DTypeLike | None = None) -> Complex[Array, "3 2 2"]:

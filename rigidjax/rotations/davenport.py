@@ -1,7 +1,7 @@
 """Generalized (Davenport) angles: rotations `P = Q(ψ m) Q(ϑ e) Q(φ n)` about fixed axes
 `(m, e, n)` with `e ⟂ m, n` (the representation theorem, article 003; THEORY §1), as SciPy's
 `Rotation.from_davenport`/`as_davenport` (intrinsic order). Angles from a rotation by the method
-of Bernardes & Viollet (2022) shared with `euler`. `degrees=True` as in SciPy.
+of Bernardes & Viollet (2022) shared with `euler` (`_euler_core`). `degrees=True` as in SciPy.
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ from jaxtyping import DTypeLike
 
 from .._checks import as_float, matrix, vector
 from .._custom_types import DavenportAxesLike, Mat33, Mat33Like, Quat, QuatLike, Vec3, Vec3Like
-from . import quat
-from .euler import _angles, _angles_arg, _compose
+from . import _quat_core
+from ._euler_core import _angles, _angles_arg, _compose
 
 __all__ = [
     "davenport_from_matrix",
@@ -92,13 +92,13 @@ def davenport_to_matrix(angles: Vec3Like, axes: DavenportAxesLike, degrees: bool
     raise a ValueError (a runtime error if the axes are traced).
     """
     q = davenport_to_quat(angles, axes, degrees)
-    return quat._to_matrix(q, quat.norm2(q))
+    return _quat_core._to_matrix(q, _quat_core.norm2(q))
 
 
 def davenport_from_quat(q: QuatLike, axes: DavenportAxesLike, degrees: bool = False) -> Vec3:
     """Generalized angles `(ψ, ϑ, φ)` of a quaternion (finite, non-zero); see
     `davenport_from_matrix`."""
-    angles = _davenport_from_unit_quat(quat._unit(vector(q, 4, "q"), "q"), axes)
+    angles = _davenport_from_unit_quat(_quat_core._unit(vector(q, 4, "q"), "q"), axes)
     return jnp.rad2deg(angles) if degrees else angles
 
 
@@ -114,5 +114,5 @@ def davenport_from_matrix(P: Mat33Like, axes: DavenportAxesLike, degrees: bool =
     where λ is the angle from n to m about e; at gimbal lock (ϑ = −λ or π − λ, where m and
     Q(ϑ e) n are parallel) φ = 0. `P` is checked and orthogonalised as by `quat.from_matrix`.
     """
-    angles = _davenport_from_unit_quat(quat._from_matrix(matrix(P, "P"), "P"), axes)
+    angles = _davenport_from_unit_quat(_quat_core._from_matrix(matrix(P, "P"), "P"), axes)
     return jnp.rad2deg(angles) if degrees else angles

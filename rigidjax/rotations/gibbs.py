@@ -16,7 +16,7 @@ from jaxtyping import Array
 
 from .._checks import matrix, vector
 from .._custom_types import Mat33, Mat33Like, Quat, QuatLike, Vec3, Vec3Like
-from . import _validation, quat
+from . import _quat_core, _validation
 from .so3 import hat
 
 __all__ = ["compose", "from_matrix", "from_quat", "rotate", "to_matrix", "to_quat"]
@@ -80,7 +80,7 @@ def from_matrix(P: Mat33Like) -> Vec3:
     """Gibbs vector of a rotation matrix (through the largest-component quaternion; equals
     `4 vee(P)/(1 + tr P)` but loses less accuracy near χ = π). Raises at χ = π, and for a
     non-finite `P` or det P ≤ 0 (see `quat.from_matrix`)."""
-    q = quat._from_matrix(matrix(P, "P"), "P")
+    q = _quat_core._from_matrix(matrix(P, "P"), "P")
     return _ratio(_validation.validate_all(q, [_half_turn_check("P")]))
 
 

@@ -22,7 +22,7 @@ from jaxtyping import Array, DTypeLike, Float, Int
 
 from .._checks import vector
 from .._custom_types import Quat, QuatLike
-from .quat import _unit, mul
+from ._quat_core import _unit, mul
 
 __all__ = ["reduce", "rotation_group"]
 

@@ -17,7 +17,7 @@ import numpy as np
 from .._checks import vector
 from .._custom_types import Quat, QuatLike
 from . import _validation as _v
-from .quat import _unit
+from ._quat_core import _unit
 
 __all__ = ["from_jaxlie", "from_scipy", "to_jaxlie", "to_scipy"]
 

@@ -12,7 +12,7 @@ import jax.numpy as jnp
 
 from .._checks import matrix, vector
 from .._custom_types import Mat33, Mat33Like, Quat, QuatLike, Vec3, Vec3Like
-from . import _validation, quat
+from . import _quat_core, _validation, quat
 from ._compiled import compiled
 
 __all__ = ["compose", "from_matrix", "from_quat", "rotate", "shadow", "to_matrix", "to_quat"]
@@ -30,7 +30,7 @@ def _from_canonical(q: Quat) -> Vec3:
 def from_quat(q: QuatLike) -> Vec3:
     """`p = λ/(1 + λ0)` of `quat.canonical(q)` (`q` finite, non-zero, treated as `q/|q|`), so
     `|p| ≤ 1`."""
-    return _from_unit_quat(quat._unit(vector(q, 4, "q"), "q"))
+    return _from_unit_quat(_quat_core._unit(vector(q, 4, "q"), "q"))
 
 
 def _to_quat(p: Vec3) -> Quat:
@@ -47,18 +47,18 @@ def from_matrix(P: Mat33Like) -> Vec3:
     """MRP (`|p| ≤ 1`) of a rotation matrix, through the largest-component quaternion; `P` is
     checked and orthogonalised as by `quat.from_matrix` (one compiled program)."""
     P = matrix(P, "P")
-    return _from_matrix(P, mode=quat._matrix_mode(P, "P"))
+    return _from_matrix(P, mode=_quat_core._matrix_mode(P, "P"))
 
 
 @compiled(2)
 def _from_matrix(P: Mat33, mode: str) -> Vec3:
-    return _from_canonical(quat._quat_of_matrix(P, "P", mode))  # (canonical already)
+    return _from_canonical(_quat_core._quat_of_matrix(P, "P", mode))  # (canonical already)
 
 
 def to_matrix(p: Vec3Like) -> Mat33:
     """`P = E + (8 S² + 4(1 − p²) S)/(1 + p²)²`, `S = p × E`; `p` must be finite."""
     q = to_quat(p)
-    return quat._to_matrix(q, quat.norm2(q))
+    return _quat_core._to_matrix(q, quat.norm2(q))
 
 
 def rotate(p: Vec3Like, r: Vec3Like) -> Vec3:

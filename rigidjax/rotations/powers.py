@@ -16,7 +16,7 @@ import jax.numpy as jnp
 from .._checks import as_float, vector
 from .._custom_types import Quat, QuatLike, Scalar, ScalarLike
 from . import _validation as _v
-from .quat import _angle, _from_rotvec, _to_rotvec, _unit, conj, identity, mul
+from ._quat_core import _angle, _from_rotvec, _to_rotvec, _unit, conj, identity, mul
 
 __all__ = ["approx_equal", "magnitude", "power"]
 

@@ -16,7 +16,7 @@ from jaxtyping import Array, Float
 from .._checks import Check, as_float, floats, validate_all, vector
 from .._custom_types import Quat, QuatLike, RealLike
 from . import _validation as _v
-from .quat import _from_rotvec, _to_rotvec, _unit, conj, mul
+from ._quat_core import _from_rotvec, _to_rotvec, _unit, conj, mul
 
 __all__ = ["Slerp", "key_frames"]
 

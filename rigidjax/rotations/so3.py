@@ -14,7 +14,7 @@ from jaxtyping import DTypeLike, PRNGKeyArray
 
 from .._checks import is_concrete, matrix, validate, vector
 from .._custom_types import Frame, Mat33, Mat33Like, Scalar, Vec3, Vec3Like
-from . import _series, _validation, quat
+from . import _quat_core, _series, _validation, quat
 from ._compiled import compiled
 
 __all__ = [
@@ -102,12 +102,12 @@ def log(P: Mat33Like) -> Vec3:
     a matrix with det > 0 that is not orthogonal is replaced by its nearest rotation. One
     compiled program per shape and dtype, as `quat.from_matrix`."""
     P = matrix(P, "P")
-    return _log(P, mode=quat._matrix_mode(P, "P"))
+    return _log(P, mode=_quat_core._matrix_mode(P, "P"))
 
 
 @compiled(2)
 def _log(P: Mat33, mode: str) -> Vec3:
-    return quat._to_rotvec(quat._quat_of_matrix(P, "P", mode))
+    return _quat_core._to_rotvec(_quat_core._quat_of_matrix(P, "P", mode))
 
 
 def rotate(theta: Vec3Like, a: Vec3Like) -> Vec3:
@@ -150,7 +150,9 @@ def compose(phi: Vec3Like, psi: Vec3Like) -> Vec3:
     `psi` must be finite."""
     phi = _validation.check_finite(vector(phi, 3, "phi"), "phi", 1)
     psi = _validation.check_finite(vector(psi, 3, "psi"), "psi", 1)
-    return quat._to_rotvec(quat.mul(quat._from_rotvec(phi), quat._from_rotvec(psi)))
+    return _quat_core._to_rotvec(
+        quat.mul(_quat_core._from_rotvec(phi), _quat_core._from_rotvec(psi))
+    )
 
 
 def shadow(theta: Vec3Like) -> Vec3:
@@ -215,7 +217,9 @@ def distance(P1: Mat33Like, P2: Mat33Like) -> Scalar:
     """Geodesic distance `|log(P1ᵀ P2)|` ∈ [0, π] (the angle of the relative rotation); `P1`, `P2`
     are checked and orthogonalised as by `quat.from_matrix` (one compiled program)."""
     P1, P2 = matrix(P1, "P1"), matrix(P2, "P2")
-    return _distance(P1, P2, mode1=quat._matrix_mode(P1, "P1"), mode2=quat._matrix_mode(P2, "P2"))
+    return _distance(
+        P1, P2, mode1=_quat_core._matrix_mode(P1, "P1"), mode2=_quat_core._matrix_mode(P2, "P2")
+    )
 
 
 @compiled(2, 2)
@@ -223,10 +227,10 @@ def _distance(P1: Mat33, P2: Mat33, mode1: str, mode2: str) -> Scalar:
     if mode1 == mode2 == "rotation":  # both orthogonal to rounding: the relative rotation's
         # angle, one conversion (the same derivative: that of the projections on SO(3))
         M = jnp.swapaxes(P1, -1, -2) @ P2
-        return quat._angle(quat._quat_of_matrix(M, "P1ᵀ P2", "rotation"))
-    q1 = quat._quat_of_matrix(P1, "P1", mode1)
-    q2 = quat._quat_of_matrix(P2, "P2", mode2)
-    return quat._angle(quat.mul(quat.conj(q1), q2))
+        return _quat_core._angle(_quat_core._quat_of_matrix(M, "P1ᵀ P2", "rotation"))
+    q1 = _quat_core._quat_of_matrix(P1, "P1", mode1)
+    q2 = _quat_core._quat_of_matrix(P2, "P2", mode2)
+    return _quat_core._angle(quat.mul(quat.conj(q1), q2))
 
 
 def orthogonality_error(P: Mat33Like) -> Scalar:

@@ -36,7 +36,7 @@ from .._custom_types import Mat33, QuatLike, RealLike, Vec3
 from .._numerics import inv3, poly
 from . import _series
 from . import _validation as _v
-from .quat import _from_rotvec, _to_rotvec, conj, mul
+from ._quat_core import _from_rotvec, _to_rotvec, conj, mul
 from .slerp import key_frames
 
 __all__ = ["RotationSpline"]
