@@ -74,14 +74,18 @@ def build_library(
     cmd = [*cc, *flags, "-fopt-info-vec-optimized", str(source), "-o", str(out)]
     if not (out.exists() and report_file.exists()):
         folder.mkdir(parents=True, exist_ok=True)
-        try:
-            done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+        tmp = out.with_suffix(f".{os.getpid()}.tmp")  # then renamed: another process never
+        try:  # loads a half-written library
+            done = subprocess.run(
+                [*cmd[:-1], str(tmp)], capture_output=True, text=True, timeout=300
+            )
         except (OSError, subprocess.SubprocessError) as e:
             return f"no C compiler ({e}): the C reference rows are skipped"
         if done.returncode != 0:
             return f"building the C reference failed: {done.stderr[-1000:]}"
         lines = done.stderr.splitlines()
         report_file.write_text("\n".join(line for line in lines if "loop vectorized" in line))
+        tmp.replace(out)
     return ctypes.CDLL(str(out)), report_file.read_text(), shlex.join(cmd)
 
 
