@@ -43,6 +43,9 @@ class AdaptiveKernel(NamedTuple):
     p: int
     record: tuple[int, int]
 
+    def __repr__(self) -> str:
+        return f"AdaptiveKernel({self.forward}, n={self.n}, p={self.p}, record={self.record})"
+
     def backward(self) -> str:
         """The reverse mode's handler, built and registered on the first call."""
         text, name = self.backward_header
@@ -63,8 +66,8 @@ def controls(
     dtype,
 ) -> np.ndarray | None:
     """The controller's values for the kernel (`CONTROLS`), or None where `controller` asks for
-    what the kernel does not do (or its values are traced): a controller other than a plain `diffrax.PIDController`
-    (`dtmin`, `step_ts`, `jump_ts` unset), or a solver without an adaptive kernel."""
+    what the kernel does not do: a controller other than a plain `diffrax.PIDController`
+    (`dtmin`, `step_ts`, `jump_ts` unset), a solver without an adaptive kernel, traced values."""
     if type(solver) not in tableau.ADAPTIVE or type(controller) is not diffrax.PIDController:
         return None
     pid = cast(diffrax.PIDController, controller)
@@ -126,7 +129,9 @@ def _call(target: str, shapes: list[jax.ShapeDtypeStruct], *args: Array | np.nda
     a leading dimension of 1)."""
     dtype = shapes[0].dtype
     call = jax.ffi.ffi_call(target, shapes, vmap_method="expand_dims")
-    cast_args = [a.astype(jnp.int32 if jnp.issubdtype(a.dtype, jnp.integer) else dtype) for a in args]
+    cast_args = [
+        a.astype(jnp.int32 if jnp.issubdtype(a.dtype, jnp.integer) else dtype) for a in args
+    ]
     return list(call(*cast_args))
 
 
@@ -140,7 +145,7 @@ def run(
     y0: Float[Array, "B N"],
     blocks: Sequence[Float[Array, "#B _"]],
     ts: Float[Array, " T"],
-    ctl: Float[Array, " 12"],
+    ctl: Float[np.ndarray, " 12"],
     through: Through,
     jump: np.ndarray | None = None,
     keep: np.ndarray | None = None,
@@ -203,7 +208,10 @@ def run(
         gy = gy_kept if every_kept else jnp.zeros_like(y).at[:, kept].add(gy_kept)
         if at.size:  # a command is held after its jump to the next time
             gy = gy.at[:, at + 1, R0 : R0 + NR].add(g_rec)
-        out = [jax.ShapeDtypeStruct((B, kernel.n), dtype), jax.ShapeDtypeStruct((B, kernel.p), dtype)]
+        out = [
+            jax.ShapeDtypeStruct((B, kernel.n), dtype),
+            jax.ShapeDtypeStruct((B, kernel.p), dtype),
+        ]
         args = (y, ts, jmp, every, ctl, hk, gy, *blocks)
         y0b, pb = _call(kernel.backward(), out, *args)
         gb = [

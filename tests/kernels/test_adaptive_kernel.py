@@ -1,0 +1,168 @@
+"""The adaptive CPU kernel (`rigidjax.kernels.adaptive`, the default `simulate` at a tolerance)
+against the Diffrax path of each body alone (`ExplicitRK(method)` under `jax.vmap`, which never
+takes a kernel): the same steps and values, each body its own steps, gradients against the
+Diffrax path's and central differences, failures per body."""
+
+import shutil
+
+import diffrax
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import rigidjax as rj
+from rigidjax.kernels import _build
+from rigidjax.solvers import ExplicitRK
+
+pytestmark = pytest.mark.skipif(
+    shutil.which(_build._compiler()[0]) is None, reason="no C++ compiler ($CXX or c++)"
+)
+
+BODY = rj.RigidBody(jnp.array([1.0, 2.0, 3.0]))
+TS = jnp.linspace(0.0, 2.0, 5)
+TOL = dict(rtol=1e-8, atol=1e-8)
+COUNTS = ("num_steps", "num_accepted_steps", "num_rejected_steps")
+
+
+def pd_torque(t, w, q):
+    """An attitude torque: proportional–derivative toward the identity."""
+    return -0.4 * q[0] * q[1:] - 0.2 * w
+
+
+def _inputs(B, seed=0):
+    """Spread rates: |Ω| log-uniform in 0.1–3 rad/s, random attitudes."""
+    rng = np.random.default_rng(seed)
+    w = rng.normal(size=(B, 3))
+    w *= (
+        np.exp(rng.uniform(np.log(0.1), np.log(3.0), size=(B, 1)))
+        / np.linalg.norm(w, axis=1)[:, None]
+    )
+    q = rng.normal(size=(B, 4))
+    return jnp.asarray(w), jnp.asarray(q / np.linalg.norm(q, axis=1)[:, None])
+
+
+def _each(w, q, torque=None, method=diffrax.Tsit5, body=BODY, **kw):
+    """The Diffrax path, one body at a time (`jax.vmap`: each its own steps)."""
+
+    def one(w, q):
+        return rj.simulate(body, w, q, TS, torque, solver=ExplicitRK(method()), **TOL, **kw)
+
+    return jax.vmap(one)(w, q)
+
+
+@pytest.mark.parametrize("torque", [None, pd_torque], ids=["free", "pd"])
+@pytest.mark.parametrize("method", [diffrax.Tsit5, diffrax.Dopri5])
+def test_kernel_takes_the_diffrax_paths_steps(method, torque):
+    w, q = _inputs(5)
+    fast = rj.simulate(BODY, w, q, TS, torque, solver=method(), **TOL)
+    slow = _each(w, q, torque, method)
+    np.testing.assert_allclose(fast.omega, slow.omega, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(fast.quat, slow.quat, rtol=0, atol=1e-12)
+    for key in COUNTS:
+        np.testing.assert_array_equal(fast.stats[key], slow.stats[key])
+    assert fast.stats["num_steps"].shape == (5,)
+    assert fast.result == diffrax.RESULTS.successful
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method", [diffrax.Bosh3, diffrax.Dopri8])
+def test_other_pairs_take_the_diffrax_paths_steps(method):
+    w, q = _inputs(3, seed=1)
+    fast = rj.simulate(BODY, w, q, TS, pd_torque, solver=method(), **TOL)
+    slow = _each(w, q, pd_torque, method)
+    np.testing.assert_allclose(fast.omega, slow.omega, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(fast.stats["num_steps"], slow.stats["num_steps"])
+
+
+def test_a_body_is_the_same_alone_and_in_any_batch():
+    """Each body its own steps: the batch's values are each body's alone, bit for bit (67: a
+    full block of 64 bodies and a partial one), and `jax.vmap(simulate)`'s."""
+    w, q = _inputs(67, seed=2)
+    batch = rj.simulate(BODY, w, q, TS, **TOL)
+    for i in (0, 40, 66):
+        alone = rj.simulate(BODY, w[i], q[i], TS, **TOL)
+        np.testing.assert_array_equal(alone.omega, batch.omega[i])
+        np.testing.assert_array_equal(alone.quat, batch.quat[i])
+        assert int(alone.stats["num_steps"]) == int(batch.stats["num_steps"][i])
+    mapped = jax.vmap(lambda w, q: rj.simulate(BODY, w, q, TS, **TOL))(w, q)
+    np.testing.assert_array_equal(mapped.omega, batch.omega)
+    # the step counts differ between bodies (each its own)
+    assert len(set(np.asarray(batch.stats["num_steps"]).tolist())) > 5
+
+
+def test_controller_options_reach_the_kernel():
+    """`dt0` (the first step), `dtmax` and the PID coefficients give the Diffrax path's steps."""
+    w, q = _inputs(3, seed=3)
+    pid = diffrax.PIDController(rtol=1e-7, atol=1e-9, pcoeff=0.1, icoeff=0.4, dtmax=0.05)
+    kw = dict(stepsize_controller=pid, dt0=0.01)
+    fast = rj.simulate(BODY, w, q, TS, solver=diffrax.Tsit5(), **kw)
+    slow = jax.vmap(
+        lambda w, q: rj.simulate(BODY, w, q, TS, solver=ExplicitRK(diffrax.Tsit5()), **kw)
+    )(w, q)
+    np.testing.assert_allclose(fast.omega, slow.omega, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(fast.stats["num_steps"], slow.stats["num_steps"])
+
+
+def test_gradients_match_the_diffrax_path_and_differences():
+    """Reverse mode through the kernel's adjoint of the accepted steps: the moments, Ω0 and a
+    torque gain closed over, against the Diffrax path (1e-9) and central differences."""
+    w, q = _inputs(3, seed=4)
+
+    def loss(I, w0, gain, solver):
+        def torque(t, om, qq):
+            return -gain * qq[0] * qq[1:] - 0.2 * om
+
+        traj = rj.simulate(rj.RigidBody(I), w0, q, TS, torque, solver=solver, **TOL)
+        return jnp.sum(traj.omega[:, -1] ** 2) + jnp.sum(traj.quat[:, -1, 1:] * 0.3)
+
+    args = (jnp.array([1.2, 2.0, 3.0]), w, jnp.asarray(0.4))
+    fast = jax.grad(loss, argnums=(0, 1, 2))(*args, diffrax.Tsit5())
+
+    def each(I, w0, gain):  # the Diffrax path: one body at a time, each its own steps
+        def one(wi, qi):
+            def torque(t, om, qq):
+                return -gain * qq[0] * qq[1:] - 0.2 * om
+
+            traj = rj.simulate(rj.RigidBody(I), wi, qi, TS, torque, solver=ExplicitRK(), **TOL)
+            return jnp.sum(traj.omega[-1] ** 2) + jnp.sum(traj.quat[-1, 1:] * 0.3)
+
+        return jnp.sum(jax.vmap(one)(w0, q))
+
+    slow = jax.grad(each, argnums=(0, 1, 2))(*args)
+    for a, b in zip(fast, slow, strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-11)
+    eps = 1e-6
+    e = jnp.array([0.0, 1.0, 0.0]) * eps
+    diff = (
+        loss(args[0] + e, *args[1:], diffrax.Tsit5())
+        - loss(args[0] - e, *args[1:], diffrax.Tsit5())
+    ) / (2 * eps)
+    np.testing.assert_allclose(fast[0][1], diff, rtol=1e-5)
+
+
+def test_output_times_are_differentiated_through_diffrax():
+    w, q = _inputs(2, seed=5)
+
+    def loss(ts, solver):
+        return jnp.sum(rj.simulate(BODY, w, q, ts, solver=solver, **TOL).omega[:, -1] ** 2)
+
+    fast = jax.grad(loss)(TS, diffrax.Tsit5())
+    slow = jax.grad(loss)(TS, ExplicitRK())  # a batch as one state: other steps, same limit
+    np.testing.assert_allclose(fast, slow, rtol=1e-6, atol=1e-7)
+
+
+def test_max_steps_and_failures_are_per_body():
+    """A fast body that needs more than `max_steps` steps in an interval fails alone: the slow
+    body's states are its own solve's; the batch's result names the first failure."""
+    w = jnp.array([[0.05, 0.02, 0.01], [8.0, 6.0, 5.0]])
+    q = jnp.tile(jnp.array([1.0, 0.0, 0.0, 0.0]), (2, 1))
+    traj = rj.simulate(BODY, w, q, TS, max_steps=30, throw=False, **TOL)
+    alone = rj.simulate(BODY, w[0], q[0], TS, max_steps=30, **TOL)
+    np.testing.assert_array_equal(traj.omega[0], alone.omega)
+    assert traj.result == diffrax.RESULTS.max_steps_reached
+    fast = rj.simulate(BODY, w[1], q[1], TS, max_steps=30, throw=False, solver=ExplicitRK(), **TOL)
+    assert fast.result == diffrax.RESULTS.max_steps_reached
+    assert int(traj.stats["num_valid"]) == int(fast.stats["num_valid"]) < TS.shape[0]
+    with pytest.raises(rj.IntegrationError, match="max_steps"):
+        rj.simulate(BODY, w, q, TS, max_steps=30, **TOL)
