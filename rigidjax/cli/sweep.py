@@ -27,7 +27,8 @@ from ._common import (
     save_figure,
     write_atomic,
 )
-from ._config import Config, fill, load, make_design, make_model
+from ._config import Config, fill, load, make_design
+from ._sweep_model import make_model
 
 STORE = "sweep.zarr"
 CONFIG_COPY = "sweep.toml"  # the config the store was made with
