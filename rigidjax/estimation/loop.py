@@ -40,6 +40,7 @@ from .._checks import as_float
 from .._custom_types import RealLike
 from ..control.stateful import StatefulController
 from ..rotations import quat
+from ..rotations._quat_core import _from_rotvec, _to_rotvec
 from .mekf import FilterState, _level, check_P0, default_P0, propagate, update
 
 __all__ = ["Estimated", "LoopLog", "control_error", "estimated", "knowledge_error", "loop_log"]
@@ -175,7 +176,7 @@ class Estimated(StatefulController):
         k_err, k_run = jax.random.split(key)
         L = jnp.linalg.cholesky(self.P0.astype(dtype))
         err = L @ jax.random.normal(k_err, (6,), dtype)
-        q_hat = quat.mul(q0, quat._from_rotvec(-err[:3]))
+        q_hat = quat.mul(q0, _from_rotvec(-err[:3]))
         return dict(
             rng=_seed(k_run, dtype),
             count=jnp.zeros((), dtype),
@@ -204,14 +205,14 @@ class Estimated(StatefulController):
             s, rate, jnp.where(started, dt, 0.0), self.filter_arw.astype(dtype),
             self.filter_rrw.astype(dtype),
         )  # fmt: skip
-        q_meas = quat.mul(q, quat._from_rotvec(self.sigma.astype(dtype) * z[3]))
+        q_meas = quat.mul(q, _from_rotvec(self.sigma.astype(dtype) * z[3]))
         s, _, _, _ = update(s, q_meas, self.filter_sigma.astype(dtype))
         u = self.law(t, rate - s.b, s.q, params)
         log = jnp.concatenate(
             [
                 s.q,
                 s.b,
-                quat._to_rotvec(quat.mul(quat.conj(s.q), q)),
+                _to_rotvec(quat.mul(quat.conj(s.q), q)),
                 bias_true - s.b,
                 jnp.sqrt(jnp.stack([s.P[i, i] for i in range(6)])),
             ]

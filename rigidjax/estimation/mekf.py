@@ -37,6 +37,7 @@ from .._checks import as_float, broadcast_batch, check_finite, is_concrete, vali
 from .._custom_types import RealLike
 from .._numerics import cofactors
 from ..rotations import _series, quat
+from ..rotations._quat_core import _from_rotvec, _to_rotvec
 
 __all__ = ["MEKF", "FilterState", "mekf", "propagate", "update"]
 
@@ -116,7 +117,7 @@ def propagate(
         [jnp.concatenate([Qtt, Qtb], axis=1), jnp.concatenate([Qtb, Qbb], axis=1)], axis=0
     )
     P = Phi @ s.P @ Phi.T + Q
-    q = quat.mul(s.q, quat._from_rotvec(w * dt))
+    q = quat.mul(s.q, _from_rotvec(w * dt))
     q = q / jnp.sqrt(jnp.sum(q * q))
     return FilterState(q, s.b, 0.5 * (P + P.T))
 
@@ -130,7 +131,7 @@ def update(
     and NaN innovation and nis."""
     valid = jnp.all(jnp.isfinite(q_meas))
     qm = jnp.where(valid, q_meas, s.q)  # a finite stand-in: finite values and gradients
-    y = quat._to_rotvec(quat.mul(quat.conj(s.q), qm))
+    y = _to_rotvec(quat.mul(quat.conj(s.q), qm))
     R = jnp.diag(sigma * sigma)
     S = s.P[:3, :3] + R
     cof, det = cofactors(S)
@@ -140,7 +141,7 @@ def update(
     IKH = jnp.eye(6, dtype=dtype) - jnp.concatenate([K, jnp.zeros((6, 3), dtype)], axis=1)
     P = IKH @ s.P @ IKH.T + K @ R @ K.T
     dx = K @ y
-    q = quat.mul(s.q, quat._from_rotvec(dx[:3]))
+    q = quat.mul(s.q, _from_rotvec(dx[:3]))
     q = q / jnp.sqrt(jnp.sum(q * q))
     nis = y @ S_inv @ y
     ll = -0.5 * (nis + jnp.log(det) + 3 * _LOG_2PI)
