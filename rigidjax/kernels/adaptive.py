@@ -26,10 +26,11 @@ from .model import _NAME, Hoisted, _header, _headers
 
 __all__ = ["AdaptiveKernel", "build", "controls", "run"]
 
-CONTROLS = 12
+CONTROLS = 14
 """The controller's values, as `Ctl` of `model_adaptive.h` reads them: rtol, atol, safety,
 factormin, factormax, dtmax (∞ for none), dt0 (NaN: the heuristic), the exponents β1, β2, β3
-of the inverse scaled errors, 1 / the error order, max_steps."""
+of the inverse scaled errors, 1 / the error order, max_steps; the event's direction (0 either,
+1 rising, −1 falling) and whether it terminates (1) or not (0)."""
 
 
 class AdaptiveKernel(NamedTuple):
@@ -42,6 +43,7 @@ class AdaptiveKernel(NamedTuple):
     n: int
     p: int
     record: tuple[int, int]
+    event: bool = False  # the model has an event condition (`Model::G`)
 
     def __repr__(self) -> str:
         return f"AdaptiveKernel({self.forward}, n={self.n}, p={self.p}, record={self.record})"
@@ -64,6 +66,8 @@ def controls(
     dt0: float | Array | None,
     max_steps: int,
     dtype,
+    direction: int | None = None,
+    terminate: bool = True,
 ) -> np.ndarray | None:
     """The controller's values for the kernel (`CONTROLS`), or None where `controller` asks for
     what the kernel does not do: a controller other than a plain `diffrax.PIDController`
@@ -93,6 +97,8 @@ def controls(
         *(c / order for c in coeffs),
         1 / order,
         max_steps,
+        0 if direction is None else direction,
+        1 if terminate else 0,
     ]
     try:  # NumPy: constants of the program (no tracer for the custom rules to close over)
         return np.asarray([float(v) for v in values], dtype=dtype)
@@ -121,7 +127,8 @@ def build(
     if load(_NAME, (name,), _headers(text, adaptive=True)) is None:
         return None
     back = _header(method, dtype, source, "backward", False, adaptive=True)
-    return AdaptiveKernel(name, back, hoisted.n, hoisted.p + hoisted.c.shape[0], record)
+    size = hoisted.p + hoisted.c.shape[0]
+    return AdaptiveKernel(name, back, hoisted.n, size, record, hoisted.events)
 
 
 def _call(target: str, shapes: list[jax.ShapeDtypeStruct], *args: Array | np.ndarray) -> list:
@@ -135,9 +142,9 @@ def _call(target: str, shapes: list[jax.ShapeDtypeStruct], *args: Array | np.nda
     return list(call(*cast_args))
 
 
-Through = Callable[[Array, tuple, Array], tuple[Array, Array]]
-"""`(y0, blocks, ts) -> (ys (B, S, N), recorded (B, R, NR))`: the same solve through Diffrax,
-whose reverse mode differentiates the output times."""
+Through = Callable[[Array, tuple, Array], tuple[Array, Array, Array]]
+"""`(y0, blocks, ts) -> (ys (B, S, N), recorded (B, R, NR), event times (B,))`: the same solve
+through Diffrax, whose reverse mode differentiates the output times and the events."""
 
 
 def run(
@@ -149,14 +156,15 @@ def run(
     through: Through,
     jump: np.ndarray | None = None,
     keep: np.ndarray | None = None,
-) -> tuple[Float[Array, "B S N"], Float[Array, "B R NR"], Int[Array, "B 5"]]:
+) -> tuple[Float[Array, "B S N"], Float[Array, "B R NR"], Int[Array, "B 5"], Float[Array, " B"]]:
     """The states `(B, S, N)` at the times `keep (T,)` selects (all by default), the components
     `kernel.record` after each jump `(B, R, NR)` (the intervals `jump (T − 1,)` flags start with
     the jump map), and per body `(B, 5)`: attempted, accepted and rejected steps, the leading
-    output times reached, and the result (0 successful, 1 max_steps reached, 2 non-finite).
+    output times reached, and the result (0 successful, 1 max_steps reached, 2 non-finite), and
+    the first event's time `(B,)` (∞ where none; a kernel with an event).
     The parameters and lifted constants come in `blocks`, each `(B or 1, Pj)`; the controller
     in `ctl` (`controls`). Reverse mode by the kernel's adjoint of the accepted steps; where the
-    output times are differentiated, by `through`'s."""
+    output times are differentiated, or there is an event, by `through`'s."""
     K, B, dtype = ts.shape[0] - 1, y0.shape[0], y0.dtype
     jumps = np.zeros(K, bool) if jump is None else np.asarray(jump, bool)
     kept = np.arange(K + 1) if keep is None else np.flatnonzero(np.asarray(keep, bool))
@@ -177,32 +185,33 @@ def run(
             jax.ShapeDtypeStruct((B, at.size, NR), dtype),
             jax.ShapeDtypeStruct((B, K), dtype),
             jax.ShapeDtypeStruct((B, 5), jnp.int32),
+            jax.ShapeDtypeStruct((B,), dtype),
         ]
         return _call(kernel.forward, shapes, y0, ts, jmp, save, ctl, *blocks)
 
     def forward(y0, blocks, ts, ctl):
-        y, rec, _, st = call(y0, blocks, ts, ctl, save, kept.size)
-        return y, rec, st
+        y, rec, _, st, ev = call(y0, blocks, ts, ctl, save, kept.size)
+        return y, rec, st, ev
 
     def run_fwd(y0, blocks, ts, ctl):
-        perturbed = ts.perturbed
+        perturbed = ts.perturbed or kernel.event
         y0, ts, ctl = y0.value, ts.value, ctl.value
         blocks = tuple(b.value for b in blocks)
         if perturbed:
             out = forward(y0, blocks, ts, ctl)
             _, pullback = jax.vjp(through, y0, blocks, ts)
             return out, (pullback,)
-        y, rec, hk, st = call(y0, blocks, ts, ctl, every, K + 1)
-        return (y if every_kept else y[:, kept], rec, st), (y, blocks, ts, ctl, hk)
+        y, rec, hk, st, ev = call(y0, blocks, ts, ctl, every, K + 1)
+        return (y if every_kept else y[:, kept], rec, st, ev), (y, blocks, ts, ctl, hk)
 
     def run_bwd(residuals, g):
-        shapes = [(B, kept.size, kernel.n), (B, at.size, NR)]
-        gy_kept, g_rec = (
+        shapes = [(B, kept.size, kernel.n), (B, at.size, NR), (B,)]
+        gy_kept, g_rec, g_ev = (
             jnp.zeros(shape, dtype) if isinstance(x, SymbolicZero) else x
-            for x, shape in zip(g[:2], shapes, strict=True)
+            for x, shape in zip((*g[:2], g[3]), shapes, strict=True)
         )
         if len(residuals) == 1:
-            y0b, gb, tb = residuals[0]((gy_kept, g_rec))
+            y0b, gb, tb = residuals[0]((gy_kept, g_rec, g_ev))
             return y0b, gb, tb, None
         y, blocks, ts, ctl, hk = residuals
         gy = gy_kept if every_kept else jnp.zeros_like(y).at[:, kept].add(gy_kept)

@@ -48,9 +48,19 @@ class Hoisted:
     (applied at the start of flagged intervals: a sampled command) and a step-end map
     `end_fn(t, y, p, c) -> y` (after every step; `t` unused), with the same constants."""
 
-    def __init__(self, fns: Callable, c: Array, n: int, p: int, dtype, jumps: bool, ends: bool):
+    def __init__(
+        self,
+        fns: Callable,
+        c: Array,
+        n: int,
+        p: int,
+        dtype,
+        jumps: bool,
+        ends: bool,
+        events: bool = False,
+    ):
         self.fns, self.c, self.n, self.p, self.dtype = fns, c, n, p, jnp.dtype(dtype)
-        self.jumps, self.ends = jumps, ends
+        self.jumps, self.ends, self.events = jumps, ends, events
         self._sources: dict[tuple, str] = {}
         self._jaxprs: dict[tuple, Any] = {}
 
@@ -62,6 +72,9 @@ class Hoisted:
 
     def end_fn(self, t, y, p, c):
         return self.fns(t, y, p, c)[1 + self.jumps]
+
+    def event_fn(self, t, y, p, c):
+        return self.fns(t, y, p, c)[1 + self.jumps + self.ends][:1]
 
     def _avals(self):
         dt = self.dtype
@@ -158,14 +171,16 @@ def hoist(
     dtype,
     jump: Field | None = None,
     end: Callable[[Array], tuple[Array, Array]] | None = None,
+    event: Field | None = None,
 ) -> Hoisted:
-    """`field` (and the jump map `jump` and step-end map `end(y) -> (y, changed)`, if any; the
-    kernels apply `end(y)[0]` to every body, whether changed or not) traced on `t ()`,
+    """`field` (and the jump map `jump`, step-end map `end(y) -> (y, changed)` and event
+    condition `event(t, y, p) -> ()`, if any; the kernels apply `end(y)[0]` to every body,
+    whether changed or not) traced on `t ()`,
     `y (n,)`, `p (p,)` of `dtype`, their traced float constants lifted into `c`; kept (not
     traced again) for hashable functions whose constants are concrete, as `jax.jit` keeps a
     function's compilation. A traced integer constant (an index computed at run time) raises
     `Unsupported`."""
-    maps = (field, jump, end)
+    maps = (field, jump, end, event)
     name = jnp.dtype(dtype).name
     try:
         hash(maps)
@@ -192,13 +207,18 @@ def _hoist(maps: tuple, n: int, p: int, dtype: str) -> Hoisted:
         jax.ShapeDtypeStruct((p,), dtype),
     )
 
-    field, jump, end = maps
+    field, jump, end, event = maps
 
     def all_maps(t, y, p):
         return (
             field(t, y, p),
             *(() if jump is None else (jump(t, y, p),)),
             *(() if end is None else (end(y)[0],)),
+            *(
+                ()
+                if event is None
+                else (jnp.broadcast_to(jnp.asarray(event(t, y, p), y.dtype), (n,)),)
+            ),
         )
 
     closed = jax.make_jaxpr(all_maps)(*args)
@@ -221,7 +241,8 @@ def _hoist(maps: tuple, n: int, p: int, dtype: str) -> Hoisted:
             offset += v.size
         return jax.core.eval_jaxpr(closed.jaxpr, full, t, y, p)
 
-    return Hoisted(fns, c, n, p, dtype, maps[1] is not None, maps[2] is not None)
+    jumps, ends, events = (m is not None for m in maps[1:])
+    return Hoisted(fns, c, n, p, dtype, jumps, ends, events)
 
 
 def _inputs(n: int, p: int, pc: int, *extra: str) -> list[np.ndarray]:
@@ -277,6 +298,8 @@ def model_source(
     ends, end = hoisted.ends, hoisted.end_fn
     body_e = _program(hoisted.jaxpr(end), "u", "e", n, p, pc)[0] if ends else []
     body_eb = _cotangent_program(hoisted.jaxpr(end, True), "eb", n, p, pc) if ends else []
+    events = hoisted.events
+    body_g = _program(hoisted.jaxpr(hoisted.event_fn), "g", "g", n, p, pc)[0] if events else []
     units = ", ".join(f"{{{a}, {m}}}" for a, m in unit) or "{0, 0}"
     indent = "\n    "
     forward_args = "(T t, const T* y, const T* p, T* {}) {{\n    "
@@ -286,6 +309,7 @@ def model_source(
         f"  static constexpr int N = {n}, P = {p + pc}, NU = {len(unit)};\n"
         f"  static constexpr bool kJump = {'true' if jumps else 'false'};\n"
         f"  static constexpr bool kEnd = {'true' if ends else 'false'};\n"
+        f"  static constexpr bool kEvent = {'true' if events else 'false'};\n"
         f"  static constexpr int R0 = {record[0]}, NR = {record[1]};\n"
         f"  static constexpr int unit[{max(len(unit), 1)}][2] = {{{units}}};\n"
         f"  static constexpr bool still[{n}] = {{{still}}};\n"
@@ -299,6 +323,7 @@ def model_source(
                 ("JT", backward_args, body_jb),
                 ("E", forward_args.format("u"), body_e),
                 ("ET", backward_args, body_eb),
+                ("G", forward_args.format("g"), body_g),
             )
         )
         + "};\n"

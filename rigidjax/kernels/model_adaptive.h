@@ -16,24 +16,62 @@
 //                  with a jump map from dt0 or the heuristic at every interval); at most
 //                  max_steps attempts each; a non-finite state is not integrated further
 //
+//   an event      (Model::G, with Model::kEvent) after each accepted step where the condition's
+//                 sign changes in its direction, as Diffrax decides it: its time located on the
+//                 step (Locate); a terminating event stops the body, its later states held
+//
 // Shapes (leading…: as model.cc): y0 (…, B, N);  ts (…, T);  jump (…, T − 1) int32 as model.cc's;
-// save (…, T) int32 0 or 1 + the slot of y;  ctl (…, 12) the controller (Ctl);  blocks as model.cc.
-// Forward: y (L…, B, S, N), rec (L…, B, R, NR), hk (L…, B, T − 1) each interval's first step,
-// st (L…, B, 5) int32 (attempts, accepted, rejected, valid output times, result: 0 successful,
-// 1 max_steps reached, 2 non-finite). Reverse: from y (…, B, T, N) (every state), ts, jump,
+// save (…, T) int32 0 or 1 + the slot of y;  ctl (…, kControls) the controller and event (Ctl);
+// blocks as model.cc. Forward: y (L…, B, S, N), rec (L…, B, R, NR), hk (L…, B, T − 1) each
+// interval's first step, st (L…, B, 5) int32 (attempts, accepted, rejected, valid output times,
+// result: 0 successful, 1 max_steps reached, 2 non-finite), ev (L…, B) the first event's time
+// (∞: none). Reverse: from y (…, B, T, N) (every state), ts, jump,
 // save, ctl, hk (…, B, T − 1), gy (…, B, T, N) and the blocks, y0b (L…, B, N), pb (L…, B, P):
 // the discrete adjoint of the accepted steps (the step sizes are constants, as Diffrax's
 // `stop_gradient` of the controller makes them), recomputed interval by interval.
 #pragma once
 
+constexpr int kControls = 14;
+
 template <typename T>
 struct Ctl {
   T rtol, atol, safety, fmin, fmax, dtmax, dt0, c1, c2, c3, inv_order;
   int64_t max_steps;
+  int direction;   // of the event (Model::G): 0 either, 1 rising, −1 falling
+  bool terminate;  // the event stops the body
   explicit Ctl(const T* c)
       : rtol(c[0]), atol(c[1]), safety(c[2]), fmin(c[3]), fmax(c[4]), dtmax(c[5]), dt0(c[6]),
-        c1(c[7]), c2(c[8]), c3(c[9]), inv_order(c[10]), max_steps(static_cast<int64_t>(c[11])) {}
+        c1(c[7]), c2(c[8]), c3(c[9]), inv_order(c[10]), max_steps(static_cast<int64_t>(c[11])),
+        direction(static_cast<int>(c[12])), terminate(c[13] != T(0)) {}
 };
+
+// The event of one body: the condition's value at the current state, and the first event's
+// time (∞ until it happens); `stopped` once a terminating event happened.
+template <typename T>
+struct Watch {
+  T g = T(0), time = std::numeric_limits<T>::infinity();
+  bool stopped = false;
+};
+
+template <typename T>
+RJ_INLINE T Condition(T t, const T* y, const T* p) {
+  T g[1];
+  Model::G(t, y, p, g);
+  return g[0];
+}
+
+template <typename T>
+RJ_INLINE int Sign(T x) {
+  return (x > T(0)) - (x < T(0));
+}
+
+// Whether the condition's change from g0 to g1 is an event, as Diffrax decides it.
+template <typename T>
+RJ_INLINE bool Crossed(int direction, T g0, T g1) {
+  if (direction == 0) return Sign(g0) != Sign(g1);
+  if (direction > 0) return Sign(g0) <= 0 && Sign(g1) > 0;
+  return Sign(g0) > 0 && Sign(g1) <= 0;
+}
 
 template <typename T>
 RJ_INLINE T Rms(T s) {
@@ -134,7 +172,46 @@ struct Count {
 // PID controller; returns the attempts and accepted steps. With `keep`, the accepted steps into
 // *keep.
 template <typename T>
-Count Interval(const Ctl<T>& c, T* y, const T* p, T a, T b, T h0, Taken<T>* keep = nullptr) {
+RJ_INLINE T Attempt(const Ctl<T>& c, const T* y, const T* p, T t, T h, T* u, T* r);
+
+// The event between t and t + h (an accepted step from y, the condition g0 there and g1 at
+// its end): its time, located by the Illinois method on τ ↦ G(t + τ, the step of size τ from
+// y) (each value one step of the pair: its error that of a step), and the state there into u.
+template <typename T>
+T Locate(const Ctl<T>& c, const T* y, const T* p, T t, T h, T g0, T g1, T* u) {
+  T a = T(0), b = h, fa = g0, fb = g1, r[NU];
+  int side = 0;
+  T m = g0 == T(0) ? T(0) : b;
+  const T tiny = T(4) * std::numeric_limits<T>::epsilon() * std::max(std::abs(t) + h, T(1));
+  for (int i = 0; i < 200 && g0 != T(0) && b - a > tiny; ++i) {
+    m = (a * fb - b * fa) / (fb - fa);
+    if (!(m > a && m < b)) m = T(0.5) * (a + b);
+    Attempt(c, y, p, t, m, u, r);
+    const T fm = Condition(t + m, u, p);
+    if (fm == T(0)) break;
+    if (Sign(fm) == Sign(fb)) {
+      b = m, fb = fm;
+      if (side == -1) fa *= T(0.5);
+      side = -1;
+    } else {
+      a = m, fa = fm;
+      if (side == 1) fb *= T(0.5);
+      side = 1;
+    }
+    m = b;
+  }
+  if (m == T(0)) {
+    RJ_UNROLL
+    for (int j = 0; j < N; ++j) u[j] = y[j];
+  } else {
+    Attempt(c, y, p, t, m, u, r);
+  }
+  return t + m;
+}
+
+template <typename T>
+Count Interval(const Ctl<T>& c, T* y, const T* p, T a, T b, T h0, Taken<T>* keep = nullptr,
+               Watch<T>* ev = nullptr) {
   T floor = b;
   for (int i = 0; i < 100; ++i) floor = std::nextafter(floor, -std::numeric_limits<T>::infinity());
   T tprev = a, tnext = std::min(a + std::min(h0, c.dtmax), b);
@@ -152,6 +229,21 @@ Count Interval(const Ctl<T>& c, T* y, const T* p, T a, T b, T h0, Taken<T>* keep
     const T dt = std::min(h * factor, c.dtmax);
     if (inv == T(0) || std::isinf(inv)) inv = T(1);
     const T t0 = ok ? tnext : tprev, t1 = t0 + dt;
+    if (ok && ev && Model::kEvent) {
+      const T g1 = Condition(tnext, u, p);
+      if (std::isinf(ev->time) && Crossed(c.direction, ev->g, g1)) {
+        T v[N];
+        ev->time = Locate(c, y, p, tprev, h, ev->g, g1, v);
+        if (c.terminate) {
+          RJ_UNROLL
+          for (int j = 0; j < N; ++j) y[j] = v[j];
+          ev->stopped = true;
+          ++n.accepted;
+          return n;
+        }
+      }
+      ev->g = g1;
+    }
     if (ok) {
       if (keep) {
         keep->y.insert(keep->y.end(), y, y + N);
@@ -176,7 +268,8 @@ Count Interval(const Ctl<T>& c, T* y, const T* p, T a, T b, T h0, Taken<T>* keep
 // the counts. `y` holds the body's state (N) on entry.
 template <typename T>
 void Body(const Ctl<T>& c, T* y, const T* p, const T* ts, const int32_t* jump, const int32_t* save,
-          int64_t K, T* out, T* rec, T* hk, int32_t* st) {
+          int64_t K, T* out, T* rec, T* hk, int32_t* st, T* event) {
+  Watch<T> ev;
   int64_t attempts = 0, accepted = 0, valid = 1;
   int32_t result = 0;
   T h = T(0);
@@ -194,10 +287,11 @@ void Body(const Ctl<T>& c, T* y, const T* p, const T* ts, const int32_t* jump, c
       }
     }
     const bool alive = Finite(y);
-    const T b = alive ? ts[k + 1] : a;
+    const T b = alive && !ev.stopped ? ts[k + 1] : a;  // (stopped by an event: held)
     if (k == 0 || Model::kJump) h = guess ? (a + std::min(InitialStep(c, y, p, a), c.dtmax)) - a : c.dt0;
     hk[k] = h;
-    const Count n = Interval(c, y, p, a, b, h);
+    if (Model::kEvent && !ev.stopped) ev.g = Condition(a, y, p);
+    const Count n = Interval(c, y, p, a, b, h, static_cast<Taken<T>*>(nullptr), &ev);
     attempts += n.attempts;
     accepted += n.accepted;
     int32_t r = n.done ? (Finite(y) ? 0 : 2) : 1;
@@ -211,6 +305,7 @@ void Body(const Ctl<T>& c, T* y, const T* p, const T* ts, const int32_t* jump, c
   st[2] = static_cast<int32_t>(attempts - accepted);
   st[3] = static_cast<int32_t>(valid);
   st[4] = result;
+  *event = ev.time;
 }
 
 // A body's operands in a call: its row l and column b.
@@ -230,7 +325,7 @@ ffi::Error AdaptiveShapes(ffi::Span<const int64_t> lead, size_t base, ffi::Span<
   ffi::Error e = Shapes<DT>(lead, base, x0, xbase, jd, jd, jd, jd, save.dimensions(), blocks, at, prm);
   if (e.failure()) return e;
   if (!Strides(at->rows, ts.dimensions(), 1, tl) || ts.dimensions().back() != at->K + 1 ||
-      !Strides(at->rows, ctl.dimensions(), 1, cl) || ctl.dimensions().back() != 12) {
+      !Strides(at->rows, ctl.dimensions(), 1, cl) || ctl.dimensions().back() != kControls) {
     return ffi::Error::InvalidArgument("adaptive model kernel: inconsistent shapes of ts, ctl");
   }
   return ffi::Error::Success();
@@ -262,7 +357,7 @@ ffi::Error AdaptiveSteps(ffi::Buffer<DT> y0, ffi::Buffer<DT> ts, ffi::Buffer<ffi
                          ffi::Buffer<ffi::S32> save, ffi::Buffer<DT> ctl,
                          ffi::RemainingArgs blocks, ffi::ResultBuffer<DT> y,
                          ffi::ResultBuffer<DT> rec, ffi::ResultBuffer<DT> hk,
-                         ffi::ResultBuffer<ffi::S32> st) {
+                         ffi::ResultBuffer<ffi::S32> st, ffi::ResultBuffer<DT> ev) {
   using T = ffi::NativeType<DT>;
   Layout at;
   Lead tl, cl;
@@ -276,13 +371,15 @@ ffi::Error AdaptiveSteps(ffi::Buffer<DT> y0, ffi::Buffer<DT> ts, ffi::Buffer<ffi
   at.R = rd.size() == yd.size() ? rd[nd + 1] : -1;
   const size_t bodies = static_cast<size_t>(at.rows.count() * at.B);
   if (yd[nd + 2] != N || at.R < 0 || rd[nd] != at.B || rd[nd + 2] != Model::NR ||
-      hk->element_count() != bodies * at.K || st->element_count() != bodies * 5) {
+      hk->element_count() != bodies * at.K || st->element_count() != bodies * 5 ||
+      ev->element_count() != bodies) {
     return ffi::Error::InvalidArgument("adaptive model kernel: inconsistent output shapes");
   }
   const T *x0 = y0.typed_data(), *tt = ts.typed_data(), *cc = ctl.typed_data();
   const int32_t *jj = jump.typed_data(), *ss = save.typed_data();
   T *yy = y->typed_data(), *rr = rec->typed_data(), *hh = hk->typed_data();
   int32_t* so = st->typed_data();
+  T* eo = ev->typed_data();
   EachBody<T>(at, prm, [&](const T* p, Where w) {
     T x[N];
     RJ_UNROLL
@@ -291,7 +388,8 @@ ffi::Error AdaptiveSteps(ffi::Buffer<DT> y0, ffi::Buffer<DT> ts, ffi::Buffer<ffi
     const int64_t body = w.l * at.B + w.b;
     Body<T>(c, x, p, tt + tl.at(at.rows, w.l), jj + at.jump.at(at.rows, w.l),
             ss + at.save.at(at.rows, w.l), at.K, yy + at.out(w.l, w.b, 0, 0),
-            rr + (at.R > 0 ? at.rec(w.l, w.b, 0, 0) : 0), hh + body * at.K, so + body * 5);
+            rr + (at.R > 0 ? at.rec(w.l, w.b, 0, 0) : 0), hh + body * at.K, so + body * 5,
+            eo + body);
   });
   return ffi::Error::Success();
 }
@@ -407,7 +505,8 @@ ffi::Error AdaptiveStepsBack(ffi::Buffer<DT> y, ffi::Buffer<DT> ts, ffi::Buffer<
                                     .Ret<ffi::Buffer<ffi::DT>>()                          \
                                     .Ret<ffi::Buffer<ffi::DT>>()                          \
                                     .Ret<ffi::Buffer<ffi::DT>>()                          \
-                                    .Ret<ffi::Buffer<ffi::S32>>());
+                                    .Ret<ffi::Buffer<ffi::S32>>()                         \
+                                    .Ret<ffi::Buffer<ffi::DT>>());
 #define RJ_ADAPTIVE_BACKWARD(NAME, DT)                                                    \
   XLA_FFI_DEFINE_HANDLER_SYMBOL(NAME, (AdaptiveStepsBack<ffi::DT>),                      \
                                 ffi::Ffi::Bind()                                          \
