@@ -24,6 +24,7 @@ from . import (
     analytic,
     control,
     estimation,
+    events,
     fit,
     kinematics,
     mechanics,
@@ -36,6 +37,7 @@ from . import (
 if TYPE_CHECKING:  # imported on first use: see __getattr__
     from . import sweep
 from ._integrate import IntegrationError, SolveOptions
+from .events import Event
 from .fit import ExcitationDesign, InertiaEstimate, design_excitation, identify_inertia
 from .kinematics import (
     AbstractKinematics,
@@ -99,6 +101,7 @@ __all__ = [
     "AbstractKinematics",
     "CayleyKlein",
     "EulerAngles",
+    "Event",
     "ExactFreeBody",
     "ExplicitRK",
     "ExcitationDesign",
@@ -127,6 +130,7 @@ __all__ = [
     "energy",
     "estimation",
     "euler",
+    "events",
     "fit",
     "gibbs",
     "gyrostat",

@@ -7,7 +7,7 @@ from __future__ import annotations
 import dataclasses
 import warnings
 from collections.abc import Callable
-from typing import Any, NoReturn, TypedDict, cast
+from typing import TYPE_CHECKING, Any, NoReturn, TypedDict, cast
 
 import diffrax
 import equinox as eqx
@@ -23,6 +23,9 @@ from .solvers.exact_free_body import AbstractFlowSolver
 from .solvers.explicit_rk import unrolled
 from .solvers.rkmk import RKMK, LieTerm
 from .solvers.step_end_map import StepEndMap
+
+if TYPE_CHECKING:
+    from .events import Event, RootedEvent
 
 
 def default_tolerances(dtype, *, tight: bool = False) -> tuple[float, float]:
@@ -232,6 +235,7 @@ def solve_saved(
     step_end: Callable | None = None,
     norm: Callable | None = None,
     tight: bool = False,
+    event: Event | None = None,
 ) -> tuple[PyTree, dict[str, Array], diffrax.RESULTS]:
     """Integrate `term` from `ts[0]` through every output time `ts[k]` with `options`; returns
     `(ys (T, ...), stats, result)`: step counts summed over the intervals, `num_valid` (the
@@ -256,7 +260,15 @@ def solve_saved(
     `solver` (default `options.solver`) runs as `ExplicitRK` when it is an explicit Runge–Kutta
     method, wrapped in `StepEndMap` with `step_end` when given. Without a step-size controller,
     a `PIDController` at `options.rtol`, `options.atol` (defaults `default_tolerances`), with
-    error norm `norm` when given."""
+    error norm `norm` when given.
+
+    `event`: a `rigidjax.Event` whose condition takes `(t, y)`, `y` this solve's state (one
+    body: `Event.on_state`). Each interval's solve carries it as a `diffrax.Event` (the zero
+    crossing located by `optimistix.Newton` at the tolerances above) until it first occurs;
+    its time is `stats["event_t"]` (`inf` where none; differentiable). With `terminate` the
+    state at the event (after `step_end`) is the output of that interval and of all later ones
+    (empty solves); otherwise the interval is integrated again without the event, so the
+    states are those of the solve without it."""
     method = unrolled(options.solver if solver is None else solver)
     adjoint = diffrax.RecursiveCheckpointAdjoint() if options.adjoint is None else options.adjoint
     meter = diffrax.NoProgressMeter() if options.progress_meter is None else options.progress_meter
@@ -285,19 +297,28 @@ def solve_saved(
         raise ValueError("dt0 (the step size) is required with diffrax.ConstantStepSize")
     dt0 = None if dt0 is None else jnp.asarray(dt0, ts.dtype)  # traced: no recompiling per value
     _warn_unattainable(ts.dtype, options.rtol, options.atol)
+    rooted = None  # located at the adaptive controller's tolerances, else `options`'
+    if event is not None:
+        given = (options.rtol, options.atol)
+        rooted = event.rooted(controller, given, default_tolerances(ts.dtype, tight=tight))
     steps = (controller, options.max_steps, meter)
     try:
         # (the flow solvers read their `RigidBodyField` from the term: left as given)
         flows = isinstance(method, AbstractFlowSolver)
         if options.adjoint is None and type(term) in (diffrax.ODETerm, LieTerm) and not flows:
             one_field = cast(diffrax.ODETerm | LieTerm, term)  # (not a subclass: rebuilt)
-            ys, stats, result = _in_every_mode(one_field, solver_for, steps, ts, y0, args, dt0)
-        else:
-            ys, stats, result = _solve_intervals(
-                term, solver, controller, ts, y0, args, dt0, options.max_steps, adjoint, meter
+            (ys, event_t), stats, result = _in_every_mode(
+                one_field, solver_for, steps, ts, y0, args, dt0, rooted
             )
+        else:
+            (ys, event_t), stats, result = _solve_intervals(
+                term, solver, controller, ts, y0, args, dt0, options.max_steps, adjoint, meter,
+                rooted,
+            )  # fmt: skip
     except TypeError as e:
         raise_forward_mode(e)
+    if rooted is not None:
+        stats["event_t"] = cast(Array, event_t)
     if options.throw:
 
         def probe(k: int) -> str | None:
@@ -308,25 +329,36 @@ def solve_saved(
 
 
 def _in_every_mode(
-    term: diffrax.ODETerm | LieTerm, solver_for: Callable, steps: tuple, ts, y0, args, dt0
+    term: diffrax.ODETerm | LieTerm,
+    solver_for: Callable,
+    steps: tuple,
+    ts,
+    y0,
+    args,
+    dt0,
+    event: RootedEvent | None,
 ):
     """`_solve_intervals` with the default adjoint, differentiable in every mode and order
     (`_modes.both_modes`): Diffrax's checkpointed reverse mode, forward mode by `ForwardMode`,
-    higher orders by `DirectAdjoint`. The field's closed-over tracers (a torque's gain under
-    `jax.grad`) become explicit inputs (`equinox.filter_closure_convert`), as a custom rule
-    needs."""
+    higher orders by `DirectAdjoint`. The field's (and the event condition's) closed-over
+    tracers (a torque's gain under `jax.grad`) become explicit inputs
+    (`equinox.filter_closure_convert`), as a custom rule needs."""
     controller, max_steps, meter = steps
     kind = type(term)  # a term of one vector field: an `ODETerm`, or a `LieTerm` (RKMK)
     field = eqx.filter_closure_convert(term.vf, ts[0], y0, args)
-    dynamic, static = eqx.partition(field, eqx.is_array)
+    if event is not None:
+        condition = eqx.filter_closure_convert(event.condition, ts[0], y0)
+        event = dataclasses.replace(event, condition=condition)
+    dynamic, static = eqx.partition((field, event), eqx.is_array)
 
     def run(adjoint: diffrax.AbstractAdjoint, values: bool) -> Callable:
         def solve(y0, args, ts, dt0, dynamic):
-            term = kind(eqx.combine(dynamic, static))
+            field, event = eqx.combine(dynamic, static)
             solver = solver_for(adjoint)
             out = _solve_intervals(
-                term, solver, controller, ts, y0, args, dt0, max_steps, adjoint, meter
-            )
+                kind(field), solver, controller, ts, y0, args, dt0, max_steps, adjoint, meter,
+                event,
+            )  # fmt: skip
             return out[0] if values else (out[0], out[1:])
 
         return solve
@@ -336,8 +368,8 @@ def _in_every_mode(
         run(diffrax.ForwardMode(), True),
         run(diffrax.DirectAdjoint(), True),
     )
-    ys, (stats, result) = solve(y0, args, ts, dt0, dynamic)
-    return ys, stats, result
+    out, (stats, result) = solve(y0, args, ts, dt0, dynamic)
+    return out, stats, result
 
 
 def raise_forward_mode(e: TypeError) -> NoReturn:
@@ -361,11 +393,13 @@ def fixed_step_count(width: Array, dt0: Array) -> Array:
 
 @eqx.filter_jit  # one compilation per problem structure, as `diffrax.diffeqsolve` itself
 def _solve_intervals(
-    term, solver, stepsize_controller, ts, y0, args, dt0, max_steps, adjoint, meter
+    term, solver, stepsize_controller, ts, y0, args, dt0, max_steps, adjoint, meter, event=None
 ):
-    """The `lax.scan` over output intervals of `solve_saved`. Each interval starts from the state
-    the previous one reached (also after it hit `max_steps`); once the state is non-finite the
-    remaining intervals are empty (`t1 = t0`: no steps) and repeat it."""
+    """The `lax.scan` over output intervals of `solve_saved`; returns `((ys, event_t), stats,
+    result)` (`event_t` None without `event`). Each interval starts from the state the previous
+    one reached (also after it hit `max_steps`); once the state is non-finite the remaining
+    intervals are empty (`t1 = t0`: no steps) and repeat it, as they do after a terminating
+    event."""
     adaptive = isinstance(stepsize_controller, diffrax.AbstractAdaptiveStepSizeController)
     if adaptive and dt0 is None:
         t_next, _ = stepsize_controller.init(
@@ -378,24 +412,14 @@ def _solve_intervals(
     def finite(y):
         return jnp.all(jnp.stack([jnp.all(jnp.isfinite(a)) for a in jax.tree.leaves(y)]))
 
-    def interval(carry, t01):
-        y, h, meter_state, result = carry
-        ok = result == diffrax.RESULTS.successful
-        alive = finite(y)
-        if adaptive:  # a non-finite state is not integrated further (its steps would all be
-            # rejected until max_steps): the interval is empty, t1 = t0
-            t01 = jnp.stack([t01[0], jnp.where(alive, t01[1], t01[0])])
-        else:  # the fewest equal steps of at most dt0 (to 1e-6, against rounding), a hair
-            # above width/n so that Diffrax's ceil(width/h) is exactly n. A non-finite state
-            # just takes its n steps: the step count then depends on the times only, so under
-            # `jax.vmap` (a sweep) the loop stays unbatched instead of masking every step
-            width = t01[1] - t01[0]
-            h = width / fixed_step_count(width, dt0) * (1 + 4 * jnp.finfo(width.dtype).eps)
+    def solve(y, t0, t1, h, active):
+        """One `diffeqsolve` over `[t0, t1]`: `(y1, its result, counts, the event's time or
+        inf)`; `active`: whether the event is looked for."""
         sol = diffrax.diffeqsolve(
             term,
             solver,
-            t01[0],
-            t01[1],
+            t0,
+            t1,
             h,
             y,
             args=args,
@@ -403,29 +427,68 @@ def _solve_intervals(
             stepsize_controller=stepsize_controller,
             max_steps=max_steps,
             adjoint=adjoint,
+            event=None if event is None else event.diffrax_event(active),
             throw=False,  # `solve_saved` raises, naming the interval
         )
         y1 = jax.tree_util.tree_map(lambda a: a[-1], sol.ys)
+        counts = jnp.stack([sol.stats[k] for k in keys])
+        if event is None:
+            return y1, sol.result, counts, None
+        hit = sol.result == diffrax.RESULTS.event_occurred
+        if isinstance(solver, StepEndMap):  # the interpolated state at the event, mapped
+            y1 = jax.tree.map(lambda a, b: jnp.where(hit, a, b), solver.fn(y1)[0], y1)
+        result = diffrax.RESULTS.where(hit, diffrax.RESULTS.successful, sol.result)
+        return y1, result, counts, jnp.where(hit, cast(Array, sol.ts)[-1], jnp.inf)
+
+    def interval(carry, t01):
+        y, h, meter_state, result, t_event = carry
+        ok = result == diffrax.RESULTS.successful
+        alive = finite(y)
+        if event is not None and event.terminate:  # stopped at the event: empty intervals
+            t01 = jnp.stack([t01[0], jnp.where(jnp.isinf(t_event), t01[1], t01[0])])
+        if adaptive:  # a non-finite state is not integrated further (its steps would all be
+            # rejected until max_steps): the interval is empty, t1 = t0
+            t01 = jnp.stack([t01[0], jnp.where(alive, t01[1], t01[0])])
+        else:  # the fewest equal steps of at most dt0 (to 1e-6, against rounding), a hair
+            # above width/n so that Diffrax's ceil(width/h) is exactly n. A non-finite state
+            # just takes its n steps: the step count then depends on the times only, so under
+            # `jax.vmap` (a sweep) the loop stays unbatched instead of masking every step
+            width = t01[1] - t01[0]  # (an empty interval, after a terminating event: dt0)
+            h = jnp.where(width > 0, width / fixed_step_count(width, dt0), dt0)
+            h = h * (1 + 4 * jnp.finfo(width.dtype).eps)
+        active = jnp.isinf(t_event)
+        y1, step_result, counts, t_hit = solve(y, t01[0], t01[1], h, active)
+        accepted = counts[1]
+        if event is not None:
+            if not event.terminate:  # the interval again without the event: the same states
+                # as the solve without it (an empty solve where there was none)
+                found = jnp.isfinite(cast(Array, t_hit))
+                again = solve(y, t01[0], jnp.where(found, t01[1], t01[0]), h, jnp.array(False))
+                y1 = jax.tree.map(lambda a, b: jnp.where(found, a, b), again[0], y1)
+                step_result = diffrax.RESULTS.where(found, again[1], step_result)
+                counts = counts + again[2]
+                accepted = jnp.where(found, again[2][1], accepted)
+            t_event = jnp.where(active, cast(Array, t_hit), t_event)
         step_result = diffrax.RESULTS.where(
-            finite(y1) | (sol.result != diffrax.RESULTS.successful),
-            sol.result,
+            finite(y1) | (step_result != diffrax.RESULTS.successful),
+            step_result,
             cast(diffrax.RESULTS, diffrax.RESULTS.nonfinite),
         )
         if adaptive:  # the next interval starts at this one's mean accepted step
-            h_next = (t01[1] - t01[0]) / jnp.maximum(sol.stats["num_accepted_steps"], 1)
-            h = jnp.where(alive, h_next, h)
+            h_next = (t01[1] - t01[0]) / jnp.maximum(accepted, 1)
+            h = jnp.where(alive & (t01[1] > t01[0]), h_next, h)
         meter_state = meter.step(meter_state, (t01[1] - ts[0]) / span)
         result = diffrax.RESULTS.where(ok, step_result, result)  # keep the first failure
-        counts = jnp.stack([sol.stats[k] for k in keys])
         valid = result == diffrax.RESULTS.successful
-        return (y1, h, meter_state, result), (y1, counts, valid)
+        return (y1, h, meter_state, result, t_event), (y1, counts, valid)
 
-    init = (y0, dt0, meter.init(), diffrax.RESULTS.successful)
-    (_, _, meter_state, result), (ys, counts, valid) = jax.lax.scan(
+    t_none = jnp.asarray(jnp.inf, ts.dtype)
+    init = (y0, dt0, meter.init(), diffrax.RESULTS.successful, t_none)
+    (_, _, meter_state, result, t_event), (ys, counts, valid) = jax.lax.scan(
         interval, init, jnp.stack([ts[:-1], ts[1:]], axis=1)
     )
     meter.close(meter_state)
     ys = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), y0, ys)
     stats: dict[str, Array] = dict(zip(keys, jnp.sum(counts, axis=0), strict=True))
     stats["num_valid"] = 1 + jnp.sum(valid)
-    return ys, stats, result
+    return (ys, None if event is None else t_event), stats, result

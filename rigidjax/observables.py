@@ -11,6 +11,9 @@ The *initially dominant axis* `d` is the body coordinate axis `e_d` with the lar
 (`Ω0 = traj.omega[..., 0, :]`; on a tie the first one; with a body given by its principal moments
 these are principal axes), the same contract as `rigidjax.analytic.time_of_first_flip`.
 
+`flip_event(omega0)` (from `rigidjax.events`) is the first flip as an event of `simulate`: its
+time located by the solver, not interpolated between samples as `first_flip_time` does.
+
 Closed loops (a `Gyrostat` with wheels and a controller: `GyrostatTrajectory`):
 `pointing_error`, `settling_time`, `peak_wheel_speed`, `saturation_count`.
 """
@@ -21,6 +24,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from ._custom_types import QuatLike, Scalar
+from .events import flip_event
 from .mechanics import RigidBody, Trajectory, angular_momentum, energy
 from .mechanics.gyrostat import GyrostatTrajectory
 from .rotations import quat
@@ -28,6 +32,7 @@ from .rotations import quat
 __all__ = [
     "energy_drift",
     "first_flip_time",
+    "flip_event",
     "max_nutation",
     "momentum_drift",
     "peak_wheel_speed",
@@ -94,7 +99,8 @@ def first_flip_time(traj: Trajectory) -> Scalar:
     its gradient (O(Δt³) for a torque-free body in principal axes, whose `Ω̇_d ∝ Ω_i Ω_j` has
     `Ω̈_d = 0` where `Ω_d = 0`). It approximates `rigidjax.analytic.time_of_first_flip` of the
     same body and `Ω0`. The derivative flows through `s_i`, `s_{i+1}` (0 where `inf`); NaN
-    states give NaN."""
+    states give NaN. The exact alternative: `simulate(..., event=flip_event(omega0))` locates
+    the same crossing by the solver, to its tolerance (`traj.event_t`, `flip_event`)."""
     e = _dominant_axis(traj)
     c = jnp.sum(traj.omega * e[..., None, :], axis=-1)  # (..., T)
     s = c * jnp.sign(c[..., :1])

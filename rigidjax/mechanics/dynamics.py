@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, Unpack
+from typing import TYPE_CHECKING, Any, Unpack, cast
 
 import diffrax
 import equinox as eqx
@@ -18,14 +18,20 @@ from .._checks import (
     vector,
 )
 from .._custom_types import Frame, RealLike
-from .._integrate import SolveKwargs, SolveOptions, solve_saved
+from .._integrate import (
+    SolveKwargs,
+    SolveOptions,
+    solve_saved,
+)
 from .._trajectory import AbstractTrajectory
+from ..events import Event
 from ..kinematics.formulations import AbstractKinematics, Quaternion, lookup
 from ..models.solve import BatchMaxRMS, solve_model
 from ..rotations import quat
 from ..solvers.exact_free_body import ExactFreeBody, RigidBodyField, flow_from_start
 from ..solvers.rkmk import LieTerm
 from ..solvers.splitting import LiePoissonSplitting
+from . import _per_body as _pb
 from ._gyrostat_body import Gyrostat
 from ._initial import initial_rotation
 from ._rigid_model import moments_params, rigid_body_model
@@ -33,8 +39,10 @@ from .body import RigidBody, euler_rhs
 
 if TYPE_CHECKING:
     Torque = Callable[[Array, Array, Array], Array]
-else:  # `simulate` checks it itself (a TypeError that names `torque`)
+    EventArg = Event
+else:  # `simulate` checks them itself (a TypeError that names `torque`, `event`)
     Torque = object
+    EventArg = object
 
 
 __all__ = ["Trajectory", "fixed_steps", "simulate"]
@@ -43,10 +51,13 @@ __all__ = ["Trajectory", "fixed_steps", "simulate"]
 class Trajectory(AbstractTrajectory):
     """Solution of `simulate`: times `ts (T,)`, body angular velocity `omega (..., T, 3)` and
     attitude `quat (..., T, 4)` (unit; P maps body to space; its sign is continuous in time and
-    `quat[..., 0, :] = q0`, `quat.canonical` gives λ0 ≥ 0); `matrix (..., T, 3, 3)`."""
+    `quat[..., 0, :] = q0`, `quat.canonical` gives λ0 ≥ 0); `matrix (..., T, 3, 3)`.
+    `event_t (...)`: with `simulate(..., event=rigidjax.Event(...))`, each body's first event
+    time (`inf` where none); None without an event."""
 
     omega: Float[Array, "*batch T 3"]
     quat: Float[Array, "*batch T 4"]
+    event_t: Float[Array, "*batch"] | None = eqx.field(kw_only=True, default=None)
 
     @property
     def matrix(self) -> Float[Array, "*batch T 3 3"]:
@@ -138,7 +149,7 @@ def _check_torque(torque: Torque, ts: Array, omega0: Array, q0: Array) -> None:
 
 
 def _structured(
-    body: RigidBody,
+    diagonal: bool,
     options: SolveOptions,
     torque: Torque | None,
     torque_frame: Frame,
@@ -158,7 +169,7 @@ def _structured(
             "stepsize_controller=diffrax.ConstantStepSize() and dt0, otherwise a Runge–Kutta "
             "solver"
         )
-    if not body.diagonal:
+    if not diagonal:
         raise ValueError(
             f"{name} needs the body in principal axes: give RigidBody(principal moments (3,)) and "
             "Ω0, q0 in those axes (rigidjax.inertia.principal_axes diagonalises a tensor)"
@@ -213,6 +224,7 @@ def simulate(
     torque_frame: Frame = "body",
     options: SolveOptions | None = None,
     check: bool = True,
+    event: EventArg | None = None,
     **solve_kwargs: Unpack[SolveKwargs],
 ) -> Trajectory:
     """Integrate Euler's equations `I Ω̇ + Ω × IΩ = K` (body frame, general tensor; Zegrya–Parshin
@@ -221,8 +233,11 @@ def simulate(
 
     `omega0`: initial body angular velocity `(..., 3)`; `q0`: initial attitude `(..., 4)`
     (identity by default); leading dimensions of the body, `omega0` and `q0` broadcast into a
-    batch that is integrated as ONE state in one fused loop, with a step size controlled by the
-    worst member (per-member adaptivity: `jax.vmap` over `simulate` instead). `torque(t, Ω, q)`
+    batch. With adaptive steps (the default) each body takes its own steps: the one-body solve
+    mapped over the bodies, so a body's trajectory is the same alone or in any batch (to
+    rounding) and equals `jax.vmap` of `simulate`; `stats` then holds each body's step counts
+    (the batch's shape), `num_valid` and `result` the batch's (its first failure). Fixed steps
+    (the same for every body) integrate the batch as ONE state in one fused loop. `torque(t, Ω, q)`
     returns K in the body frame (or in space with `torque_frame="space"`). Solver options:
     `options` (a `rigidjax.SolveOptions`: any Diffrax solver, step-size controller
     (`diffrax.ConstantStepSize` with `dt0`, or adaptive), adjoint and progress meter) or its
@@ -249,6 +264,15 @@ def simulate(
     kick for a torque of the attitude only (structure-preserving, fixed steps). Both need the
     body in principal axes and quaternion kinematics.
 
+    `event=rigidjax.Event(condition, terminate=True, direction=None)`: the first time
+    `condition(t, Ω, q)` (of one body) crosses zero, located by a root find on the step's
+    interpolant to the solver's tolerance (Diffrax's events, each body its own solve, on the
+    Diffrax path: no kernel), is the trajectory's `event_t` (`inf` where none; differentiable);
+    with `terminate=True` each body stops there and the outputs after it hold the state at the
+    event, with `False` the trajectory is the one without the event. `rigidjax.events.
+    flip_event(omega0)` gives the first flip of the initially dominant axis exactly. Not with
+    `ExactFreeBody`, `LiePoissonSplitting` or a gyrostat.
+
     `check=False` skips the checks of `ts`, `omega0` and `q0` (like `RigidBody(check=False)`)
     for inputs validated beforehand: traced inputs then compile without runtime checks, which
     compiles faster and lets JAX's persistent compilation cache store the program (it refuses
@@ -260,6 +284,10 @@ def simulate(
     per body, seeds a `rigidjax.control.StatefulController`'s memory: its simulated sensors).
     """
     if isinstance(body, Gyrostat):
+        if event is not None:
+            raise ValueError(
+                "events are not supported for a gyrostat yet: give a rigidjax.RigidBody"
+            )
         from .gyrostat import simulate_gyrostat  # it imports this module
 
         return simulate_gyrostat(
@@ -308,28 +336,103 @@ def simulate(
     )
     structured = isinstance(options.solver, ExactFreeBody | LiePoissonSplitting)
     components = body.diagonal and quaternion and not structured
+    if event is not None:
+        event = _pb.checked(event, options.solver if structured else None, batch)
+    adaptive = not isinstance(options.stepsize_controller, diffrax.ConstantStepSize)
+    problem = _Problem(
+        ts, torque, torque_frame, kinematics, structured, components, quaternion, body.diagonal
+    )
+    if event is None and not (adaptive and B > 1 and not structured and not components):
+        # one state for the batch (the components path maps adaptive solves over the bodies
+        # itself: `models.solve._diffrax`)
+        shared = body.batch_shape == ()
+        omega, q, stats, result, _ = _solve_flat(problem, options, args, omega0, q0, shared)
+        if adaptive and batch and not structured:  # each body's own step counts
+            stats = _pb.per_body(stats, batch)
+        return _trajectory(ts, batch, omega, q, stats, result)
+    # each body its own solve (its own adaptive steps, its own event): one body mapped
+    quiet = dataclasses.replace(options, throw=False)
+
+    def one(a, w, q, ev):
+        a, w, q = (tuple(x[None] for x in a), w[None], q[None])
+        return _solve_flat(problem, quiet, a, w, q, False, ev)
+
+    if B == 1:
+        ev = None if event is None else _pb.first(event)
+        omega, q, stats, result, event_t = one(*(tuple(x[0] for x in args), omega0[0], q0[0]), ev)
+    else:
+        axes = (0, 0, 0, None if event is None else event.in_axes())
+        out = eqx.filter_vmap(one, in_axes=axes)(args, omega0, q0, event)
+        omega, q = (jnp.moveaxis(x[:, :, 0], 0, 1) for x in out[:2])  # (B, T, 1, .) -> (T, B, .)
+        stats, results, event_t = out[2], out[3], out[4]
+        stats, result = _pb.first_failure(stats, results)
+    if options.throw:
+        omega = _pb.raise_batch(result, stats, ts, (omega, q), options.max_steps, torque)
+    traj = _trajectory(ts, batch, omega, q, _pb.per_body(stats, batch), result)
+    if event_t is not None:
+        traj = dataclasses.replace(traj, event_t=jnp.reshape(event_t, batch))
+    return traj
+
+
+class _Problem(eqx.Module):
+    """What `_solve_flat` integrates, besides the options and the bodies."""
+
+    ts: Array
+    torque: Any
+    torque_frame: Frame = eqx.field(static=True)
+    kinematics: Any = eqx.field(static=True)
+    structured: bool = eqx.field(static=True)
+    components: bool = eqx.field(static=True)
+    quaternion: bool = eqx.field(static=True)
+    diagonal: bool = eqx.field(static=True)
+
+
+def _solve_flat(
+    problem: _Problem,
+    options: SolveOptions,
+    args: tuple[Array, ...],
+    omega0: Array,
+    q0: Array,
+    shared: bool,
+    event: Event | None = None,
+) -> tuple[Array, Array, dict[str, Array], Any, Array | None]:
+    """`(Ω (T, B, 3), q (T, B, 4), stats, result, event_t)` of the B bodies `args` (the
+    operator's arrays `(B, ...)`), `omega0 (B, 3)`, `q0 (B, 4)`, as ONE state (one body where
+    `event` is given: `event_t` its time, else None); `shared`: one body for the whole batch."""
+    ts, torque, torque_frame = problem.ts, problem.torque, problem.torque_frame
+    kinematics = problem.kinematics
+    B = omega0.shape[0]
     direct = (
         isinstance(options.solver, ExactFreeBody)
         and options.dt0 is None
         and options.stepsize_controller is None
     )
-    if structured:
-        axis = 0  # the exact flow maps each body: batch first
-        term, options, args = _structured(body, options, torque, torque_frame, quaternion, args)
+    event_t = None
+    if problem.structured:
+        # the exact flow maps each body: batch first
+        term, options, moments = _structured(
+            problem.diagonal, options, torque, torque_frame, problem.quaternion, args
+        )
+        args = cast(Any, moments)  # (the flow solvers take the moments (B, 3) as args)
         solver = None
         step_end = None
+        axis = 0
         y0 = (omega0, q0)
         finish = tuple
-    elif components:  # principal axes, quaternion: the model, on the CPU kernel or Diffrax
+    elif problem.components:  # principal axes, quaternion: the model, on the CPU kernel or
+        # Diffrax
         model = rigid_body_model(torque, torque_frame)
         # one body for the whole batch: its parameters shared, not streamed (B,) copies
-        I = body.operator()[0].astype(dtype)
-        p = moments_params(I)[None] if body.batch_shape == () else moments_params(args[0])
+        p = moments_params(args[0][:1] if shared else args[0])
         y0 = jnp.concatenate([omega0, q0], axis=-1)
         # one body: scalar components (under `jax.vmap`, e.g. in a sweep, they become (N,)
         # arrays, not (N, 1), which XLA vectorises poorly)
-        ys, stats, result = solve_model(model, ts, y0, p, options, single=not batch)
-        return _trajectory(ts, batch, ys[..., :3], ys[..., 3:], stats, result)
+        single = B == 1
+        on_state = None if event is None else event.on_state(_pb.split_components)
+        ys, stats, result = solve_model(model, ts, y0, p, options, single=single, event=on_state)
+        if event is not None:
+            event_t = stats.pop("event_t")
+        return ys[..., :3], ys[..., 3:], stats, result, event_t
 
     elif kinematics == "geometric":
         solver = options.rkmk("body")
@@ -355,6 +458,10 @@ def simulate(
         stats = dict(num_steps=n, num_accepted_steps=n, num_rejected_steps=0 * n, num_valid=n + 1)
         result = diffrax.RESULTS.successful
     else:
+        on_state = None
+        if event is not None:
+            kin = None if kinematics == "geometric" else finish.kin  # type: ignore[attr-defined]
+            on_state = event.on_state(_pb.OneBodyState(kin))
         ys, stats, result = solve_saved(
             term,
             ts,
@@ -364,13 +471,16 @@ def simulate(
             args=args,
             step_end=step_end,
             norm=BatchMaxRMS(axis),
+            event=on_state,
         )
+        if event is not None:
+            event_t = stats.pop("event_t")
     omega, q = finish(ys)
-    if not structured:  # other states give q up to sign: continue the integrated q0
+    if not problem.structured:  # other states give q up to sign: continue the integrated q0
         q = quat.continuous(jnp.moveaxis(q, 0, 1))  # (B, T, 4)
         q = jnp.moveaxis(q * jnp.sign(jnp.sum(q[:, :1] * q0[:, None], -1, keepdims=True)), 1, 0)
         q = q.at[0].set(q0)  # `quat[0] = q0` exactly (the chart's round trip is ulp-close)
-    return _trajectory(ts, batch, omega, q, stats, result)
+    return omega, q, stats, result, event_t
 
 
 def _trajectory(ts, batch, omega, q, stats, result) -> Trajectory:

@@ -9,7 +9,7 @@ import dataclasses
 import math
 import warnings
 from collections.abc import Callable, Sequence
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, cast
 
 import diffrax
 import equinox as eqx
@@ -33,6 +33,9 @@ from ..kernels import model_pallas
 from ..kernels._scalar import Unsupported
 from ..solvers.explicit_rk import ExplicitRK
 from .model import Model, TreeModel, flat, leaves, ravel
+
+if TYPE_CHECKING:
+    from ..events import Event
 
 
 class BatchMaxRMS(eqx.Module):
@@ -193,6 +196,7 @@ def solve_model(
     single: bool = False,
     jumps: np.ndarray | None = None,
     keep: np.ndarray | None = None,
+    event: Event | None = None,
 ) -> tuple[Float[Array, "S B N"], dict[str, Array], diffrax.RESULTS]:
     """Integrate `model` for B bodies from `y0` with parameters `p` (per body, `Bp = B`, or
     shared, `Bp = 1`; or in blocks of columns, each per body or shared), saving at `ts`;
@@ -208,14 +212,22 @@ def solve_model(
     Diffrax path with one warning naming the primitive. The Diffrax path integrates the N
     state components as separate `(B,)` arrays (`single`: one body, as scalars, which
     `jax.vmap` turns into `(N,)` batches that XLA vectorises), evaluating the same scalar
-    program as the kernel."""
+    program as the kernel. Adaptive steps on the Diffrax path are each body's own (the
+    one-body solve mapped over the bodies): the step counts in `stats` are then per body
+    `(B,)`, `num_valid` and `result` the batch's (the first failure).
+
+    `event`: a `rigidjax.Event` whose condition takes `(t, y (N,))` of one body
+    (`Event.on_state`), shared by the bodies; it runs on the Diffrax path (no kernel), its time
+    `stats["event_t"]` (`(B,)`, or a scalar with `single`); not with a jump map."""
     if (model.jump is None) != (jumps is None):
         raise ValueError("a model with a jump map takes jumps (T − 1,), and only such a model")
+    if event is not None and jumps is not None:
+        raise ValueError("events are not supported for a model with a jump map")
     quiet = dataclasses.replace(options, throw=False)
     keep = np.ones(ts.shape[0], bool) if keep is None else np.asarray(keep, bool)
     blocks = [p] if isinstance(p, jax.Array | np.ndarray) else list(p)
     p = _joined(blocks, ts.dtype)
-    ys, stats, result = _solve(model, ts, y0, blocks, p, quiet, single, jumps, keep)
+    ys, stats, result = _solve(model, ts, y0, blocks, p, quiet, single, jumps, keep, event)
     ts = ts[np.flatnonzero(keep)]
     if options.throw:
 
@@ -241,8 +253,10 @@ def _solve(
     single: bool,
     jumps: np.ndarray | None,
     keep: np.ndarray,
+    event: Event | None = None,
 ) -> tuple[Array, dict[str, Array], diffrax.RESULTS]:
-    """`solve_model` without raising failures: the CPU kernel (each block of parameters its
+    """`solve_model` without raising failures (with an `event`: the Diffrax path, whose
+    `solve_saved` differentiates it in every mode): the CPU kernel (each block of parameters its
     own operand: a shared block is never copied per body), the GPU kernel, or Diffrax (`p`:
     the blocks joined). With the default adjoint, every backend of a model with a scalar
     program is differentiable in every mode and order (`_modes.both_modes`): its own reverse
@@ -250,7 +264,7 @@ def _solve(
     dtype = ts.dtype
     hoisted, missing = _compile(model, dtype)
     backend: Backend | None = None
-    if hoisted is not None and kernel_options(options):
+    if hoisted is not None and kernel_options(options) and event is None:
         method = method_of(options)
         try:
             kernel = model_kernel.build(hoisted, model.unit, method, model.record)
@@ -277,8 +291,12 @@ def _solve(
         )
     c = jnp.zeros((0,), dtype) if hoisted is None else hoisted.c.astype(dtype)
     problem = (model, hoisted, single, jumps, keep)
-    if hoisted is not None and isinstance(
-        options.adjoint, None | diffrax.RecursiveCheckpointAdjoint
+    if event is not None:
+        backend = _diffrax_backend(problem, options, event=event)
+    if (
+        event is None
+        and hoisted is not None
+        and isinstance(options.adjoint, None | diffrax.RecursiveCheckpointAdjoint)
     ):
         # the scalar program: every input explicit (`c`), so one rule differentiates it all
         # (the model's own field: `solve_saved`'s rule, its closure converted)
@@ -337,9 +355,11 @@ def _diffrax_backend(
     adjoint: diffrax.AbstractAdjoint | None = None,
     *,
     values: bool = False,
+    event: Event | None = None,
 ) -> Backend:
     """The Diffrax path's solve of `problem` (`(model, hoisted, single, jumps, keep)`) with
-    `options` (and `adjoint`, if given); `values`: the states and records only."""
+    `options` (and `adjoint`, if given); `values`: the states and records only; `event`: as
+    `solve_model`'s (its time in the stats)."""
     model, hoisted, single, jumps, keep = problem
     if adjoint is not None:
         options = dataclasses.replace(options, adjoint=adjoint)
@@ -351,7 +371,7 @@ def _diffrax_backend(
             args = (model, hoisted, ts, y0, p, c, options, single)
             ys, stats, result = _diffrax_jumps(args, jumps)
         else:
-            ys, stats, result = _diffrax(model, hoisted, ts, y0, p, c, options, single)
+            ys, stats, result = _diffrax(model, hoisted, ts, y0, p, c, options, single, event)
         R0, NR = model.record
         at = np.flatnonzero(jumps) + 1 if NR and jumps is not None else np.zeros(0, int)
         out = (ys[kept], ys[at, :, R0 : R0 + NR])
@@ -420,9 +440,29 @@ def _diffrax(
     c: Array,
     options: SolveOptions,
     single: bool,
+    event: Event | None = None,
 ) -> tuple[Array, dict[str, Array], diffrax.RESULTS]:
     """The Diffrax path on the component state: the scalar program of `hoisted` (constants
-    `c`), or the model's own field where it has none."""
+    `c`), or the model's own field where it has none. Adaptive steps (or an `event`) for
+    several bodies: the one-body solve (`single`) mapped over them (`jax.vmap`), each body
+    with its own steps (the same numbers as alone, or as `jax.vmap` of the one-body solve);
+    the step counts `(B,)`, `num_valid` and `result` the batch's first failure. Fixed steps
+    keep one state for the batch (the same steps for every body)."""
+    adaptive = not isinstance(options.stepsize_controller, diffrax.ConstantStepSize)
+    if not single and y0.shape[0] > 1 and (adaptive or event is not None):
+        p_axis = 0 if p.shape[0] > 1 else None
+
+        def one(y, pb):
+            pb = pb[None] if p_axis == 0 else pb
+            ys, stats, result = _diffrax(model, hoisted, ts, y[None], pb, c, options, True, event)
+            return ys[:, 0], stats, result
+
+        ys, stats, results = jax.vmap(one, in_axes=(0, p_axis))(y0, p)
+        valid = stats["num_valid"]
+        failed = results != diffrax.RESULTS.successful
+        first = jnp.argmin(jnp.where(failed, valid, jnp.iinfo(valid.dtype).max))
+        stats = {**stats, "num_valid": jnp.min(valid)}
+        return jnp.moveaxis(ys, 0, 1), stats, jtu.tree_map(lambda r: r[first], results)
     field = model.field if hoisted is None else hoisted.components
     shared = p.shape[0] == 1
     comps = (lambda a: tuple(a[0])) if (single or shared) else (lambda a: tuple(a.T))
@@ -435,9 +475,20 @@ def _diffrax(
         args=(comps(p), c),
         step_end=_StepEnd(model.unit, model.end) if model.unit or model.end else None,
         norm=BatchMaxRMS(-1),
+        event=None if event is None else event.on_state(_stacked if single else _columns),
     )
     ys = jnp.stack(ys, axis=-1)  # (T, B, N) or (T, N)
     return (ys[:, None] if single else ys), stats, result
+
+
+def _stacked(y: tuple[Array, ...]) -> tuple[Array]:
+    """`(y (N,),)` from one body's components."""
+    return (jnp.stack(y),)
+
+
+def _columns(y: tuple[Array, ...]) -> tuple[Array]:
+    """`(y (N,),)` from the components `(1,)` of a batch of one body."""
+    return (jnp.stack(y, axis=-1)[0],)
 
 
 def _gpu(
@@ -527,14 +578,16 @@ def solve_tree(
     keep: np.ndarray | None = None,
     record: int | None = None,
     end: Callable | None = None,
+    event: Event | None = None,
 ) -> tuple[Any, dict[str, Array], diffrax.RESULTS]:
     """`solve_model` for one body whose state `y0` and parameters `args` are PyTrees and whose
     field is `vf(t, y, args)` (`unit`: the indices of the state's leaves that are unit
     quaternions; `jump(t, y, args) -> y` applied where `jumps` flags an interval, recording
     the state's leaf `record` after each jump in `stats["recorded"] (J, ...)`; `keep`: the
-    times whose states are returned; `end(y) -> (y', changed)`: a step-end map); returns
-    `(ys, stats, result)`, `ys` the state's tree with a leading time axis. Under `jax.vmap` the
-    mapped bodies join one kernel call."""
+    times whose states are returned; `end(y) -> (y', changed)`: a step-end map; `event`: a
+    `rigidjax.Event` whose condition takes `(t, y)`, `y` the state's tree, its time
+    `stats["event_t"]`); returns `(ys, stats, result)`, `ys` the state's tree with a leading
+    time axis. Under `jax.vmap` the mapped bodies join one kernel call."""
     dtype = ts.dtype
     (y_leaves, y_def), (p_leaves, p_def) = (jtu.tree_flatten(x) for x in (y0, args))
     y_shapes, p_shapes = (tuple(jnp.shape(a) for a in xs) for xs in (y_leaves, p_leaves))
@@ -542,7 +595,19 @@ def solve_tree(
     model = flat(tm)
     p = [leaf[None] for leaf in leaves(args, dtype)]  # a block each
     y = ravel(y0, dtype)[None]
-    ys, stats, result = solve_model(model, ts, y, p, options, single=True, jumps=jumps, keep=keep)
+    on_flat = None if event is None else event.on_state(_Unravel(tm))
+    ys, stats, result = solve_model(
+        model, ts, y, p, options, single=True, jumps=jumps, keep=keep, event=on_flat
+    )
     if "recorded" in stats:
         stats["recorded"] = stats["recorded"][:, 0]
     return tm.unravel(ys[:, 0], "y"), stats, result
+
+
+class _Unravel(eqx.Module):
+    """`(the state's tree,)` of one body's flat state `(N,)`."""
+
+    tm: TreeModel
+
+    def __call__(self, y: Array) -> tuple[Any]:
+        return (self.tm.unravel(y, "y"),)

@@ -1,0 +1,99 @@
+"""`simulate`'s per-body solves: each body its own adaptive steps and events (the one-body
+solve mapped over the bodies), and how their outcomes join into the batch's."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array
+
+from .._checks import is_concrete
+from .._integrate import nonfinite_field, raise_failure
+from ..events import Event
+from ..kinematics.formulations import AbstractKinematics
+from ..rotations import quat
+
+
+def checked(event: Any, flow_solver: Any, batch: tuple[int, ...]) -> Event:
+    """`event` for the flattened batch (`Event.flat`), with clear errors for what is not an
+    `Event` and for a solver without an interpolant (`flow_solver`, the flow solvers')."""
+    if not isinstance(event, Event):
+        raise TypeError(f"event must be a rigidjax.Event(condition, ...), got {event!r}")
+    if flow_solver is not None:
+        raise ValueError(
+            "events need a solver with an interpolant (the event is located on the step's), "
+            f"not {type(flow_solver).__name__}: use a Runge–Kutta solver (the default, or "
+            "ExplicitRK(method))"
+        )
+    return event.flat(batch)
+
+
+def first(event: Event) -> Event:
+    """The event of the only body of a batch of one."""
+    if not event.per_body:
+        return event
+    dynamic, static = eqx.partition(event, eqx.is_array)
+    return eqx.combine(jax.tree.map(lambda a: a[0], dynamic), static).shared()
+
+
+def first_failure(stats: dict[str, Array], results) -> tuple[dict[str, Array], Any]:
+    """The per-body solves' stats `(B,)` with `num_valid` the batch's (the fewest valid times),
+    and the batch's result: the failure of the body that failed first (in time)."""
+    valid = stats["num_valid"]
+    failed = results != diffrax.RESULTS.successful
+    i = jnp.argmin(jnp.where(failed, valid, jnp.iinfo(valid.dtype).max))
+    result = jax.tree.map(lambda r: r[i], results)
+    return {**stats, "num_valid": jnp.min(valid)}, result
+
+
+def per_body(stats: dict[str, Array], batch: tuple[int, ...]) -> dict[str, Array]:
+    """The step counts `(B,)` of per-body solves in the batch's shape (`num_valid` stays the
+    batch's; a count of one body broadcast)."""
+
+    def shaped(v):
+        return jnp.broadcast_to(v, batch) if jnp.ndim(v) == 0 else jnp.reshape(v, batch)
+
+    return {k: v if k == "num_valid" else shaped(v) for k, v in stats.items()}
+
+
+def raise_batch(result, stats, ts, ys, max_steps: int, torque: Callable | None) -> Array:
+    """`raise_failure` for per-body solves: `IntegrationError` naming the interval (concrete),
+    or a runtime check (traced); a torque that returned a non-finite value is named (probed on
+    the body that failed first); returns `ys[0]`."""
+    omega, q = ys
+    if not is_concrete(stats["num_valid"]) or result == diffrax.RESULTS.successful:
+        return raise_failure(result, stats["num_valid"], ts, omega, max_steps)
+    k = int(stats["num_valid"])
+    body = int(jnp.argmax(~jnp.all(jnp.isfinite(omega[k]), axis=-1)))  # non-finite first
+
+    if torque is None:
+        return raise_failure(result, stats["num_valid"], ts, omega, max_steps)
+    field: Callable = torque
+
+    def probe(k: int) -> str | None:
+        ys_b = (omega[:, body], q[:, body])
+        return nonfinite_field(lambda t, y: field(t, *y), ts, ys_b, k, True)
+
+    return raise_failure(result, stats["num_valid"], ts, omega, max_steps, probe)
+
+
+def split_components(y: Array) -> tuple[Array, Array]:
+    """`(Ω, q)` of one body's component state `(Ω, q) (7,)`."""
+    return y[:3], y[3:7]
+
+
+class OneBodyState(eqx.Module):
+    """`(Ω (3,), q (4,))` of one body's state on the Diffrax path: `(att (n, 1), Ω (3, 1))`
+    batch last for the kinematics `kin`, `(R (1, 3, 3), Ω (1, 3))` for RKMK (`kin` None)."""
+
+    kin: AbstractKinematics | None
+
+    def __call__(self, y) -> tuple[Array, Array]:
+        if self.kin is None:
+            return y[1][0], quat.from_matrix(y[0][0], assume_valid=True)
+        return y[1][:, 0], self.kin.to_quat(y[0][:, 0])
