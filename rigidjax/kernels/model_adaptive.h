@@ -149,6 +149,22 @@ RJ_INLINE T Attempt(const Ctl<T>& c, const T* y, const T* p, T t, T h, T* u, T* 
   return Rms(s);
 }
 
+// 100 floats below b (Diffrax's `t1_clip_floor`): for a positive b the float whose bit
+// pattern is 100 less (floats of one sign are ordered as their bits), otherwise step by step.
+template <typename T>
+RJ_INLINE T Below(T b) {
+  using U = std::conditional_t<sizeof(T) == 8, uint64_t, uint32_t>;
+  U bits;
+  std::memcpy(&bits, &b, sizeof(T));
+  if (b > T(0) && std::isfinite(b) && bits > U(100)) {
+    bits -= U(100);
+    std::memcpy(&b, &bits, sizeof(T));
+    return b;
+  }
+  for (int i = 0; i < 100; ++i) b = std::nextafter(b, -std::numeric_limits<T>::infinity());
+  return b;
+}
+
 // `x^e`, or 1 for a coefficient 0 (as Diffrax skips it).
 template <typename T>
 RJ_INLINE T Power(T x, T e) {
@@ -212,8 +228,7 @@ T Locate(const Ctl<T>& c, const T* y, const T* p, T t, T h, T g0, T g1, T* u) {
 template <typename T>
 Count Interval(const Ctl<T>& c, T* y, const T* p, T a, T b, T h0, Taken<T>* keep = nullptr,
                Watch<T>* ev = nullptr) {
-  T floor = b;
-  for (int i = 0; i < 100; ++i) floor = std::nextafter(floor, -std::numeric_limits<T>::infinity());
+  const T floor = Below(b);
   T tprev = a, tnext = std::min(a + std::min(h0, c.dtmax), b);
   T inv1 = T(1), inv2 = T(1);
   Count n;
