@@ -30,7 +30,6 @@ KNOWN_CYCLES: set[frozenset[str]] = {
 # Modules still over MAX_LINES (paths relative to the repository root).
 KNOWN_LONG: set[str] = {
     "rigidjax/models/solve.py",  # issue 36: the one dispatch is being split
-    "rigidjax/kernels/model.py",  # issue 36: grew to 520 with the adaptive kernel's events
 }
 
 

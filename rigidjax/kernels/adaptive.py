@@ -22,7 +22,8 @@ from jaxtyping import Array, Float, Int
 
 from . import tableau
 from ._build import load
-from .model import _NAME, Hoisted, _header, _headers
+from ._source import header, headers
+from .model import _NAME, Hoisted
 
 __all__ = ["AdaptiveKernel", "build", "controls", "run"]
 
@@ -51,7 +52,7 @@ class AdaptiveKernel(NamedTuple):
     def backward(self) -> str:
         """The reverse mode's handler, built and registered on the first call."""
         text, name = self.backward_header
-        if load(_NAME, (name,), _headers(text, adaptive=True)) is None:
+        if load(_NAME, (name,), headers(text, adaptive=True)) is None:
             raise RuntimeError(
                 "the reverse mode of rigidjax's adaptive model kernel could not be built (see "
                 "the warning); pass solver=rigidjax.ExplicitRK(method) to differentiate "
@@ -123,10 +124,10 @@ def build(
         return None
     method = cast(type[diffrax.AbstractERK], type(solver))
     source = hoisted.source(unit, record)
-    text, name = _header(method, dtype, source, "forward", adaptive=True)
-    if load(_NAME, (name,), _headers(text, adaptive=True)) is None:
+    text, name = header(method, dtype, source, "forward", adaptive=True)
+    if load(_NAME, (name,), headers(text, adaptive=True)) is None:
         return None
-    back = _header(method, dtype, source, "backward", False, adaptive=True)
+    back = header(method, dtype, source, "backward", False, adaptive=True)
     size = hoisted.p + hoisted.c.shape[0]
     return AdaptiveKernel(name, back, hoisted.n, size, record, hoisted.events)
 
@@ -152,7 +153,7 @@ def run(
     y0: Float[Array, "B N"],
     blocks: Sequence[Float[Array, "#B _"]],
     ts: Float[Array, " T"],
-    ctl: Float[np.ndarray, " 12"],
+    ctl: Float[np.ndarray, " 14"],
     through: Through,
     jump: np.ndarray | None = None,
     keep: np.ndarray | None = None,
