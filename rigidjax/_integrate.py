@@ -134,7 +134,7 @@ def raise_failure(
     return attach_check(ys, result != diffrax.RESULTS.successful, index, messages)
 
 
-def _warn_unattainable(dtype, rtol: float | None, atol: float | None) -> None:
+def warn_unattainable(dtype, rtol: float | None, atol: float | None) -> None:
     """Warn when a tolerance asks for more than `dtype` can give (a few ulps)."""
     attainable = 4 * float(jnp.finfo(dtype).eps)
     for name, value in (("rtol", rtol), ("atol", atol)):
@@ -296,7 +296,7 @@ def solve_saved(
     if not adaptive and dt0 is None:
         raise ValueError("dt0 (the step size) is required with diffrax.ConstantStepSize")
     dt0 = None if dt0 is None else jnp.asarray(dt0, ts.dtype)  # traced: no recompiling per value
-    _warn_unattainable(ts.dtype, options.rtol, options.atol)
+    warn_unattainable(ts.dtype, options.rtol, options.atol)
     rooted = None  # located at the adaptive controller's tolerances, else `options`'
     if event is not None:
         given = (options.rtol, options.atol)

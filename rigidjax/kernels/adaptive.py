@@ -23,7 +23,7 @@ from jaxtyping import Array, Float, Int
 from . import tableau
 from ._build import load
 from ._source import header, headers
-from .model import _NAME, Hoisted
+from .model import _NAME, Hoisted, Schedule, block_cotangents, call, forward_part
 
 __all__ = ["AdaptiveKernel", "build", "controls", "run"]
 
@@ -115,32 +115,13 @@ def build(
 ) -> AdaptiveKernel | None:
     """The adaptive kernel of `hoisted` for `solver` (one of `tableau.ADAPTIVE`) in its dtype,
     its forward part built and registered on first use; None where kernels cannot run here."""
-    dtype = hoisted.dtype
-    if not (
-        type(solver) in tableau.ADAPTIVE
-        and jax.default_backend() == "cpu"
-        and dtype.name in tableau.DTYPES
-    ):
+    built = forward_part(hoisted, unit, solver, record, adaptive=True)
+    if built is None:
         return None
-    method = cast(type[diffrax.AbstractERK], type(solver))
-    source = hoisted.source(unit, record)
-    text, name = header(method, dtype, source, "forward", adaptive=True)
-    if load(_NAME, (name,), headers(text, adaptive=True)) is None:
-        return None
-    back = header(method, dtype, source, "backward", False, adaptive=True)
+    method, source, name = built
+    back = header(method, hoisted.dtype, source, "backward", False, adaptive=True)
     size = hoisted.p + hoisted.c.shape[0]
     return AdaptiveKernel(name, back, hoisted.n, size, record, hoisted.events)
-
-
-def _call(target: str, shapes: list[jax.ShapeDtypeStruct], *args: Array | np.ndarray) -> list:
-    """The handler `target` on `args` (as `model._call`: an operand `jax.vmap` does not map keeps
-    a leading dimension of 1)."""
-    dtype = shapes[0].dtype
-    call = jax.ffi.ffi_call(target, shapes, vmap_method="expand_dims")
-    cast_args = [
-        a.astype(jnp.int32 if jnp.issubdtype(a.dtype, jnp.integer) else dtype) for a in args
-    ]
-    return list(call(*cast_args))
 
 
 Through = Callable[[Array, tuple, Array], tuple[Array, Array, Array]]
@@ -167,68 +148,48 @@ def run(
     in `ctl` (`controls`). Reverse mode by the kernel's adjoint of the accepted steps; where the
     output times are differentiated, or there is an event, by `through`'s."""
     K, B, dtype = ts.shape[0] - 1, y0.shape[0], y0.dtype
-    jumps = np.zeros(K, bool) if jump is None else np.asarray(jump, bool)
-    kept = np.arange(K + 1) if keep is None else np.flatnonzero(np.asarray(keep, bool))
-    R0, NR = kernel.record
-    at = np.flatnonzero(jumps) if NR else np.zeros(0, int)
-    slots = np.zeros(K, np.int32)
-    slots[at] = np.arange(1, at.size + 1)
-    jmp = np.where(jumps, np.maximum(slots, 1), 0).astype(np.int32)
-    every = np.arange(1, K + 2, dtype=np.int32)
-    save = np.zeros(K + 1, np.int32)
-    save[kept] = np.arange(1, kept.size + 1)
-    widths = np.cumsum([0, *(b.shape[1] for b in blocks)])
-    every_kept = kept.size == K + 1
+    sc = Schedule.of(K, jump, keep, kernel.record[1])
+    kept, every_kept = sc.kept, sc.kept.size == K + 1
 
-    def call(y0, blocks, ts, ctl, save, S):
+    def run_call(y0, blocks, ts, ctl, save, S):
         shapes = [
             jax.ShapeDtypeStruct((B, S, kernel.n), dtype),
-            jax.ShapeDtypeStruct((B, at.size, NR), dtype),
+            jax.ShapeDtypeStruct((B, sc.at.size, kernel.record[1]), dtype),
             jax.ShapeDtypeStruct((B, K), dtype),
             jax.ShapeDtypeStruct((B, 5), jnp.int32),
             jax.ShapeDtypeStruct((B,), dtype),
         ]
-        return _call(kernel.forward, shapes, y0, ts, jmp, save, ctl, *blocks)
+        return call(kernel.forward, shapes, y0, ts, sc.jump, save, ctl, *blocks)
 
     def forward(y0, blocks, ts, ctl):
-        y, rec, _, st, ev = call(y0, blocks, ts, ctl, save, kept.size)
+        y, rec, _, st, ev = run_call(y0, blocks, ts, ctl, sc.save, kept.size)
         return y, rec, st, ev
 
     def run_fwd(y0, blocks, ts, ctl):
-        perturbed = ts.perturbed or kernel.event
+        differentiated = ts.perturbed or kernel.event
         y0, ts, ctl = y0.value, ts.value, ctl.value
         blocks = tuple(b.value for b in blocks)
-        if perturbed:
+        if differentiated:
             out = forward(y0, blocks, ts, ctl)
             _, pullback = jax.vjp(through, y0, blocks, ts)
             return out, (pullback,)
-        y, rec, hk, st, ev = call(y0, blocks, ts, ctl, every, K + 1)
+        y, rec, hk, st, ev = run_call(y0, blocks, ts, ctl, sc.every, K + 1)
         return (y if every_kept else y[:, kept], rec, st, ev), (y, blocks, ts, ctl, hk)
 
     def run_bwd(residuals, g):
-        shapes = [(B, kept.size, kernel.n), (B, at.size, NR), (B,)]
-        gy_kept, g_rec, g_ev = (
-            jnp.zeros(shape, dtype) if isinstance(x, SymbolicZero) else x
-            for x, shape in zip((*g[:2], g[3]), shapes, strict=True)
-        )
         if len(residuals) == 1:
-            y0b, gb, tb = residuals[0]((gy_kept, g_rec, g_ev))
+            shapes = [(B, kept.size, kernel.n), (B, sc.at.size, kernel.record[1]), (B,)]
+            dense = tuple(
+                jnp.zeros(shape, dtype) if isinstance(x, SymbolicZero) else x
+                for x, shape in zip((g[0], g[1], g[3]), shapes, strict=True)
+            )
+            y0b, gb, tb = residuals[0](dense)
             return y0b, gb, tb, None
         y, blocks, ts, ctl, hk = residuals
-        gy = gy_kept if every_kept else jnp.zeros_like(y).at[:, kept].add(gy_kept)
-        if at.size:  # a command is held after its jump to the next time
-            gy = gy.at[:, at + 1, R0 : R0 + NR].add(g_rec)
-        out = [
-            jax.ShapeDtypeStruct((B, kernel.n), dtype),
-            jax.ShapeDtypeStruct((B, kernel.p), dtype),
-        ]
-        args = (y, ts, jmp, every, ctl, hk, gy, *blocks)
-        y0b, pb = _call(kernel.backward(), out, *args)
-        gb = [
-            pb[:, a:b].sum(axis=0, keepdims=True) if block.shape[0] == 1 else pb[:, a:b]
-            for block, a, b in zip(blocks, widths[:-1], widths[1:], strict=True)
-        ]
-        return y0b, tuple(gb), None, None
+        gy = sc.cotangent(y, g[:2], kernel.n, kernel.record)
+        out = [jax.ShapeDtypeStruct((B, m), dtype) for m in (kernel.n, kernel.p)]
+        y0b, pb = call(kernel.backward(), out, y, ts, sc.jump, sc.every, ctl, hk, gy, *blocks)
+        return y0b, block_cotangents(pb, blocks), None, None
 
     solve = jax.custom_vjp(forward)
     solve.defvjp(run_fwd, run_bwd, symbolic_zeros=True)

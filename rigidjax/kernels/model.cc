@@ -119,6 +119,19 @@ RJ_INLINE void Normalize(T* u, T* r) {
   }
 }
 
+// A step's end u at time t: its unit groups divided by their norms (r: 1 / the norms), then
+// the step-end map E.
+template <typename T>
+RJ_INLINE void EndStep(T t, const T* p, T* u, T* r) {
+  Normalize(u, r);
+  if constexpr (Model::kEnd) {
+    T v[N];
+    Model::E(t, u, p, v);
+    RJ_UNROLL
+    for (int j = 0; j < N; ++j) u[j] = v[j];
+  }
+}
+
 // `steps` steps of size h from time t0 on the m ≤ kBlock bodies of x (N rows of kBlock); with
 // Keep, the inverse norms of each step's unit groups into inv (the reverse sweep's, which
 // then need not recompute them).
@@ -137,13 +150,7 @@ void Steps(int64_t m, T (*__restrict x)[kBlock], const T (*__restrict C)[kBlock]
       Stages<Tab::S>(y, p, t, h, k, z);
       Combine<Tab::S>(y, h, k, u);
       T r[NU];
-      Normalize(u, r);
-      if constexpr (Model::kEnd) {
-        T v[N];
-        Model::E(t + h, u, p, v);
-        RJ_UNROLL
-        for (int j = 0; j < N; ++j) u[j] = v[j];
-      }
+      EndStep(t + h, p, u, r);
       if constexpr (Keep) {
         RJ_UNROLL
         for (int g = 0; g < Model::NU; ++g) inv[s - first][g][i] = r[g];

@@ -268,6 +268,31 @@ class Kernel(NamedTuple):
         return name
 
 
+def forward_part(
+    hoisted: Hoisted,
+    unit: tuple[tuple[int, int], ...],
+    solver: diffrax.AbstractSolver,
+    record: tuple[int, int],
+    adaptive: bool = False,
+) -> tuple[type[diffrax.AbstractERK], str, str] | None:
+    """The forward part of a kernel of `hoisted` for `solver` (one of `tableau.METHODS`, or of
+    `tableau.ADAPTIVE` for the `adaptive` kernel) built and registered: `(method, struct
+    Model's source, handler name)`; None where kernels cannot run here."""
+    dtype = hoisted.dtype
+    if not (
+        type(solver) in (tableau.ADAPTIVE if adaptive else tableau.METHODS)
+        and jax.default_backend() == "cpu"
+        and dtype.name in tableau.DTYPES
+    ):
+        return None
+    method = cast(type[diffrax.AbstractERK], type(solver))
+    source = hoisted.source(unit, record)
+    text, name = header(method, dtype, source, "forward", adaptive=adaptive)
+    if load(_NAME, (name,), headers(text, adaptive=adaptive)) is None:
+        return None
+    return method, source, name
+
+
 def build(
     hoisted: Hoisted,
     unit: tuple[tuple[int, int], ...],
@@ -278,18 +303,11 @@ def build(
     forward part built and registered on first use (its reverse mode on the first gradient);
     None where kernels cannot run here (not the CPU, no compiler). `Unsupported` if the field
     has no scalar form."""
+    built = forward_part(hoisted, unit, solver, record)
+    if built is None:
+        return None
+    method, source, name = built
     dtype = hoisted.dtype
-    if not (
-        type(solver) in tableau.METHODS
-        and jax.default_backend() == "cpu"
-        and dtype.name in tableau.DTYPES
-    ):
-        return None
-    method = cast(type[diffrax.AbstractERK], type(solver))  # one of METHODS
-    source = hoisted.source(unit, record)
-    text, name = header(method, dtype, source, "forward")
-    if load(_NAME, (name,), headers(text)) is None:
-        return None
     backward = (
         header(method, dtype, source, "backward", False),
         header(method, dtype, source, "backward", True),
@@ -297,15 +315,65 @@ def build(
     return Kernel(name, backward, hoisted.n, hoisted.p + hoisted.c.shape[0], record)
 
 
-def _call(target: str, dtype, shapes: list[tuple[int, ...]], *args: Array | np.ndarray) -> list:
-    """The kernel `target` on `args`; under `jax.vmap` an operand that is not mapped keeps a
-    leading dimension of 1 (`"expand_dims"`), which the kernel reads for every row: shared
-    parameters and steps are never copied per row."""
-    call = jax.ffi.ffi_call(
-        target, [jax.ShapeDtypeStruct(shape, dtype) for shape in shapes], vmap_method="expand_dims"
-    )
+def call(target: str, shapes: list[jax.ShapeDtypeStruct], *args: Array | np.ndarray) -> list:
+    """The kernel `target` on `args` (integers as int32, the rest as `shapes[0]`'s dtype);
+    under `jax.vmap` an operand that is not mapped keeps a leading dimension of 1
+    (`"expand_dims"`), which the kernel reads for every row: shared parameters and steps are
+    never copied per row."""
+    dtype = shapes[0].dtype
+    ffi = jax.ffi.ffi_call(target, shapes, vmap_method="expand_dims")
     cast = [a.astype(jnp.int32 if jnp.issubdtype(a.dtype, jnp.integer) else dtype) for a in args]
-    return list(call(*cast))
+    return list(ffi(*cast))
+
+
+class Schedule(NamedTuple):
+    """What a kernel call saves and where its jumps record (NumPy constants: a JAX array made
+    here would be a tracer under `jax.jit`, which a custom VJP's rules must not close over):
+    `kept` the saved times' indices, `at` the recorded jumps' intervals, `jump (K,)` 0 or 1 + a
+    recorded jump's slot, `every`/`save (K + 1,)` 1 + each time's slot (all, or the kept)."""
+
+    kept: np.ndarray
+    at: np.ndarray
+    jump: np.ndarray
+    every: np.ndarray
+    save: np.ndarray
+
+    @classmethod
+    def of(cls, K: int, jump: np.ndarray | None, keep: np.ndarray | None, NR: int) -> Schedule:
+        jumps = np.zeros(K, bool) if jump is None else np.asarray(jump, bool)
+        kept = np.arange(K + 1) if keep is None else np.flatnonzero(np.asarray(keep, bool))
+        at = np.flatnonzero(jumps) if NR else np.zeros(0, int)
+        slots = np.zeros(K, np.int32)
+        slots[at] = np.arange(1, at.size + 1)
+        jmp = np.where(jumps, np.maximum(slots, 1), 0).astype(np.int32)
+        save = np.zeros(K + 1, np.int32)
+        save[kept] = np.arange(1, kept.size + 1)
+        return cls(kept, at, jmp, np.arange(1, K + 2, dtype=np.int32), save)
+
+    def cotangent(self, y: Array, g: tuple, n: int, record: tuple[int, int]) -> Array:
+        """The cotangent of every saved state `(B, K + 1, n)` (`y`'s shape) from those of the
+        kept states and the records, `g` (symbolic zeros allowed)."""
+        B, dtype, (R0, NR) = y.shape[0], y.dtype, record
+        shapes = [(B, self.kept.size, n), (B, self.at.size, NR)]
+        gy_kept, g_rec = (
+            jnp.zeros(shape, dtype) if isinstance(x, SymbolicZero) else x
+            for x, shape in zip(g, shapes, strict=True)
+        )
+        every = self.kept.size == y.shape[1]
+        gy = gy_kept if every else jnp.zeros_like(y).at[:, self.kept].add(gy_kept)
+        if self.at.size:  # a command is held after its jump to the next time
+            gy = gy.at[:, self.at + 1, R0 : R0 + NR].add(g_rec)
+        return gy
+
+
+def block_cotangents(pb: Array, blocks: Sequence[Array]) -> tuple[Array, ...]:
+    """The cotangents of the parameter blocks from the kernel's per-body `pb (B, P)`: summed
+    over the bodies for a shared block."""
+    widths = np.cumsum([0, *(b.shape[1] for b in blocks)])
+    return tuple(
+        pb[:, a:b].sum(axis=0, keepdims=True) if block.shape[0] == 1 else pb[:, a:b]
+        for block, a, b in zip(blocks, widths[:-1], widths[1:], strict=True)
+    )
 
 
 def run(
@@ -326,57 +394,36 @@ def run(
     mode by the kernel's discrete adjoint of the same steps (`jax.custom_vjp`; its forward run
     keeps every state)."""
     K, B, dtype = h.shape[0], y0.shape[0], y0.dtype
-    jumps = np.zeros(K, bool) if jump is None else np.asarray(jump, bool)
-    kept = np.arange(K + 1) if keep is None else np.flatnonzero(np.asarray(keep, bool))
-    R0, NR = kernel.record
-    at = np.flatnonzero(jumps) if NR else np.zeros(0, int)  # the recorded jumps' intervals
-    slots = np.zeros(K, np.int32)
-    slots[at] = np.arange(1, at.size + 1)
-    # NumPy constants (a JAX array made here would be a tracer under `jax.jit`, which the
-    # custom VJP's rules must not close over)
-    jmp = np.where(jumps, np.maximum(slots, 1), 0).astype(np.int32)
-    every = np.arange(1, K + 2, dtype=np.int32)
-    save = np.zeros(K + 1, np.int32)
-    save[kept] = np.arange(1, kept.size + 1)
-    widths = np.cumsum([0, *(b.shape[1] for b in blocks)])
+    sc = Schedule.of(K, jump, keep, kernel.record[1])
+    kept, every_kept = sc.kept, sc.kept.size == K + 1  # (then no gather or scatter)
 
-    def call(y0, blocks, n, h, t0, save, S):
-        shapes = [(B, S, kernel.n), (B, at.size, NR)]
-        return _call(kernel.forward, dtype, shapes, y0, n, h, t0, jmp, save, *blocks)
+    def run_call(y0, blocks, n, h, t0, save, S):
+        shapes = [(B, S, kernel.n), (B, sc.at.size, kernel.record[1])]
+        structs = [jax.ShapeDtypeStruct(shape, dtype) for shape in shapes]
+        return call(kernel.forward, structs, y0, n, h, t0, sc.jump, save, *blocks)
 
     def forward(y0, blocks, n, h, t0):
-        return tuple(call(y0, blocks, n, h, t0, save, kept.size))
-
-    every_kept = kept.size == K + 1  # (no gather or scatter of the states then)
+        return tuple(run_call(y0, blocks, n, h, t0, sc.save, kept.size))
 
     def run_fwd(y0, blocks, n, h, t0):
         # (symbolic zeros: the cotangents of the steps' times only where they are perturbed)
         times = h.perturbed or t0.perturbed
         y0, n, h, t0 = y0.value, n.value, h.value, t0.value
         blocks = tuple(b.value for b in blocks)
-        y, rec = call(y0, blocks, n, h, t0, every, K + 1)
+        y, rec = run_call(y0, blocks, n, h, t0, sc.every, K + 1)
         return (y if every_kept else y[:, kept], rec), (y, blocks, n, h, t0, () if times else None)
 
     def run_bwd(residuals, g):
         y, blocks, n, h, t0, times = residuals
-        shapes = [(B, kept.size, kernel.n), (B, at.size, NR)]
-        gy_kept, g_rec = (
-            jnp.zeros(shape, dtype) if isinstance(x, SymbolicZero) else x
-            for x, shape in zip(g, shapes, strict=True)
-        )
-        gy = gy_kept if every_kept else jnp.zeros_like(y).at[:, kept].add(gy_kept)
-        if at.size:  # a command is held after its jump to the next time
-            gy = gy.at[:, at + 1, R0 : R0 + NR].add(g_rec)
+        gy = sc.cotangent(y, g, kernel.n, kernel.record)
         shapes = [(B, kernel.n), (B, kernel.p), (B, K), (B, K)]
-        args = (y, n, h, t0, jmp, every, gy, *blocks)
-        y0b, pb, hb, tb = _call(kernel.backward(times is not None), dtype, shapes, *args)
-        gb = [
-            pb[:, a:b].sum(axis=0, keepdims=True) if block.shape[0] == 1 else pb[:, a:b]
-            for block, a, b in zip(blocks, widths[:-1], widths[1:], strict=True)
-        ]
+        structs = [jax.ShapeDtypeStruct(shape, dtype) for shape in shapes]
+        args = (y, n, h, t0, sc.jump, sc.every, gy, *blocks)
+        y0b, pb, hb, tb = call(kernel.backward(times is not None), structs, *args)
+        gb = block_cotangents(pb, blocks)
         if times is None:
-            return y0b, tuple(gb), None, None, None
-        return y0b, tuple(gb), None, jnp.sum(hb, axis=0), jnp.sum(tb, axis=0)
+            return y0b, gb, None, None, None
+        return y0b, gb, None, jnp.sum(hb, axis=0), jnp.sum(tb, axis=0)
 
     solve = jax.custom_vjp(forward)
     solve.defvjp(run_fwd, run_bwd, symbolic_zeros=True)

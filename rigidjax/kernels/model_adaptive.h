@@ -128,13 +128,7 @@ RJ_INLINE T Attempt(const Ctl<T>& c, const T* y, const T* p, T t, T h, T* u, T* 
   Combine<S>(y, h, k, u);
   RJ_UNROLL
   for (int j = 0; j < N; ++j) err[j] = Model::still[j] ? T(0) : h * Row<S + 1, 0, true>(k, j, T(0));
-  Normalize(u, r);
-  if constexpr (Model::kEnd) {
-    T v[N];
-    Model::E(t + h, u, p, v);
-    RJ_UNROLL
-    for (int j = 0; j < N; ++j) u[j] = v[j];
-  }
+  EndStep(t + h, p, u, r);
   bool nan = false;
   RJ_UNROLL
   for (int j = 0; j < N; ++j) nan |= std::isnan(u[j]);
@@ -508,30 +502,31 @@ ffi::Error AdaptiveStepsBack(ffi::Buffer<DT> y, ffi::Buffer<DT> ts, ffi::Buffer<
   return ffi::Error::Success();
 }
 
-#define RJ_ADAPTIVE_FORWARD(NAME, DT)                                                     \
-  XLA_FFI_DEFINE_HANDLER_SYMBOL(NAME, (AdaptiveSteps<ffi::DT>),                          \
-                                ffi::Ffi::Bind()                                          \
-                                    .Arg<ffi::Buffer<ffi::DT>>()                          \
-                                    .Arg<ffi::Buffer<ffi::DT>>()                          \
-                                    .Arg<ffi::Buffer<ffi::S32>>()                         \
-                                    .Arg<ffi::Buffer<ffi::S32>>()                         \
-                                    .Arg<ffi::Buffer<ffi::DT>>()                          \
-                                    .RemainingArgs()                                      \
-                                    .Ret<ffi::Buffer<ffi::DT>>()                          \
-                                    .Ret<ffi::Buffer<ffi::DT>>()                          \
-                                    .Ret<ffi::Buffer<ffi::DT>>()                          \
-                                    .Ret<ffi::Buffer<ffi::S32>>()                         \
+// Both handlers' leading operands: y0 (forward) or y (reverse mode), ts, jump, save, ctl.
+template <ffi::DataType DT>
+auto BindAdaptive() {
+  return ffi::Ffi::Bind()
+      .template Arg<ffi::Buffer<DT>>()
+      .template Arg<ffi::Buffer<DT>>()
+      .template Arg<ffi::Buffer<ffi::S32>>()
+      .template Arg<ffi::Buffer<ffi::S32>>()
+      .template Arg<ffi::Buffer<DT>>();
+}
+
+#define RJ_ADAPTIVE_FORWARD(NAME, DT)                                                    \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(NAME, (AdaptiveSteps<ffi::DT>),                         \
+                                BindAdaptive<ffi::DT>()                                  \
+                                    .RemainingArgs()                                     \
+                                    .Ret<ffi::Buffer<ffi::DT>>()                         \
+                                    .Ret<ffi::Buffer<ffi::DT>>()                         \
+                                    .Ret<ffi::Buffer<ffi::DT>>()                         \
+                                    .Ret<ffi::Buffer<ffi::S32>>()                        \
                                     .Ret<ffi::Buffer<ffi::DT>>());
-#define RJ_ADAPTIVE_BACKWARD(NAME, DT)                                                    \
-  XLA_FFI_DEFINE_HANDLER_SYMBOL(NAME, (AdaptiveStepsBack<ffi::DT>),                      \
-                                ffi::Ffi::Bind()                                          \
-                                    .Arg<ffi::Buffer<ffi::DT>>()                          \
-                                    .Arg<ffi::Buffer<ffi::DT>>()                          \
-                                    .Arg<ffi::Buffer<ffi::S32>>()                         \
-                                    .Arg<ffi::Buffer<ffi::S32>>()                         \
-                                    .Arg<ffi::Buffer<ffi::DT>>()                          \
-                                    .Arg<ffi::Buffer<ffi::DT>>()                          \
-                                    .Arg<ffi::Buffer<ffi::DT>>()                          \
-                                    .RemainingArgs()                                      \
-                                    .Ret<ffi::Buffer<ffi::DT>>()                          \
+#define RJ_ADAPTIVE_BACKWARD(NAME, DT)                                                   \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(NAME, (AdaptiveStepsBack<ffi::DT>),                     \
+                                BindAdaptive<ffi::DT>()                                  \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                         \
+                                    .Arg<ffi::Buffer<ffi::DT>>()                         \
+                                    .RemainingArgs()                                     \
+                                    .Ret<ffi::Buffer<ffi::DT>>()                         \
                                     .Ret<ffi::Buffer<ffi::DT>>());

@@ -12,7 +12,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array
 
-from .._integrate import SolveOptions, default_tolerances
+from .._integrate import SolveOptions, default_tolerances, warn_unattainable
 from ..kernels import adaptive, tableau
 
 
@@ -42,7 +42,10 @@ def controls(options: SolveOptions, norm: Callable, dtype) -> np.ndarray | None:
         controller.norm is optx.rms_norm or type(controller.norm) is type(norm)
     ):
         return None  # a norm of the user's (the kernel's is the RMS of one body's state)
-    return adaptive.controls(controller, solver, options.dt0, options.max_steps, dtype)
+    values = adaptive.controls(controller, solver, options.dt0, options.max_steps, dtype)
+    if values is not None:
+        warn_unattainable(dtype, options.rtol, options.atol)
+    return values
 
 
 def per_body(st: Array, single: bool, kept: np.ndarray) -> tuple[dict[str, Array], Any]:

@@ -28,10 +28,11 @@ from .._integrate import (
     solve_saved,
 )
 from .._modes import both_modes
+from ..kernels import adaptive, model_pallas
 from ..kernels import model as model_kernel
-from ..kernels import model_pallas
 from ..kernels._scalar import Unsupported
 from ..solvers.explicit_rk import ExplicitRK
+from . import _adaptive
 from .model import Model, TreeModel, flat, leaves, ravel
 
 if TYPE_CHECKING:
@@ -279,9 +280,18 @@ def _solve(
             backend = _cpu(kernel, model, options, jumps, keep)
         elif gpu and hoisted is not None and keep.all():
             backend = _gpu_backend(model, hoisted, options)
+    adaptive_kernel, ctl = None, None
+    if hoisted is not None and not kernel_options(options) and event is None:
+        ctl = _adaptive.controls(options, BatchMaxRMS(-1), dtype)
+    if ctl is not None and hoisted is not None:
+        try:
+            method = method_of(options)
+            adaptive_kernel = adaptive.build(hoisted, model.unit, method, model.record)
+        except Unsupported as e:
+            hoisted, missing = None, e.primitive
     if backend is None and hoisted is not None:
         hoisted, missing = _unrolled(hoisted)
-    if missing is not None and kernel_options(options):
+    if missing is not None and (kernel_options(options) or ctl is not None):
         warnings.warn(
             f"the {model.name} uses `{missing}`, which the fast path (the CPU kernel written "
             "from the field) cannot take: it runs on the Diffrax path instead, with the same "
@@ -293,6 +303,9 @@ def _solve(
     problem = (model, hoisted, single, jumps, keep)
     if event is not None:
         backend = _diffrax_backend(problem, options, event=event)
+    if adaptive_kernel is not None and hoisted is not None:
+        assert ctl is not None
+        backend = _cpu_adaptive(adaptive_kernel, ctl, problem, options)
     if (
         event is None
         and hoisted is not None
@@ -334,6 +347,30 @@ def _cpu(kernel, model: Model, options: SolveOptions, jumps, keep) -> Backend:
 
         ys, stats, result = kernel_solve(run, ts, options, keep)
         return (jnp.moveaxis(ys, 1, 0), jnp.moveaxis(recorded[0], 1, 0)), (stats, result)
+
+    return backend
+
+
+def _cpu_adaptive(kernel: adaptive.AdaptiveKernel, ctl, problem: tuple, options) -> Backend:
+    """The adaptive CPU kernel's solve (`kernels.adaptive.run`; each body its own steps), the
+    output times differentiated through the Diffrax path."""
+    model, _, single, jumps, keep = problem
+    checkpointed = diffrax.RecursiveCheckpointAdjoint()
+    through_diffrax = _diffrax_backend(problem, options, checkpointed, values=True)
+
+    def backend(y0, blocks, c, ts):
+        dtype, n = ts.dtype, len(blocks)
+        pk = [b.astype(dtype) for b in blocks] + ([c[None]] if c.shape[0] else [])
+
+        def through(y0, pk, ts):
+            cc = pk[n][0] if len(pk) > n else jnp.zeros((0,), dtype)
+            ys, rec = through_diffrax(y0, tuple(pk[:n]), cc, ts)
+            none = jnp.full(y0.shape[:1], jnp.inf, dtype)
+            return jnp.moveaxis(ys, 0, 1), jnp.moveaxis(rec, 0, 1), none
+
+        ys, rec, st, _ = adaptive.run(kernel, y0, pk, ts, ctl, through, jumps, keep)
+        stats, result = _adaptive.per_body(st, single, np.flatnonzero(keep))
+        return (jnp.moveaxis(ys, 1, 0), jnp.moveaxis(rec, 1, 0)), (stats, result)
 
     return backend
 
