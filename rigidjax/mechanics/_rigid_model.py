@@ -13,7 +13,7 @@ from jaxtyping import Array
 
 from ..models import Model
 from ..rotations import quat
-from ._free_field import free_field
+from ._free_field import free_field, quat_rate
 from .body import euler_rhs
 
 Torque = Callable[[Array, Array, Array], Array]
@@ -50,7 +50,7 @@ def _tensor_model(torque: Torque | None, frame: str) -> Model:
             if torque is None
             else _torque_in_body(torque, frame, t, w, q, y.dtype)
         )
-        dq = free_field((0.0, 0.0, 0.0), tuple(w), tuple(q))[1]
+        dq = quat_rate(tuple(w), tuple(q))
         return jnp.concatenate([euler_rhs(I, I_inv, w, K), jnp.stack(dq)])
 
     return Model(field, 7, 18, ((3, 4),), "torque" if torque is not None else "free body")
