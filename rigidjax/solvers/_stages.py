@@ -15,7 +15,8 @@ import jax.tree_util as jtu
 import numpy as np
 from jaxtyping import Float, PyTree
 
-from .._custom_types import Args, RealScalarLike, Y
+from .._custom_types import RealScalarLike
+from ._stateless import AbstractStatelessSolver
 
 
 def tableau_of(method: diffrax.AbstractSolver) -> diffrax.ButcherTableau:
@@ -72,7 +73,7 @@ def stacked(h: RealScalarLike, ks: list[PyTree]) -> PyTree:
     return jtu.tree_map(lambda *leaves: h * jnp.stack(leaves), *ks)
 
 
-class AbstractTableauSolver(diffrax.AbstractSolver[None]):
+class AbstractTableauSolver(AbstractStatelessSolver):
     """A solver that runs the stages of the explicit Runge–Kutta `method` itself (`ExplicitRK`,
     `RKMK`): validation, order and embedded-error order come from `method`; no solver state."""
 
@@ -86,8 +87,3 @@ class AbstractTableauSolver(diffrax.AbstractSolver[None]):
 
     def error_order(self, terms: PyTree[diffrax.AbstractTerm]) -> RealScalarLike | None:
         return self.method.error_order(terms)
-
-    def init(
-        self, terms: diffrax.AbstractTerm, t0: RealScalarLike, t1: RealScalarLike, y0: Y, args: Args
-    ) -> None:
-        return None

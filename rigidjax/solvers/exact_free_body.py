@@ -20,8 +20,9 @@ import jax.numpy as jnp
 import jax.tree_util as jtu
 from jaxtyping import Array, PyTree
 
-from .._custom_types import Args, BoolScalarLike, DenseInfo, RealScalarLike, Y
+from .._custom_types import Args, DenseInfo, RealScalarLike, Y
 from ..analytic.poinsot_attitude import free_body_flow
+from ._stateless import AbstractStatelessSolver
 
 __all__ = [
     "AbstractFlowSolver",
@@ -149,7 +150,7 @@ def flow_from_start(inertia: Array, omega0: Array, q0: Array, ts: Array) -> tupl
     return omega, q / jnp.linalg.norm(q, axis=-1, keepdims=True)
 
 
-class AbstractFlowSolver(diffrax.AbstractSolver[None]):
+class AbstractFlowSolver(AbstractStatelessSolver):
     """A fixed-step solver made of exact flows (`ExactFreeBody`, `LiePoissonSplitting`): no
     error estimate, no solver state, linear interpolation between step ends."""
 
@@ -159,11 +160,6 @@ class AbstractFlowSolver(diffrax.AbstractSolver[None]):
     )
 
     def error_order(self, terms: PyTree[diffrax.AbstractTerm]) -> RealScalarLike | None:
-        return None
-
-    def init(
-        self, terms: diffrax.AbstractTerm, t0: RealScalarLike, t1: RealScalarLike, y0: Y, args: Args
-    ) -> None:
         return None
 
 
@@ -185,17 +181,9 @@ class ExactFreeBody(AbstractFlowSolver):
     def order(self, terms: PyTree[diffrax.AbstractTerm]) -> int | None:
         return None
 
-    def step(
-        self,
-        terms: diffrax.AbstractTerm,
-        t0: RealScalarLike,
-        t1: RealScalarLike,
-        y0: tuple[Array, Array],
-        args: Args,
-        solver_state: None,
-        made_jump: BoolScalarLike,
-    ) -> tuple[tuple[Array, Array], None, DenseInfo, None, diffrax.RESULTS]:
-        del solver_state, made_jump
+    def _advance(
+        self, terms: diffrax.AbstractTerm, t0: RealScalarLike, t1: RealScalarLike, y0: Y, args: Args
+    ) -> tuple[Y, None, DenseInfo]:
         field, direction = field_of(terms, "ExactFreeBody")
         if field.torque is not None:
             raise ValueError(
@@ -206,7 +194,4 @@ class ExactFreeBody(AbstractFlowSolver):
         if len(y0) != 2:
             raise ValueError("ExactFreeBody integrates the state y = (omega, q)")
         y1 = free_flow(args, y0[0], y0[1], direction * (t1 - t0))
-        return y1, None, dict(y0=y0, y1=y1), None, diffrax.RESULTS.successful
-
-    def func(self, terms: diffrax.AbstractTerm, t0: RealScalarLike, y0: Y, args: Args) -> Y:
-        return terms.vf(t0, y0, args)
+        return y1, None, dict(y0=y0, y1=y1)

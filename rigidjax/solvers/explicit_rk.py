@@ -8,7 +8,7 @@ from typing import ClassVar
 import diffrax
 import jax.tree_util as jtu
 
-from .._custom_types import VF, Args, BoolScalarLike, DenseInfo, RealScalarLike, Y
+from .._custom_types import Args, DenseInfo, RealScalarLike, Y
 from . import _stages
 
 __all__ = ["ExplicitRK", "unrolled"]
@@ -32,20 +32,9 @@ class ExplicitRK(_stages.AbstractTableauSolver):
     ) -> Callable[..., diffrax.AbstractLocalInterpolation]:
         return self.method.interpolation_cls
 
-    def func(self, terms: diffrax.AbstractTerm, t0: RealScalarLike, y0: Y, args: Args) -> VF:
-        return terms.vf(t0, y0, args)
-
-    def step(
-        self,
-        terms: diffrax.AbstractTerm,
-        t0: RealScalarLike,
-        t1: RealScalarLike,
-        y0: Y,
-        args: Args,
-        solver_state: None,
-        made_jump: BoolScalarLike,
-    ) -> tuple[Y, Y, DenseInfo, None, diffrax.RESULTS]:
-        del solver_state, made_jump
+    def _advance(
+        self, terms: diffrax.AbstractTerm, t0: RealScalarLike, t1: RealScalarLike, y0: Y, args: Args
+    ) -> tuple[Y, Y, DenseInfo]:
         tab = _stages.tableau_of(self.method)
         h = t1 - t0
 
@@ -57,8 +46,7 @@ class ExplicitRK(_stages.AbstractTableauSolver):
         )
         y1 = add(y0, _stages.increment(h, tab.b_sol, ks))
         y_err = _stages.increment(h, tab.b_error, ks)
-        dense_info = dict(y0=y0, y1=y1, k=_stages.stacked(h, ks))
-        return y1, y_err, dense_info, None, diffrax.RESULTS.successful
+        return y1, y_err, dict(y0=y0, y1=y1, k=_stages.stacked(h, ks))
 
 
 def unrolled(solver: diffrax.AbstractSolver | None) -> diffrax.AbstractSolver:

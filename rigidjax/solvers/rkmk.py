@@ -22,7 +22,6 @@ from jaxtyping import PyTree
 
 from .._custom_types import (
     Args,
-    BoolScalarLike,
     DenseInfo,
     Frame,
     Mat33,
@@ -144,17 +143,14 @@ class RKMK(_stages.AbstractTableauSolver):
         W = so3.hat(w)
         return (W @ R if self.frame == "space" else R @ W), xdot
 
-    def step(
+    def _advance(
         self,
         terms: diffrax.AbstractTerm,
         t0: RealScalarLike,
         t1: RealScalarLike,
         y0: tuple[Mat33, Y],
         args: Args,
-        solver_state: None,
-        made_jump: BoolScalarLike,
-    ) -> tuple[tuple[Mat33, Y], tuple[Mat33, Y], DenseInfo, None, diffrax.RESULTS]:
-        del solver_state, made_jump
+    ) -> tuple[tuple[Mat33, Y], tuple[Mat33, Y], DenseInfo]:
         tab = _stages.tableau_of(self.method)
         R0, x0 = y0
         h = t1 - t0
@@ -179,4 +175,4 @@ class RKMK(_stages.AbstractTableauSolver):
         dense_info = dict(
             R0=R0, y0=(jnp.zeros_like(Theta), x0), y1=(Theta, x1), k=_stages.stacked(h, ks)
         )
-        return (R1, x1), (R_err, x_err), dense_info, None, diffrax.RESULTS.successful
+        return (R1, x1), (R_err, x_err), dense_info

@@ -19,7 +19,7 @@ import equinox as eqx
 import jax.tree_util as jtu
 from jaxtyping import PyTree
 
-from .._custom_types import Args, BoolScalarLike, DenseInfo, RealScalarLike, Y
+from .._custom_types import Args, DenseInfo, RealScalarLike, Y
 from .exact_free_body import AbstractFlowSolver, RigidBodyField, field_of, free_flow
 
 __all__ = ["LiePoissonSplitting", "strang_step"]
@@ -81,17 +81,9 @@ class LiePoissonSplitting(AbstractFlowSolver):
     def order(self, terms: PyTree[diffrax.AbstractTerm]) -> int | None:
         return self.splitting_order
 
-    def step(
-        self,
-        terms: diffrax.AbstractTerm,
-        t0: RealScalarLike,
-        t1: RealScalarLike,
-        y0: tuple,
-        args: Args,
-        solver_state: None,
-        made_jump: BoolScalarLike,
-    ) -> tuple[tuple, None, DenseInfo, None, diffrax.RESULTS]:
-        del solver_state, made_jump
+    def _advance(
+        self, terms: diffrax.AbstractTerm, t0: RealScalarLike, t1: RealScalarLike, y0: Y, args: Args
+    ) -> tuple[Y, None, DenseInfo]:
         field, direction = field_of(terms, "LiePoissonSplitting")
         if len(y0) not in (2, 3):
             raise ValueError("LiePoissonSplitting integrates y = (omega, q) or (omega, q, x)")
@@ -105,7 +97,4 @@ class LiePoissonSplitting(AbstractFlowSolver):
             for w in _YOSHIDA:
                 y1 = strang_step(field, t, w * h, y1, args)
                 t = t + w * h
-        return y1, None, dict(y0=y0, y1=y1), None, diffrax.RESULTS.successful
-
-    def func(self, terms: diffrax.AbstractTerm, t0: RealScalarLike, y0: Y, args: Args) -> Y:
-        return terms.vf(t0, y0, args)
+        return y1, None, dict(y0=y0, y1=y1)

@@ -4,6 +4,7 @@ switch), telling the inner solver when the map changed the state so that FSAL re
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import TypeAlias
 
 import diffrax
 import equinox as eqx
@@ -14,8 +15,12 @@ from .._custom_types import VF, Args, BoolScalarLike, DenseInfo, RealScalarLike,
 
 __all__ = ["StepEndMap"]
 
+_Terms: TypeAlias = PyTree[diffrax.AbstractTerm]
+_State: TypeAlias = tuple[PyTree, Bool[Array, ""]]
+"""The inner solver's state and whether the last step end's map jumped."""
 
-class StepEndMap(diffrax.AbstractSolver[tuple[PyTree, Bool[Array, ""]]]):
+
+class StepEndMap(diffrax.AbstractSolver[_State]):
     """Wrap `solver`; after each accepted or rejected step apply `fn(y1) -> (y1', jumped)`.
 
     `jumped` (a boolean scalar) says that `y1'` differs from `y1` by more than rounding (e.g. the
@@ -59,35 +64,30 @@ class StepEndMap(diffrax.AbstractSolver[tuple[PyTree, Bool[Array, ""]]]):
     ) -> Callable[..., diffrax.AbstractLocalInterpolation]:
         return self.solver.interpolation_cls
 
-    def order(self, terms: PyTree[diffrax.AbstractTerm]) -> int | None:
+    def order(self, terms: _Terms) -> int | None:
         return self.solver.order(terms)
 
-    def error_order(self, terms: PyTree[diffrax.AbstractTerm]) -> RealScalarLike | None:
+    def error_order(self, terms: _Terms) -> RealScalarLike | None:
         return self.solver.error_order(terms)
 
-    def strong_order(self, terms: PyTree[diffrax.AbstractTerm]) -> RealScalarLike | None:
+    def strong_order(self, terms: _Terms) -> RealScalarLike | None:
         return self.solver.strong_order(terms)
 
     def init(
-        self,
-        terms: PyTree[diffrax.AbstractTerm],
-        t0: RealScalarLike,
-        t1: RealScalarLike,
-        y0: Y,
-        args: Args,
-    ) -> tuple[PyTree, Bool[Array, ""]]:
+        self, terms: _Terms, t0: RealScalarLike, t1: RealScalarLike, y0: Y, args: Args
+    ) -> _State:
         return self.solver.init(terms, t0, t1, y0, args), jnp.array(False)
 
     def step(
         self,
-        terms: PyTree[diffrax.AbstractTerm],
+        terms: _Terms,
         t0: RealScalarLike,
         t1: RealScalarLike,
         y0: Y,
         args: Args,
-        solver_state: tuple[PyTree, Bool[Array, ""]],
+        solver_state: _State,
         made_jump: BoolScalarLike,
-    ) -> tuple[Y, Y | None, DenseInfo, tuple[PyTree, Bool[Array, ""]], diffrax.RESULTS]:
+    ) -> tuple[Y, Y | None, DenseInfo, _State, diffrax.RESULTS]:
         inner_state, jumped = solver_state
         y1, y_err, dense_info, inner_state, result = self.solver.step(
             terms, t0, t1, y0, args, inner_state, jnp.logical_or(made_jump, jumped)
@@ -95,7 +95,5 @@ class StepEndMap(diffrax.AbstractSolver[tuple[PyTree, Bool[Array, ""]]]):
         y1, jumped = self.fn(y1)
         return y1, y_err, dense_info, (inner_state, jumped), result
 
-    def func(
-        self, terms: PyTree[diffrax.AbstractTerm], t0: RealScalarLike, y0: Y, args: Args
-    ) -> VF:
+    def func(self, terms: _Terms, t0: RealScalarLike, y0: Y, args: Args) -> VF:
         return self.solver.func(terms, t0, y0, args)
