@@ -133,13 +133,11 @@ def _block_thomas(L: Array, D: Array, U: Array, r: Array) -> Array:
 
 
 def _solve_rates(
-    dt: Float[Array, " M"],
-    rates: Float[Array, "M 3"],
-    rotvecs: Float[Array, "M 3"],
-    max_iter: int,
-    tol: float,
+    dt: Float[Array, " M"], rotvecs: Float[Array, "M 3"], max_iter: int, tol: float
 ) -> tuple[Float[Array, "M 3"], Float[Array, "M 3"]]:
-    """SciPy's `_solve_for_angular_rates`: rates at keys 0…N−2 and θ̇ at each segment's end."""
+    """SciPy's `_solve_for_angular_rates`: rates at keys 0…N−2 and θ̇ at each segment's end,
+    starting from each segment's mean rate `θ/Δt` (which the end keys keep)."""
+    rates = rotvecs / dt[:, None]
     first, last = rates[0], rates[-1]
     A = _rate_to_rotvec_dot(rotvecs)
     A_inv = _rotvec_dot_to_rate(rotvecs)
@@ -195,11 +193,10 @@ class RotationSpline(eqx.Module):
         times, keys = key_frames(ts, q)
         dt = jnp.diff(times)
         rotvecs = _to_rotvec(mul(conj(keys[:-1]), keys[1:]))
-        rates = rotvecs / dt[:, None]
         if keys.shape[0] == 2:
-            rotvecs_dot = rates
+            rates = rotvecs_dot = rotvecs / dt[:, None]
         else:
-            rates, rotvecs_dot = _solve_rates(dt, rates, rotvecs, max_iter, tol)
+            rates, rotvecs_dot = _solve_rates(dt, rotvecs, max_iter, tol)
         d = dt[:, None]
         a = (-2 * rotvecs + d * rates + d * rotvecs_dot) / d**3
         b = (3 * rotvecs - 2 * d * rates - d * rotvecs_dot) / d**2
