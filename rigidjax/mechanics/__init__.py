@@ -2,18 +2,8 @@
 stability of stationary rotations, the gyrostat, the heavy top, 6-DOF bodies, the Kepler
 problem and the gravity-gradient satellite."""
 
-from . import (
-    body,
-    dynamics,
-    gyrostat,
-    heavy_top,
-    inertia,
-    invariants,
-    kepler,
-    satellite,
-    sixdof,
-    stability,
-)
+# The submodules not imported for their names below (`body`, `dynamics`, ... come with those).
+from . import inertia, kepler, satellite, sixdof, stability
 from .body import RigidBody
 from .dynamics import Trajectory, simulate
 from .gyrostat import Gyrostat, GyrostatTrajectory
