@@ -48,9 +48,10 @@ from ..models.solve import solve_tree
 from ..rotations import quat
 from ._gyrostat_body import Gyrostat
 from ._initial import initial_rotation
+from ._rigid import rigid_call, solve_rigid
 from ._zoh import Controller, held_solve
 from .body import _apply
-from .dynamics import Trajectory
+from .trajectory import Trajectory
 
 __all__ = ["Gyrostat", "GyrostatTrajectory", "angular_momentum", "energy", "simulate_gyrostat"]
 
@@ -328,8 +329,6 @@ def _trajectory(
 def _other_kinematics(g, omega0, q0, ts, torque, kinematics, given) -> GyrostatTrajectory:
     """A constant-h gyrostat without wheels or controller in another attitude formulation:
     `simulate(RigidBody, ..., torque=τ − Ω × h)` (the same equations)."""
-    from .dynamics import simulate
-
     if g.wheels or given["h_rate"] is not None or given["controller"] is not None:
         raise ValueError(
             f"kinematics={kinematics!r} is taken for a gyrostat with a constant h and no "
@@ -343,9 +342,11 @@ def _other_kinematics(g, omega0, q0, ts, torque, kinematics, given) -> GyrostatT
             tau = quat.rotate(quat.conj(q), tau)
         return tau - jnp.cross(w, h)
 
-    traj = simulate(
-        g.body, omega0, q0, ts, total, kinematics, options=given["options"], check=given["check"]
+    options = SolveOptions.of(given["options"], {})
+    call = rigid_call(
+        g.body, omega0, q0, ts, total, kinematics, "body", None, options, given["check"]
     )
+    traj = solve_rigid(call, options)
     h_t = jnp.broadcast_to(h, traj.omega.shape)
     return GyrostatTrajectory(
         traj.omega, traj.quat, h_t, ts=traj.ts, stats=traj.stats, result=traj.result

@@ -60,8 +60,8 @@ from .._integrate import SolveKwargs, SolveOptions, solve_saved
 from ..rotations import quat, so3
 from ..solvers.exact_free_body import ExactFreeBody, RigidBodyField
 from ..solvers.splitting import LiePoissonSplitting
+from ._paths import fixed_steps
 from .body import RigidBody
-from .dynamics import fixed_steps
 from .sixdof import SixDofTrajectory, Wrench, initial_state, simulate_6dof
 
 __all__ = [

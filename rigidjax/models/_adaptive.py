@@ -13,16 +13,19 @@ import optimistix as optx
 from jaxtyping import Array
 
 from .._integrate import SolveOptions, default_tolerances, warn_unattainable
+from ..events import Event
 from ..kernels import adaptive, tableau
 
 
-def controls(options: SolveOptions, norm: Callable, dtype) -> np.ndarray | None:
+def controls(
+    options: SolveOptions, norm: Callable, dtype, event: Event | None = None
+) -> np.ndarray | None:
     """The adaptive kernel's controller values (`kernels.adaptive.controls`) for `options`, or
     None where they ask for what it does not do: fixed steps, a solver other than an embedded
     pair of `tableau.ADAPTIVE` (`ExplicitRK(method)` asks for the Diffrax path), a controller
     other than a plain `PIDController`, another adjoint than the default, a progress meter.
     Without a controller, `solve_saved`'s: a `PIDController` at `options.rtol`, `options.atol`
-    (`default_tolerances`) with `norm`."""
+    (`default_tolerances`) with `norm`. An `event`'s direction and termination go with them."""
     solver = diffrax.Tsit5() if options.solver is None else options.solver
     if (
         type(solver) not in tableau.ADAPTIVE
@@ -42,7 +45,15 @@ def controls(options: SolveOptions, norm: Callable, dtype) -> np.ndarray | None:
         controller.norm is optx.rms_norm or type(controller.norm) is type(norm)
     ):
         return None  # a norm of the user's (the kernel's is the RMS of one body's state)
-    values = adaptive.controls(controller, solver, options.dt0, options.max_steps, dtype)
+    values = adaptive.controls(
+        controller,
+        solver,
+        options.dt0,
+        options.max_steps,
+        dtype,
+        None if event is None else event.direction,
+        True if event is None else event.terminate,
+    )
     if values is not None:
         warn_unattainable(dtype, options.rtol, options.atol)
     return values

@@ -1,0 +1,223 @@
+"""The kernels as backends of `models.solve`: the CPU kernel at fixed steps (`cpu_backend`), the
+adaptive CPU kernel (`adaptive_backend`), the Pallas kernel (`gpu_backend`); each a `Backend`
+with the steps and failures of `solve_saved`."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import cast
+
+import diffrax
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array
+
+from .._checks import is_concrete
+from .._integrate import (
+    SolveOptions,
+    fixed_step_count,
+)
+from ..events import Event
+from ..kernels import adaptive, model_pallas
+from ..kernels import model as model_kernel
+from ..solvers.explicit_rk import ExplicitRK
+from . import _adaptive
+from ._diffrax_path import Backend, diffrax_backend, joined, method_of, solve_components
+from .model import Model
+
+
+def kernel_options(options: SolveOptions) -> bool:
+    """Whether `options` ask for what the kernels integrate: fixed steps `dt0`
+    (`diffrax.ConstantStepSize`), reverse-mode (default) adjoint, no Diffrax progress meter;
+    the method is checked by the kernel (`free_body.METHODS`)."""
+    return (
+        isinstance(options.stepsize_controller, diffrax.ConstantStepSize)
+        and options.dt0 is not None
+        and isinstance(options.adjoint, None | diffrax.RecursiveCheckpointAdjoint)
+        and isinstance(options.progress_meter, None | diffrax.NoProgressMeter)
+    )
+
+
+Run = Callable[[Array, Array, Array, Array], Array]
+"""`(n (K,), taken (K,), h (K,), t0 (K,)) -> states (B, T, N)`: a kernel's fixed steps."""
+
+
+def kernel_solve(
+    run: Run, ts: Array, options: SolveOptions, keep: np.ndarray | None = None
+) -> tuple[Array, dict[str, Array], diffrax.RESULTS]:
+    """A kernel's solve with the steps of `solve_saved` (`n` equal steps of at most `dt0` per
+    output interval) and its failures: more steps than `max_steps` (where Diffrax stops), or a
+    non-finite state; returns `(states (B, T, N), stats, result)` (the caller raises a
+    failure: `raise_failure`; forward mode: `_solve`'s `both_modes`). `keep`
+    (booleans `(T,)`, the first and last true): the times whose states `run` returns; failures
+    are then placed in the intervals between kept times."""
+    width = ts[1:] - ts[:-1]
+    n = fixed_step_count(width, jnp.asarray(options.dt0, ts.dtype))
+    taken = jnp.minimum(n, options.max_steps).astype(jnp.int32)
+    ys = run(n, taken, width / n, ts[:-1])
+    finite = jnp.all(jnp.isfinite(ys), axis=(0, 2))
+    kept = np.arange(ts.shape[0]) if keep is None else np.flatnonzero(keep)
+    over = jnp.concatenate([jnp.zeros(1, jnp.int32), jnp.cumsum(n > options.max_steps)])
+    too_many = over[kept[1:]] > over[kept[:-1]]  # per kept interval
+    fails = too_many | ~finite[1:]
+    first = jnp.argmax(fails)
+    result = diffrax.RESULTS.where(
+        jnp.any(fails),
+        diffrax.RESULTS.where(
+            too_many[first],
+            cast(diffrax.RESULTS, diffrax.RESULTS.max_steps_reached),
+            cast(diffrax.RESULTS, diffrax.RESULTS.nonfinite),
+        ),
+        diffrax.RESULTS.successful,
+    )
+    num_steps = jnp.sum(taken)
+    stats = dict(
+        num_steps=num_steps,
+        num_accepted_steps=num_steps,
+        num_rejected_steps=0 * num_steps,
+        num_valid=1 + jnp.where(jnp.any(fails), first, kept.size - 1),
+    )
+    return ys, stats, result
+
+
+def cpu_backend(kernel, model: Model, options: SolveOptions, jumps, keep) -> Backend:
+    """The CPU kernel's solve (`kernels.model.run`)."""
+
+    def backend(y0, blocks, c, ts):
+        dtype = ts.dtype
+        pk = [b.astype(dtype) for b in blocks] + ([c[None]] if c.shape[0] else [])
+        recorded = []
+
+        def run(n, taken, h, t0):
+            ys, rec = model_kernel.run(kernel, y0, pk, taken, h, t0, jumps, keep)
+            recorded.append(rec)
+            return ys
+
+        ys, stats, result = kernel_solve(run, ts, options, keep)
+        return (jnp.moveaxis(ys, 1, 0), jnp.moveaxis(recorded[0], 1, 0)), (stats, result)
+
+    return backend
+
+
+def adaptive_backend(
+    kernel: adaptive.AdaptiveKernel, ctl, problem: tuple, options, event: Event | None = None
+) -> Backend:
+    """The adaptive CPU kernel's solve (`kernels.adaptive.run`; each body its own steps, its
+    `event` located on the kernel: `stats["event_t"]`), the output times and the events
+    differentiated through the Diffrax path."""
+    model, _, single, jumps, keep = problem
+    checkpointed = diffrax.RecursiveCheckpointAdjoint()
+    through_diffrax = diffrax_backend(problem, options, checkpointed, values=True, event=event)
+
+    def backend(y0, blocks, c, ts):
+        dtype, n = ts.dtype, len(blocks)
+        pk = [b.astype(dtype) for b in blocks] + ([c[None]] if c.shape[0] else [])
+
+        def through(y0, pk, ts):
+            cc = pk[n][0] if len(pk) > n else jnp.zeros((0,), dtype)
+            ys, rec, *event_t = through_diffrax(y0, tuple(pk[:n]), cc, ts)
+            when = (
+                jnp.reshape(event_t[0], y0.shape[:1])
+                if event_t
+                else jnp.full(y0.shape[:1], jnp.inf, dtype)
+            )
+            return jnp.moveaxis(ys, 0, 1), jnp.moveaxis(rec, 0, 1), when
+
+        ys, rec, st, ev = adaptive.run(kernel, y0, pk, ts, ctl, through, jumps, keep)
+        stats, result = _adaptive.per_body(st, single, np.flatnonzero(keep))
+        if event is not None:
+            stats["event_t"] = ev[0] if single else ev
+        return (jnp.moveaxis(ys, 1, 0), jnp.moveaxis(rec, 1, 0)), (stats, result)
+
+    return backend
+
+
+def gpu_backend(model: Model, hoisted: model_kernel.Hoisted, options: SolveOptions) -> Backend:
+    """The Pallas kernel's solve (`_gpu`)."""
+
+    def backend(y0, blocks, c, ts):
+        p = joined(list(blocks), ts.dtype)
+        ys, stats, result = _gpu(model, hoisted, ts, y0, p, c, options)
+        return (ys, jnp.zeros((0, *ys.shape[1:-1], 0), ys.dtype)), (stats, result)
+
+    return backend
+
+
+def _packed(p: Array, c: Array) -> Array:
+    """The kernels' parameter rows `(P + Pc, Bp)`: the parameters, then the lifted constants."""
+    return jnp.concatenate([p, jnp.broadcast_to(c, (p.shape[0], c.shape[0]))], axis=1).T
+
+
+def _gpu(
+    model: Model,
+    hoisted: model_kernel.Hoisted,
+    ts: Array,
+    y0: Array,
+    p: Array,
+    c: Array,
+    options: SolveOptions,
+) -> tuple[Array, dict[str, Array], diffrax.RESULTS]:
+    """The Pallas kernel's solve (`model_pallas`, in Pallas' interpreter where the backend is
+    not a GPU: the tests). Reverse mode runs the kernel's own adjoint (`model_pallas.run_back`,
+    the same steps reversed); where the output times are differentiated, the same steps
+    through Diffrax (`ExplicitRK(method)`), whose reverse mode differentiates them."""
+    method = cast(diffrax.AbstractERK, method_of(options))  # one of METHODS: `serves` checked
+    through = dataclasses.replace(options, solver=ExplicitRK(method), throw=False)
+    interpret = jax.default_backend() != "gpu"
+
+    def steps(ts):
+        width = ts[1:] - ts[:-1]
+        n = fixed_step_count(width, jnp.asarray(options.dt0, ts.dtype))
+        return jnp.minimum(n, options.max_steps).astype(jnp.int32), width / n, ts[:-1]
+
+    spec = model_pallas.Spec(hoisted, model.unit, type(method))
+
+    def forward(y0, p, c, ts):
+        return model_pallas.run(spec, y0, _packed(p, c), steps(ts), interpret=interpret)
+
+    def through_diffrax(y0, p, c, ts):
+        ys = solve_components(model, hoisted, ts, y0, p, c, through, False)[0]
+        return jnp.moveaxis(ys, 0, 1)
+
+    def schedule(ts) -> tuple[tuple[Array, Array, Array], int]:
+        """The steps, and a bound on an interval's (static: the checkpoints' shape)."""
+        with jax.ensure_compile_time_eval():  # concrete steps where the times are known now
+            n, h, t0 = steps(ts)
+        longest = int(np.max(np.asarray(n), initial=1)) if is_concrete(n) else options.max_steps
+        return (n, h, t0), longest
+
+    def fwd(y0, p, c, ts):
+        args = (y0.value, p.value, c.value, ts.value)
+        if ts.perturbed or not (interpret or model_pallas.serves_back(spec)):
+            ys, pullback = jax.vjp(through_diffrax, *args)
+            return ys, (pullback, None)
+        y0, p, c, ts = args
+        (n, h, t0), longest = schedule(ts)
+        if is_concrete(n) and model_pallas.stores_checkpoints(np.asarray(n), longest):
+            # the states, and the reverse mode's checkpoints (the same steps)
+            ys, src = model_pallas.run(
+                spec, y0, _packed(p, c), (n, h, t0), interpret=interpret, longest=longest
+            )
+        else:  # the reverse mode recomputes them from the states
+            ys = src = forward(y0, p, c, ts)
+        return ys, ((src, p, c, ts), ys)
+
+    def bwd(residuals, g):
+        if residuals[1] is None:
+            return residuals[0](g)
+        (src, p, c, ts), ys = residuals
+        if isinstance(g, jax.custom_derivatives.SymbolicZero):
+            g = jnp.zeros_like(ys)
+        stepped, longest = schedule(ts)
+        args = (spec, src, g, _packed(p, c), stepped)
+        y0b, pb = model_pallas.run_back(*args, longest=longest, interpret=interpret)
+        P = p.shape[1]
+        pbar = pb[:P].T if p.shape[0] > 1 else jnp.sum(pb[:P], axis=1)[None]
+        return y0b, pbar, jnp.sum(pb[P:], axis=1), None
+
+    run = jax.custom_vjp(forward)
+    run.defvjp(fwd, bwd, symbolic_zeros=True)
+    ys, stats, result = kernel_solve(lambda n, taken, h, t0: run(y0, p, c, ts), ts, options)
+    return jnp.moveaxis(ys, 1, 0), stats, result
