@@ -7,8 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, cast
+from typing import Any, cast
 
 import diffrax
 import equinox as eqx
@@ -26,13 +25,8 @@ from ..rotations import quat
 from ..solvers.exact_free_body import ExactFreeBody, RigidBodyField, flow_from_start
 from ..solvers.rkmk import LieTerm
 from . import _per_body as _pb
-from ._rigid_model import moments_params, rigid_body_model, tensor_params
+from ._rigid_model import Torque, moments_params, rigid_body_model, tensor_params
 from .body import euler_rhs
-
-if TYPE_CHECKING:
-    Torque = Callable[[Array, Array, Array], Array]
-else:
-    Torque = object
 
 __all__ = ["Problem", "fixed_steps", "solve_flat"]
 
@@ -166,16 +160,33 @@ def fixed_steps(options: SolveOptions) -> SolveOptions:
 
 
 class Problem(eqx.Module):
-    """What `_solve_flat` integrates, besides the options and the bodies."""
+    """What `solve_flat` integrates, besides the options and the bodies: the output times, the
+    torque (in `torque_frame`), the kinematics, whether the solver is a structured one (the
+    exact flow, the splitting), whether the attitude is the body-frame quaternion and the body
+    in principal axes."""
 
     ts: Array
     torque: Any
     torque_frame: Frame = eqx.field(static=True)
     kinematics: Any = eqx.field(static=True)
-    structured: bool = eqx.field(static=True)
-    components: bool = eqx.field(static=True)
-    quaternion: bool = eqx.field(static=True)
-    diagonal: bool = eqx.field(static=True)
+    flags: tuple[bool, bool, bool] = eqx.field(static=True)  # structured, quaternion, diagonal
+
+    @property
+    def structured(self) -> bool:
+        return self.flags[0]
+
+    @property
+    def quaternion(self) -> bool:
+        return self.flags[1]
+
+    @property
+    def diagonal(self) -> bool:
+        return self.flags[2]
+
+    @property
+    def components(self) -> bool:
+        """Quaternion kinematics with a Runge–Kutta solver: a `Model` (`_rigid_model`)."""
+        return self.quaternion and not self.structured
 
 
 def solve_flat(

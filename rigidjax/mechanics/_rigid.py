@@ -7,8 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import diffrax
 import equinox as eqx
@@ -28,11 +27,6 @@ from ._initial import initial_rotation
 from ._paths import Problem, solve_flat
 from .body import RigidBody
 from .trajectory import Trajectory
-
-if TYPE_CHECKING:
-    Torque = Callable[[Array, Array, Array], Array]
-else:
-    Torque = object
 
 __all__ = ["RigidCall", "rigid_call", "solve_rigid"]
 
@@ -56,7 +50,7 @@ def rigid_call(
     omega0: RealLike,
     q0: RealLike | None,
     ts: RealLike | None,
-    torque: Torque | None,
+    torque: Any,
     kinematics: Any,
     torque_frame: Frame,
     event: Any,
@@ -86,16 +80,7 @@ def rigid_call(
     structured = isinstance(options.solver, ExactFreeBody | LiePoissonSplitting)
     if event is not None:
         event = _pb.checked(event, options.solver if structured else None, batch)
-    problem = Problem(
-        ts,
-        torque,
-        torque_frame,
-        kinematics,
-        structured,
-        quaternion and not structured,  # the components: a model (`_rigid_model`)
-        quaternion,
-        body.diagonal,
-    )
+    problem = Problem(ts, torque, torque_frame, kinematics, (structured, quaternion, body.diagonal))
     omega0 = jnp.broadcast_to(omega0, (*batch, 3)).reshape(B, 3)
     q0 = jnp.broadcast_to(q0, (*batch, 4)).reshape(B, 4)
     return RigidCall(problem, args, omega0, q0, event, batch, body.batch_shape == ())
@@ -140,7 +125,7 @@ def solve_rigid(call: RigidCall, options: SolveOptions) -> Trajectory:
     return traj
 
 
-def _check_torque(torque: Torque, ts: Array, omega0: Array, q0: Array) -> None:
+def _check_torque(torque: Any, ts: Array, omega0: Array, q0: Array) -> None:
     """A clear error, before integrating, if `torque(t, Ω, q)` (of one body) does not return
     a 3-vector (its shape is found by tracing it once, `jax.eval_shape`: nothing is computed)."""
     if not callable(torque):

@@ -68,16 +68,20 @@ def simulate(
     fields as keywords; defaults: Tsit5 with unrolled stages (`ExplicitRK`; RKMK-Dopri5 for
     `"geometric"`), PID at `rtol = atol = 1e-10` in float64 (1e-6 in float32).
     Steps end at every output time and the values at `ts` are step-end states (unit
-    quaternions, no interpolation; `max_steps` bounds each output interval). Bodies in
-    principal axes with quaternion kinematics, with or without a torque, at fixed steps
+    quaternions, no interpolation; `max_steps` bounds each output interval). Bodies with
+    quaternion kinematics (in principal axes or with a full inertia tensor), with or without a
+    torque, run on the CPU in a kernel written from the JAX field and the torque
+    (`rigidjax.models`, `rigidjax.kernels`), built on first use: at fixed steps
     (`diffrax.ConstantStepSize()` and `dt0`) of an explicit Runge–Kutta method (`RK4()`, the
-    default Tsit5, `diffrax.Dopri8()`, ...: `rigidjax.kernels.tableau.METHODS`; the default
-    adjoint) run on the CPU in a kernel written from the JAX field and the torque
-    (`rigidjax.models`, `rigidjax.kernels.model`), built on first use: the same steps and
-    numbers as the Diffrax path, with its own adjoint for `jax.grad` (forward mode, `jax.jacfwd`
-    and `jax.hessian` through the Diffrax path on the same steps: `rigidjax._modes`); at least
-    the speed of a hand-written C kernel of the same model (benchmarks/results/models.json); a
-    torque the kernel cannot take runs through Diffrax with one warning. On a GPU the same
+    default Tsit5, `diffrax.Dopri8()`, ...: `rigidjax.kernels.tableau.METHODS`), and at
+    adaptive steps (the default `PIDController`, Tsit5, Dopri5, Dopri8, Bosh3:
+    `rigidjax.kernels.adaptive`, each body its own steps, step for step Diffrax's controller;
+    an event too); the same steps and numbers as the Diffrax path, with the kernel's own
+    adjoint for `jax.grad` (forward mode, `jax.jacfwd` and `jax.hessian` through the Diffrax
+    path on the same steps: `rigidjax._modes`; derivatives of the output times and of events
+    through the Diffrax path); at least the speed of a hand-written C kernel of the same model
+    (benchmarks/results/models.json, adaptive.json); a torque the kernel cannot take runs
+    through Diffrax with one warning. On a GPU the same
     model, torque included, runs in a Pallas kernel that fuses the time loop
     (`rigidjax.kernels.model_pallas`, with its own reverse kernel);
     `ExplicitRK(method)` runs the same scheme through Diffrax.
@@ -90,8 +94,9 @@ def simulate(
 
     `event=rigidjax.Event(condition, terminate=True, direction=None)`: the first time
     `condition(t, Ω, q)` (of one body) crosses zero, located by a root find on the step's
-    interpolant to the solver's tolerance (Diffrax's events, each body its own solve, on the
-    Diffrax path: no kernel), is the trajectory's `event_t` (`inf` where none; differentiable);
+    interpolant to the solver's tolerance (Diffrax's events, each body its own solve; on the
+    adaptive kernel, by the Illinois method on the step itself), is the trajectory's `event_t`
+    (`inf` where none; differentiable);
     with `terminate=True` each body stops there and the outputs after it hold the state at the
     event, with `False` the trajectory is the one without the event. `rigidjax.events.
     flip_event(omega0)` gives the first flip of the initially dominant axis exactly. Not with

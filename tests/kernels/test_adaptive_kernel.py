@@ -166,3 +166,63 @@ def test_max_steps_and_failures_are_per_body():
     assert int(traj.stats["num_valid"]) == int(fast.stats["num_valid"]) < TS.shape[0]
     with pytest.raises(rj.IntegrationError, match="max_steps"):
         rj.simulate(BODY, w, q, TS, max_steps=30, **TOL)
+
+
+def test_a_full_tensor_runs_on_the_kernels():
+    """A body not in principal axes (a rotated tensor, as CAD gives it) is a model of the
+    kernels (fixed and adaptive steps): its motion is the principal-axes body's, rotated, and
+    its adaptive steps the Diffrax path's."""
+    from scipy.spatial.transform import Rotation
+
+    w, q = _inputs(3, seed=6)
+    R = jnp.asarray(Rotation.random(random_state=7).as_matrix())
+    r = jnp.asarray(Rotation.from_matrix(np.asarray(R)).as_quat(scalar_first=True))
+    tensor = rj.RigidBody(R @ jnp.diag(jnp.array([1.2, 2.0, 3.0])) @ R.T)
+    wt, qt = w @ R.T, rj.quat.mul(q, rj.quat.conj(r))  # the same motion in the rotated axes
+    principal = rj.RigidBody(jnp.array([1.2, 2.0, 3.0]))
+    for kw in (dict(stepsize_controller=diffrax.ConstantStepSize(), dt0=0.01), TOL):
+        ref = rj.simulate(principal, w, q, TS, solver=diffrax.Tsit5(), **kw)
+        got = rj.simulate(tensor, wt, qt, TS, solver=diffrax.Tsit5(), **kw)
+        np.testing.assert_allclose(got.omega, ref.omega @ R.T, rtol=0, atol=1e-7)
+    slow = _each(wt, qt, body=tensor)
+    np.testing.assert_allclose(got.omega, slow.omega, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(got.stats["num_steps"], slow.stats["num_steps"])
+
+
+def test_events_are_located_on_the_kernel():
+    """The first flip as an event on the adaptive kernel: its time is the closed form's to
+    1e-8; with `terminate` the state is held at the event, without it the motion goes on as
+    if there were none; the Diffrax path's event agrees; its gradient (through the Diffrax
+    path's event) is the closed form's."""
+    from rigidjax.events import flip_event
+
+    rng = np.random.default_rng(8)
+    w = jnp.asarray(
+        np.stack([0.2 * rng.uniform(-1, 1, 3), np.ones(3), 0.2 * rng.uniform(-1, 1, 3)], 1)
+    )
+    I = jnp.array([1.0, 2.0, 3.0])
+    ts = jnp.linspace(0.0, 20.0, 5)
+    tight = dict(rtol=1e-12, atol=1e-12)
+    exact = jax.vmap(lambda w0: rj.analytic.time_of_first_flip(I, w0))(w)
+    held = rj.simulate(rj.RigidBody(I), w, None, ts, event=flip_event(w), **tight)
+    np.testing.assert_allclose(held.event_t, exact, rtol=0, atol=1e-8)
+    after = ts[None, :] > held.event_t[:, None]
+    np.testing.assert_allclose(jnp.where(after, held.omega[..., 1], 0.0), 0.0, atol=1e-9)
+    going = rj.simulate(rj.RigidBody(I), w, None, ts, event=flip_event(w, terminate=False), **tight)
+    plain = rj.simulate(rj.RigidBody(I), w, None, ts, **tight)
+    # (to rounding: the kernel with the event condition is another build of the same steps)
+    np.testing.assert_allclose(going.omega, plain.omega, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(going.stats["num_steps"], plain.stats["num_steps"])
+    np.testing.assert_allclose(going.event_t, exact, rtol=0, atol=1e-8)
+    through = rj.simulate(
+        rj.RigidBody(I), w, None, ts, event=flip_event(w), solver=ExplicitRK(), **tight
+    )
+    np.testing.assert_allclose(held.event_t, through.event_t, rtol=0, atol=1e-9)
+
+    def first(w0):
+        return rj.simulate(rj.RigidBody(I), w0, None, ts, event=flip_event(w0), **tight).event_t
+
+    grad = jax.grad(first)(w[0])
+    np.testing.assert_allclose(
+        grad, jax.grad(rj.analytic.time_of_first_flip, 1)(I, w[0]), rtol=1e-6
+    )
