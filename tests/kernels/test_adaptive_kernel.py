@@ -104,6 +104,7 @@ def test_controller_options_reach_the_kernel():
     np.testing.assert_array_equal(fast.stats["num_steps"], slow.stats["num_steps"])
 
 
+@pytest.mark.slow  # (a minute of compiling)
 def test_gradients_match_the_diffrax_path_and_differences():
     """Reverse mode through the kernel's adjoint of the accepted steps: the moments, Ω0 and a
     torque gain closed over, against the Diffrax path (1e-9) and central differences."""
@@ -141,6 +142,7 @@ def test_gradients_match_the_diffrax_path_and_differences():
     np.testing.assert_allclose(fast[0][1], diff, rtol=1e-5)
 
 
+@pytest.mark.slow  # (a minute of compiling)
 def test_output_times_are_differentiated_through_diffrax():
     w, q = _inputs(2, seed=5)
 
@@ -168,6 +170,7 @@ def test_max_steps_and_failures_are_per_body():
         rj.simulate(BODY, w, q, TS, max_steps=30, **TOL)
 
 
+@pytest.mark.slow  # (a minute of compiling)
 def test_a_full_tensor_runs_on_the_kernels():
     """A body not in principal axes (a rotated tensor, as CAD gives it) is a model of the
     kernels (fixed and adaptive steps): its motion is the principal-axes body's, rotated, and
@@ -189,6 +192,7 @@ def test_a_full_tensor_runs_on_the_kernels():
     np.testing.assert_array_equal(got.stats["num_steps"], slow.stats["num_steps"])
 
 
+@pytest.mark.slow  # (a minute of compiling)
 def test_events_are_located_on_the_kernel():
     """The first flip as an event on the adaptive kernel: its time is the closed form's to
     1e-8; with `terminate` the state is held at the event, without it the motion goes on as
@@ -226,3 +230,28 @@ def test_events_are_located_on_the_kernel():
     np.testing.assert_allclose(
         grad, jax.grad(rj.analytic.time_of_first_flip, 1)(I, w[0]), rtol=1e-6
     )
+
+
+@pytest.mark.slow  # (a minute of compiling)
+def test_eigenaxis_slew_switching_time():
+    """A rest-to-rest eigenaxis slew by θ about the principal axis e under the constant torque
+    K0 e turns by φ(t) = K0 t² / (2 I_e): its switch at φ = θ/2 is t_s = √(θ I_e / K0). As an
+    event of the attitude (rising), on the kernel and through Diffrax, to 1e-8."""
+    I, K0, theta = jnp.array([1.0, 2.0, 3.0]), 0.1, 1.0
+
+    def torque(t, w, q):
+        return jnp.array([0.0, K0, 0.0]) + 0.0 * w
+
+    def half_way(t, w, q):  # the angle turned, minus θ/2
+        return 2 * jnp.arctan2(jnp.sqrt(jnp.sum(q[1:] ** 2)), q[0]) - theta / 2
+
+    event = rj.Event(half_way, direction=1)
+    switch = np.sqrt(theta * 2.0 / K0)
+    ts = jnp.linspace(0.0, 10.0, 3)
+    for solver in (diffrax.Tsit5(), ExplicitRK()):
+        traj = rj.simulate(
+            rj.RigidBody(I), jnp.zeros(3), None, ts, torque, event=event, solver=solver,
+            rtol=1e-12, atol=1e-12,
+        )  # fmt: skip
+        np.testing.assert_allclose(traj.event_t, switch, rtol=0, atol=1e-8)
+        np.testing.assert_allclose(traj.omega[-1], [0.0, K0 * switch / 2.0, 0.0], atol=1e-8)
