@@ -166,8 +166,9 @@ def cache_dir() -> Path:
 
 @contextlib.contextmanager
 def compilation_cache(enabled: bool) -> Iterator[Path | None]:
-    """JAX's persistent compilation cache in `cache_dir()` while the command runs (programs
-    that compile in ≥ 0.5 s are stored; a second run loads them instead of compiling). The
+    """JAX's persistent compilation cache in `cache_dir()` while the command runs (every program
+    is stored: on the kernels a run's program compiles in well under a second, and a second run
+    loads it instead of compiling, the kernel itself cached apart, `kernels/`). The
     previous settings are restored afterwards, so calling `main` from Python leaves the
     process as it was. Yields the folder, or None when disabled or not writable."""
     if not enabled:
@@ -184,7 +185,7 @@ def compilation_cache(enabled: bool) -> Iterator[Path | None]:
         return
     settings = {
         "jax_compilation_cache_dir": str(path),
-        "jax_persistent_cache_min_compile_time_secs": 0.5,
+        "jax_persistent_cache_min_compile_time_secs": 0.0,
     }
     old = {k: getattr(jax.config, k) for k in settings}
     for k, v in settings.items():
