@@ -92,13 +92,8 @@ static const Tableau TSIT5 = {
 static inline void rhs_attitude(double t, const double *y, const double *p, double *k)
 {
     const double *q = y + 3;
-    const double r = 2 / (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
-    const double c[3] = {r * (q[1] * q[3] - q[0] * q[2]), r * (q[2] * q[3] + q[0] * q[1]),
-                         1 - r * (q[1] * q[1] + q[2] * q[2])};
-    const double Ic[3] = {p[6] * c[0], p[7] * c[1], p[8] * c[2]};
     double K[3];
-    cross(c, Ic, K);
-    for (int i = 0; i < 3; i++) K[i] *= p[9];
+    gravity_torque(q, 2 / (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]), p, K);
     euler(y, p, K, k);
     quat_rates(y, q, k + 3);
 }

@@ -75,17 +75,23 @@ RJ_DEVICE static inline void rhs_damping(double t, const double *y, const double
     quat_rates(y, y + 3, k + 3);
 }
 
-RJ_DEVICE static inline void rhs_gravity_gradient(double t, const double *y, const double *p, double *k)
+/* The gravity-gradient torque K = s c × (I0 c), c = P(q)ᵀ e_Z (the third row of P(q)) with
+   r = 2 / |q|² (r = 2 for a unit q: the same arithmetic as the literal 2). */
+RJ_DEVICE static inline void gravity_torque(const double *q, double r, const double *p, double *K)
 {
-    const double *q = y + 3;
-    const double c[3] = {2 * (q[1] * q[3] - q[0] * q[2]), 2 * (q[2] * q[3] + q[0] * q[1]),
-                         1 - 2 * (q[1] * q[1] + q[2] * q[2])};
+    const double c[3] = {r * (q[1] * q[3] - q[0] * q[2]), r * (q[2] * q[3] + q[0] * q[1]),
+                         1 - r * (q[1] * q[1] + q[2] * q[2])};
     const double Ic[3] = {p[6] * c[0], p[7] * c[1], p[8] * c[2]};
-    double K[3];
     cross(c, Ic, K);
     for (int i = 0; i < 3; i++) K[i] *= p[9];
+}
+
+RJ_DEVICE static inline void rhs_gravity_gradient(double t, const double *y, const double *p, double *k)
+{
+    double K[3];
+    gravity_torque(y + 3, 2.0, p, K);
     euler(y, p, K, k);
-    quat_rates(y, q, k + 3);
+    quat_rates(y, y + 3, k + 3);
 }
 
 RJ_DEVICE static inline void rhs_heavy_top(double t, const double *y, const double *p, double *k)
