@@ -9,6 +9,8 @@
 //                  err_j NaN ← ∞)
 //   accept         ε < 1;  next size h' = h · clip(safety ε^−β1 ε_prev^−β2 ε_prev2^−β3,
 //                  accepted: [1, factormax], rejected: [factormin, safety]), min(h', dtmax)
+//                  (the PID step-size control of Söderlind, "Digital filters in adaptive
+//                  time-stepping", ACM TOMS 29, 2003, in Diffrax's form (4), pid.py)
 //   the end        a proposal within 100 ulp of the interval's end t1 becomes t1 (accepted)
 //                  or halves the rest (rejected), as `diffrax.diffeqsolve`
 //   intervals      one solve per output interval [ts[k], ts[k+1]] from the previous one's mean
@@ -18,7 +20,8 @@
 //
 //   an event      (Model::G, with Model::kEvent) after each accepted step where the condition's
 //                 sign changes in its direction, as Diffrax decides it: its time located on the
-//                 step (Locate); a terminating event stops the body, its later states held
+//                 step (Locate: the Illinois method, Dowell & Jarratt, BIT 11, 1971); a
+//                 terminating event stops the body, its later states held
 //
 // Shapes (leading…: as model.cc): y0 (…, B, N);  ts (…, T);  jump (…, T − 1) int32 as model.cc's;
 // save (…, T) int32 0 or 1 + the slot of y;  ctl (…, kControls) the controller and event (Ctl);
@@ -86,8 +89,8 @@ RJ_INLINE bool Finite(const T* y) {
   return ok;
 }
 
-// Diffrax's `_select_initial_step` (Hairer, Nørsett & Wanner II.4) from y at t: the first
-// step's size.
+// Diffrax's `_select_initial_step` (Hairer, Nørsett & Wanner, Solving Ordinary Differential
+// Equations I, 2nd ed., II.4 "Starting step size") from y at t: the first step's size.
 template <typename T>
 T InitialStep(const Ctl<T>& c, const T* y, const T* p, T t) {
   T scale[N], f0[N], f1[N], y1[N];
