@@ -255,3 +255,39 @@ def test_eigenaxis_slew_switching_time():
         )  # fmt: skip
         np.testing.assert_allclose(traj.event_t, switch, rtol=0, atol=1e-8)
         np.testing.assert_allclose(traj.omega[-1], [0.0, K0 * switch / 2.0, 0.0], atol=1e-8)
+
+
+@pytest.mark.slow  # (a minute of compiling)
+def test_the_adaptive_kernel_composes_with_jax():
+    """The default adaptive `simulate` with a torque on the kernel under `jit` on captured
+    constants, in a `lax.scan` body, under `vmap`, `jacfwd` and `jacrev` (against each other and
+    central differences), and a torque the kernel refuses (`while`): the Diffrax path's values."""
+    I, w0 = jnp.array([1.2, 2.0, 3.0]), jnp.array([0.3, 1.0, -0.2])
+    q0 = jnp.array([0.9, 0.1, -0.2, 0.3]) / jnp.linalg.norm(jnp.array([0.9, 0.1, -0.2, 0.3]))
+    tight = dict(rtol=1e-10, atol=1e-10)
+
+    def final(w, torque=pd_torque, **kw):
+        return rj.simulate(rj.RigidBody(I), w, q0, TS, torque, **tight, **kw).omega[-1]
+
+    ref = final(w0, solver=ExplicitRK())
+    np.testing.assert_allclose(final(w0), ref, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(jax.jit(lambda: final(w0))(), ref, rtol=0, atol=1e-13)
+    scanned = jax.lax.scan(lambda c, w: (c, final(w)), 0, w0[None])[1][0]
+    np.testing.assert_allclose(scanned, ref, rtol=0, atol=1e-13)
+    mapped = jax.vmap(final)(jnp.stack([w0, 0.5 * w0]))[0]
+    np.testing.assert_allclose(mapped, ref, rtol=0, atol=1e-13)
+    forward, reverse = jax.jacfwd(final)(w0), jax.jacrev(final)(w0)
+    np.testing.assert_allclose(forward, reverse, rtol=0, atol=1e-12)
+    eps = 1e-6
+    diff = jnp.stack(
+        [(final(w0 + eps * e) - final(w0 - eps * e)) / (2 * eps) for e in jnp.eye(3)], 1
+    )
+    np.testing.assert_allclose(reverse, diff, rtol=0, atol=1e-8)
+
+    def looped(t, w, q):  # a `while` loop: no scalar form, the Diffrax path with one warning
+        x = jax.lax.while_loop(lambda c: c[0] < 2, lambda c: (c[0] + 1, c[1] * 1.0), (0, w))[1]
+        return pd_torque(t, x, q)
+
+    with pytest.warns(RuntimeWarning, match="`while`"):
+        refused = final(w0, looped)
+    np.testing.assert_allclose(refused, ref, rtol=0, atol=1e-13)
