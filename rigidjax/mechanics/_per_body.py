@@ -41,16 +41,6 @@ def first(event: Event) -> Event:
     return eqx.combine(jax.tree.map(lambda a: a[0], dynamic), static).shared()
 
 
-def first_failure(stats: dict[str, Array], results) -> tuple[dict[str, Array], Any]:
-    """The per-body solves' stats `(B,)` with `num_valid` the batch's (the fewest valid times),
-    and the batch's result: the failure of the body that failed first (in time)."""
-    valid = stats["num_valid"]
-    failed = results != diffrax.RESULTS.successful
-    i = jnp.argmin(jnp.where(failed, valid, jnp.iinfo(valid.dtype).max))
-    result = jax.tree.map(lambda r: r[i], results)
-    return {**stats, "num_valid": jnp.min(valid)}, result
-
-
 def per_body(stats: dict[str, Array], batch: tuple[int, ...]) -> dict[str, Array]:
     """The step counts `(B,)` of per-body solves in the batch's shape (`num_valid` stays the
     batch's; a count of one body broadcast)."""

@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
+from .._batch import first_failure
 from .._checks import broadcast_batch
 from .._custom_types import Frame, RealLike
 from .._integrate import SolveOptions
@@ -115,7 +116,7 @@ def solve_rigid(call: RigidCall, options: SolveOptions) -> Trajectory:
         out = eqx.filter_vmap(one, in_axes=axes)(call.args, call.omega0, call.q0, event)
         omega, q = (jnp.moveaxis(x[:, :, 0], 0, 1) for x in out[:2])  # (B, T, 1, .) -> (T, B, .)
         stats, results, event_t = out[2], out[3], out[4]
-        stats, result = _pb.first_failure(stats, results)
+        stats, result = first_failure(stats, results)
     if options.throw:
         ys = (omega, q)
         omega = _pb.raise_batch(result, stats, ts, ys, options.max_steps, problem.torque)

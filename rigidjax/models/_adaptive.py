@@ -7,11 +7,13 @@ from collections.abc import Callable
 from typing import Any, cast
 
 import diffrax
+import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 from jaxtyping import Array
 
+from .._batch import first_failure
 from .._integrate import SolveOptions, default_tolerances, warn_unattainable
 from ..events import Event
 from ..kernels import adaptive, tableau
@@ -69,11 +71,17 @@ def per_body(st: Array, single: bool, kept: np.ndarray) -> tuple[dict[str, Array
         "num_accepted_steps": counts[1],
         "num_rejected_steps": counts[2],
     }
-    valid = st[:, 3]
-    first = jnp.argmin(valid)
-    stats["num_valid"] = jnp.sum(jnp.asarray(kept) < valid[first])
-    code = st[first, 4]
-    result = diffrax.RESULTS.where(
+    results = jax.vmap(_result)(st[:, 4])
+    stats, result = first_failure({**stats, "num_valid": st[:, 3]}, results)
+    # (the leading kept output times every body reached)
+    stats["num_valid"] = jnp.sum(jnp.asarray(kept) < stats["num_valid"])
+    return stats, result
+
+
+def _result(code: Array) -> Any:
+    """The Diffrax result of the kernel's code: 0 successful, 1 max_steps reached, 2
+    non-finite."""
+    return diffrax.RESULTS.where(
         code == 0,
         diffrax.RESULTS.successful,
         diffrax.RESULTS.where(
@@ -82,4 +90,3 @@ def per_body(st: Array, single: bool, kept: np.ndarray) -> tuple[dict[str, Array
             cast(diffrax.RESULTS, diffrax.RESULTS.nonfinite),
         ),
     )
-    return stats, result

@@ -17,6 +17,7 @@ import jax.tree_util as jtu
 import numpy as np
 from jaxtyping import Array
 
+from .._batch import first_failure
 from .._integrate import (
     SolveOptions,
     solve_saved,
@@ -210,11 +211,8 @@ def solve_components(
             return ys[:, 0], stats, result
 
         ys, stats, results = jax.vmap(one, in_axes=(0, p_axis))(y0, p)
-        valid = stats["num_valid"]
-        failed = results != diffrax.RESULTS.successful
-        first = jnp.argmin(jnp.where(failed, valid, jnp.iinfo(valid.dtype).max))
-        stats = {**stats, "num_valid": jnp.min(valid)}
-        return jnp.moveaxis(ys, 0, 1), stats, jtu.tree_map(lambda r: r[first], results)
+        stats, result = first_failure(stats, results)
+        return jnp.moveaxis(ys, 0, 1), stats, result
     field = model.field if hoisted is None else hoisted.components
     shared = p.shape[0] == 1
     comps = (lambda a: tuple(a[0])) if (single or shared) else (lambda a: tuple(a.T))
