@@ -115,18 +115,21 @@ def header(
     part: str,
     times: bool = True,
     adaptive: bool = False,
+    fixed: bool = False,
 ) -> tuple[str, str]:
     """`model.h` of the `part` (`"forward"` or `"backward"`; the latter with the cotangents of
     the steps' sizes and start times where `times`), of fixed steps or, with `adaptive`, of the
-    embedded pair's adaptive steps (`model_adaptive.h`: the whole tableau and its error
-    weights), and its handler's name (unique to all of these)."""
-    if adaptive:
+    per-body kernel (`model_adaptive.h`): the embedded pair's adaptive steps (the whole tableau
+    and its error weights) or, also `fixed`, each body's fixed steps (`Tab::kFixed`, the
+    tableau of fixed steps); and its handler's name (unique to all of these)."""
+    if adaptive and not fixed:
         a, ct = tableau.embedded(method), tableau.all_stage_times(method)
     else:
         a, ct = tableau.coefficients(method), tableau.stage_times(method)
     rows = ",\n    ".join("{" + ", ".join(float(x).hex() for x in row) + "}" for row in a)
     dt = tableau.DTYPES[jnp.dtype(dtype).name]
-    key = f"{method.__name__}{dt}{model}{times}{'adaptive' if adaptive else ''}"
+    variant = ("adaptive" if adaptive else "") + ("fixed" if adaptive and fixed else "")
+    key = f"{method.__name__}{dt}{model}{times}{variant}"
     digest = hashlib.sha256(key.encode()).hexdigest()[:16]
     kind = ("Adaptive" if adaptive else "") + ("Back" if part == "backward" else "")
     name = f"RigidjaxModel{kind}{digest}"
@@ -138,7 +141,13 @@ def header(
         f"  static constexpr double c[{a.shape[0]}][{a.shape[1]}] = {{\n    {rows}}};\n"
         f"  static constexpr double ct[{a.shape[1]}] = "
         f"{{{', '.join(float(x).hex() for x in ct)}}};\n"
-        "  static constexpr double a(int i, int l) { return c[i][l]; }\n};\n\n"
+        "  static constexpr double a(int i, int l) { return c[i][l]; }\n"
+        + (
+            f"  static constexpr bool kFixed = {'true' if fixed else 'false'};\n"
+            if adaptive
+            else ""
+        )
+        + "};\n\n"
         f"constexpr bool kTimes = {'true' if times and not adaptive else 'false'};\n\n"
         f"{model}\n#define RJ_KERNEL {macro}({name}, {dt})\n"
     )

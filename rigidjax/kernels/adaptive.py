@@ -1,11 +1,12 @@
 """Any model's ODE at adaptive steps of an embedded Runge–Kutta pair (Bosh3, Tsit5, Dopri5,
-Dopri8) on the CPU, each body its own step size: the model kernel (`kernels.model`, `model.cc`)
-built with `model_adaptive.h`, step for step Diffrax's `PIDController` on the Diffrax path of one
-body (its error norm, coefficients, initial-step heuristic and the clipping of the last step to
-each output time), so that a body's trajectory is the same alone, in a batch or under
-`jax.vmap`. Reverse mode: the kernel's discrete adjoint of the accepted steps (whose sizes are
-constants, as Diffrax's `stop_gradient` of the controller makes them), recomputed interval by
-interval from the saved states."""
+Dopri8) on the CPU, each body its own step size (built `fixed`: each body its own fixed steps of
+any `tableau.METHODS`, for what the fixed-step kernel's bodies in lockstep cannot do, an
+event): the model kernel (`kernels.model`, `model.cc`) built with `model_adaptive.h`, step for
+step Diffrax's `PIDController` on the Diffrax path of one body (its error norm, coefficients,
+initial-step heuristic and the clipping of the last step to each output time), so that a body's
+trajectory is the same alone, in a batch or under `jax.vmap`. Reverse mode: the kernel's
+discrete adjoint of the accepted steps (whose sizes are constants, as Diffrax's `stop_gradient`
+of the controller makes them), recomputed interval by interval from the saved states."""
 
 from __future__ import annotations
 
@@ -107,19 +108,41 @@ def controls(
         return None  # a traced tolerance: the Diffrax path
 
 
+def fixed_controls(
+    dt0: float | Array,
+    max_steps: int,
+    dtype,
+    direction: int | None = None,
+    terminate: bool = True,
+) -> np.ndarray | None:
+    """The values (`CONTROLS`) of the per-body kernel at fixed steps (`build(..., fixed=True)`):
+    the fewest equal steps of at most `dt0` per output interval, at most `max_steps`, and the
+    event's direction and termination (the controller's values unused); None where `dt0` is
+    traced."""
+    try:
+        step = float(dt0)
+    except (TypeError, jax.errors.ConcretizationTypeError):
+        return None
+    values = [0, 0, 0, 0, 0, math.inf, step, 0, 0, 0, 0, max_steps]
+    values += [0 if direction is None else direction, 1 if terminate else 0]
+    return np.asarray(values, dtype=dtype)
+
+
 def build(
     hoisted: Hoisted,
     unit: tuple[tuple[int, int], ...],
     solver: diffrax.AbstractSolver,
     record: tuple[int, int] = (0, 0),
+    fixed: bool = False,
 ) -> AdaptiveKernel | None:
-    """The adaptive kernel of `hoisted` for `solver` (one of `tableau.ADAPTIVE`) in its dtype,
-    its forward part built and registered on first use; None where kernels cannot run here."""
-    built = forward_part(hoisted, unit, solver, record, adaptive=True)
+    """The adaptive kernel of `hoisted` for `solver` (one of `tableau.ADAPTIVE`; with `fixed`,
+    the per-body kernel of fixed steps, one of `tableau.METHODS`) in its dtype, its forward
+    part built and registered on first use; None where kernels cannot run here."""
+    built = forward_part(hoisted, unit, solver, record, adaptive=True, fixed=fixed)
     if built is None:
         return None
     method, source, name = built
-    back = header(method, hoisted.dtype, source, "backward", False, adaptive=True)
+    back = header(method, hoisted.dtype, source, "backward", False, adaptive=True, fixed=fixed)
     size = hoisted.p + hoisted.c.shape[0]
     return AdaptiveKernel(name, back, hoisted.n, size, record, hoisted.events)
 

@@ -274,20 +274,22 @@ def forward_part(
     solver: diffrax.AbstractSolver,
     record: tuple[int, int],
     adaptive: bool = False,
+    fixed: bool = False,
 ) -> tuple[type[diffrax.AbstractERK], str, str] | None:
     """The forward part of a kernel of `hoisted` for `solver` (one of `tableau.METHODS`, or of
-    `tableau.ADAPTIVE` for the `adaptive` kernel) built and registered: `(method, struct
-    Model's source, handler name)`; None where kernels cannot run here."""
+    `tableau.ADAPTIVE` for the `adaptive` kernel; `adaptive` and `fixed`: the per-body kernel
+    at fixed steps, `tableau.METHODS`) built and registered: `(method, struct Model's source,
+    handler name)`; None where kernels cannot run here."""
     dtype = hoisted.dtype
     if not (
-        type(solver) in (tableau.ADAPTIVE if adaptive else tableau.METHODS)
+        type(solver) in (tableau.ADAPTIVE if adaptive and not fixed else tableau.METHODS)
         and jax.default_backend() == "cpu"
         and dtype.name in tableau.DTYPES
     ):
         return None
     method = cast(type[diffrax.AbstractERK], type(solver))
     source = hoisted.source(unit, record)
-    text, name = header(method, dtype, source, "forward", adaptive=adaptive)
+    text, name = header(method, dtype, source, "forward", adaptive=adaptive, fixed=fixed)
     if load(_NAME, (name,), headers(text, adaptive=adaptive)) is None:
         return None
     return method, source, name

@@ -21,7 +21,10 @@
 //   an event      (Model::G, with Model::kEvent) after each accepted step where the condition's
 //                 sign changes in its direction, as Diffrax decides it: its time located on the
 //                 step (Locate: the Illinois method, Dowell & Jarratt, BIT 11, 1971); a
-//                 terminating event stops the body, its later states held
+//                 terminating event stops the body, its later states held (no later jump)
+//   fixed steps   with Tab::kFixed (the tableau of model.cc's fixed steps, no error weights):
+//                 each body its own fixed steps (Fixed: those of model.cc's Steps), for an
+//                 event, which model.cc's bodies in lockstep cannot stop at
 //
 // Shapes (leading…: as model.cc): y0 (…, B, N);  ts (…, T);  jump (…, T − 1) int32 as model.cc's;
 // save (…, T) int32 0 or 1 + the slot of y;  ctl (…, kControls) the controller and event (Ctl);
@@ -121,8 +124,18 @@ T InitialStep(const Ctl<T>& c, const T* y, const T* p, T t) {
   return std::min(T(100) * h0, h1);
 }
 
-// One attempt of size h from y at t: its end u (normalised, mapped; r the inverse norms of its
-// unit groups before) and scaled error.
+// A step of size h from y at t without its error: its end u (normalised, mapped; r the inverse
+// norms of its unit groups before). The fixed steps, and the truncated steps of Locate.
+template <typename T>
+RJ_INLINE void Advance(const T* y, const T* p, T t, T h, T* u, T* r) {
+  constexpr int S = Tab::S;
+  T k[S][N], z[S][N];
+  Stages<S>(y, p, t, h, k, z);
+  Combine<S>(y, h, k, u);
+  EndStep(t + h, p, u, r);
+}
+
+// One attempt of size h from y at t: its end u (as Advance) and scaled error.
 template <typename T>
 RJ_INLINE T Attempt(const Ctl<T>& c, const T* y, const T* p, T t, T h, T* u, T* r) {
   constexpr int S = Tab::S;
@@ -181,17 +194,11 @@ struct Count {
   bool done = true;  // the interval's end reached (false: max_steps reached)
 };
 
-// `diffrax.diffeqsolve` of one body over [a, b] from y (in place) with first step h0 under the
-// PID controller; returns the attempts and accepted steps. With `keep`, the accepted steps into
-// *keep.
-template <typename T>
-RJ_INLINE T Attempt(const Ctl<T>& c, const T* y, const T* p, T t, T h, T* u, T* r);
-
 // The event between t and t + h (an accepted step from y, the condition g0 there and g1 at
 // its end): its time, located by the Illinois method on τ ↦ G(t + τ, the step of size τ from
 // y) (each value one step of the pair: its error that of a step), and the state there into u.
 template <typename T>
-T Locate(const Ctl<T>& c, const T* y, const T* p, T t, T h, T g0, T g1, T* u) {
+T Locate(const T* y, const T* p, T t, T h, T g0, T g1, T* u) {
   T a = T(0), b = h, fa = g0, fb = g1, r[NU];
   int side = 0;
   T m = g0 == T(0) ? T(0) : b;
@@ -199,7 +206,7 @@ T Locate(const Ctl<T>& c, const T* y, const T* p, T t, T h, T g0, T g1, T* u) {
   for (int i = 0; i < 200 && g0 != T(0) && b - a > tiny; ++i) {
     m = (a * fb - b * fa) / (fb - fa);
     if (!(m > a && m < b)) m = T(0.5) * (a + b);
-    Attempt(c, y, p, t, m, u, r);
+    Advance(y, p, t, m, u, r);
     const T fm = Condition(t + m, u, p);
     if (fm == T(0)) break;
     if (Sign(fm) == Sign(fb)) {
@@ -217,63 +224,108 @@ T Locate(const Ctl<T>& c, const T* y, const T* p, T t, T h, T g0, T g1, T* u) {
     RJ_UNROLL
     for (int j = 0; j < N; ++j) u[j] = y[j];
   } else {
-    Attempt(c, y, p, t, m, u, r);
+    Advance(y, p, t, m, u, r);
   }
   return t + m;
 }
 
+// After a step from y at t of size h to u: whether the event happened (Crossed) on it; its
+// time into ev, and with a terminating event the state there into y (the body stops).
+template <typename T>
+RJ_INLINE bool Watched(const Ctl<T>& c, T* y, const T* p, T t, T h, const T* u, Watch<T>* ev) {
+  if (!(ev && Model::kEvent)) return false;
+  const T g1 = Condition(t + h, u, p);
+  if (std::isinf(ev->time) && Crossed(c.direction, ev->g, g1)) {
+    T v[N];
+    ev->time = Locate(y, p, t, h, ev->g, g1, v);
+    if (c.terminate) {
+      RJ_UNROLL
+      for (int j = 0; j < N; ++j) y[j] = v[j];
+      ev->stopped = true;
+      return true;
+    }
+  }
+  ev->g = g1;
+  return false;
+}
+
+template <typename T>
+RJ_INLINE void Keep(Taken<T>* keep, const T* y, T t, T h, const T* r) {
+  if (!keep) return;
+  keep->y.insert(keep->y.end(), y, y + N);
+  keep->t.push_back(t);
+  keep->h.push_back(h);
+  RJ_UNROLL
+  for (int g = 0; g < Model::NU; ++g) keep->inv.push_back(r[g]);
+}
+
+// Fixed steps (Tab::kFixed) over [a, b] from y (in place): the fewest equal steps of at most
+// dt0 (`_integrate.fixed_step_count`), step s at a + s h as model.cc's Steps, at most
+// max_steps of them (more: max_steps reached); the event watched as on adaptive steps.
+template <typename T>
+Count Fixed(const Ctl<T>& c, T* y, const T* p, T a, T b, Taken<T>* keep, Watch<T>* ev) {
+  Count n;
+  if (!(a < b)) return n;
+  const T w = b - a;
+  const T steps = std::max(std::ceil(w / c.dt0 * T(1 - 1e-6)), T(1));
+  const T h = w / steps;
+  const int64_t taken = std::min<int64_t>(static_cast<int64_t>(steps), c.max_steps);
+  for (int64_t s = 0; s < taken; ++s) {
+    T u[N], r[NU];
+    const T t = a + T(s) * h;
+    Advance(y, p, t, h, u, r);
+    ++n.attempts, ++n.accepted;
+    if (Watched(c, y, p, t, h, u, ev)) return n;
+    Keep(keep, y, t, h, r);
+    RJ_UNROLL
+    for (int j = 0; j < N; ++j) y[j] = u[j];
+  }
+  n.done = static_cast<int64_t>(steps) <= c.max_steps;
+  return n;
+}
+
+// `diffrax.diffeqsolve` of one body over [a, b] from y (in place) with first step h0 under the
+// PID controller (Fixed where Tab::kFixed); returns the attempts and accepted steps. With
+// `keep`, the accepted steps into *keep; with `ev`, the event watched.
 template <typename T>
 Count Interval(const Ctl<T>& c, T* y, const T* p, T a, T b, T h0, Taken<T>* keep = nullptr,
                Watch<T>* ev = nullptr) {
-  const T floor = Below(b);
-  T tprev = a, tnext = std::min(a + std::min(h0, c.dtmax), b);
-  T inv1 = T(1), inv2 = T(1);
-  Count n;
-  while (tprev < b && n.attempts < c.max_steps) {
-    T u[N], r[NU];
-    const T h = tnext - tprev;
-    const T eps = Attempt(c, y, p, tprev, h, u, r);
-    ++n.attempts;
-    const bool ok = eps < T(1);
-    T inv = T(1) / eps;
-    const T f = c.safety * Power(inv, c.c1) * Power(inv1, c.c2) * Power(inv2, c.c3);
-    const T factor = std::min(std::max(f, ok ? T(1) : c.fmin), ok ? c.fmax : c.safety);
-    const T dt = std::min(h * factor, c.dtmax);
-    if (inv == T(0) || std::isinf(inv)) inv = T(1);
-    const T t0 = ok ? tnext : tprev, t1 = t0 + dt;
-    if (ok && ev && Model::kEvent) {
-      const T g1 = Condition(tnext, u, p);
-      if (std::isinf(ev->time) && Crossed(c.direction, ev->g, g1)) {
-        T v[N];
-        ev->time = Locate(c, y, p, tprev, h, ev->g, g1, v);
-        if (c.terminate) {
-          RJ_UNROLL
-          for (int j = 0; j < N; ++j) y[j] = v[j];
-          ev->stopped = true;
+  if constexpr (Tab::kFixed) {
+    return Fixed(c, y, p, a, b, keep, ev);
+  } else {
+    const T floor = Below(b);
+    T tprev = a, tnext = std::min(a + std::min(h0, c.dtmax), b);
+    T inv1 = T(1), inv2 = T(1);
+    Count n;
+    while (tprev < b && n.attempts < c.max_steps) {
+      T u[N], r[NU];
+      const T h = tnext - tprev;
+      const T eps = Attempt(c, y, p, tprev, h, u, r);
+      ++n.attempts;
+      const bool ok = eps < T(1);
+      T inv = T(1) / eps;
+      const T f = c.safety * Power(inv, c.c1) * Power(inv1, c.c2) * Power(inv2, c.c3);
+      const T factor = std::min(std::max(f, ok ? T(1) : c.fmin), ok ? c.fmax : c.safety);
+      const T dt = std::min(h * factor, c.dtmax);
+      if (inv == T(0) || std::isinf(inv)) inv = T(1);
+      const T t0 = ok ? tnext : tprev, t1 = t0 + dt;
+      if (ok) {
+        if (Watched(c, y, p, tprev, h, u, ev)) {
           ++n.accepted;
           return n;
         }
-      }
-      ev->g = g1;
-    }
-    if (ok) {
-      if (keep) {
-        keep->y.insert(keep->y.end(), y, y + N);
-        keep->t.push_back(tprev);
-        keep->h.push_back(h);
+        Keep(keep, y, tprev, h, r);
         RJ_UNROLL
-        for (int g = 0; g < Model::NU; ++g) keep->inv.push_back(r[g]);
+        for (int j = 0; j < N; ++j) y[j] = u[j];
+        inv2 = inv1, inv1 = inv;
+        ++n.accepted;
       }
-      RJ_UNROLL
-      for (int j = 0; j < N; ++j) y[j] = u[j];
-      inv2 = inv1, inv1 = inv;
-      ++n.accepted;
+      tprev = std::min(t0, b);
+      tnext = t1 > floor ? (ok ? b : tprev + T(0.5) * (b - tprev)) : t1;
     }
-    tprev = std::min(t0, b);
-    tnext = t1 > floor ? (ok ? b : tprev + T(0.5) * (b - tprev)) : t1;
+    n.done = !(tprev < b);
+    return n;
   }
-  n.done = !(tprev < b);
-  return n;
 }
 
 // One body over all intervals: the states at the saved times, each interval's first step, and
@@ -290,17 +342,18 @@ void Body(const Ctl<T>& c, T* y, const T* p, const T* ts, const int32_t* jump, c
   for (int64_t k = 0; k < K; ++k) {
     const T a = ts[k];
     if constexpr (Model::kJump) {
-      if (jump[k]) {
+      if (jump[k]) {  // (stopped by an event: held, the held state recorded)
         T u[N];
-        Model::J(a, y, p, u);
-        std::memcpy(y, u, sizeof(u));
+        if (!ev.stopped) Model::J(a, y, p, u), std::memcpy(y, u, sizeof(u));
         RJ_UNROLL
         for (int j = 0; j < Model::NR; ++j) rec[(jump[k] - 1) * Model::NR + j] = y[Model::R0 + j];
       }
     }
     const bool alive = Finite(y);
     const T b = alive && !ev.stopped ? ts[k + 1] : a;  // (stopped by an event: held)
-    if (k == 0 || Model::kJump) h = guess ? (a + std::min(InitialStep(c, y, p, a), c.dtmax)) - a : c.dt0;
+    if constexpr (!Tab::kFixed) {
+      if (k == 0 || Model::kJump) h = guess ? (a + std::min(InitialStep(c, y, p, a), c.dtmax)) - a : c.dt0;
+    }
     hk[k] = h;
     if (Model::kEvent && !ev.stopped) ev.g = Condition(a, y, p);
     const Count n = Interval(c, y, p, a, b, h, static_cast<Taken<T>*>(nullptr), &ev);

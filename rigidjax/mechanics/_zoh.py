@@ -26,6 +26,7 @@ import numpy as np
 from jaxtyping import Array
 
 from .._integrate import SolveOptions, raise_failure
+from ..events import Event
 from ..models.solve import solve_tree
 
 Controller = Callable[[Array, Array, Array, Any], Array]
@@ -103,14 +104,17 @@ def held_solve(
     name: str,
     memory0: Any = None,
     log_size: int = 0,
-) -> tuple[Any, dict[str, Array], diffrax.RESULTS, Array, Array]:
+    event: Event | None = None,
+) -> tuple[Any, dict[str, Array], diffrax.RESULTS, Array, Array, Array | None]:
     """Integrate `vf(t, y, (*args, cmd))` with the command `cmd = command(t_k, y_k)` sampled at
     `ts[0] + k period` and held (`cmd0` before the first sample; `times`: the values of `ts`,
     None where they are not known at trace time): one solve over the grid of
     `sample_grid`, the command a state with zero derivative that a jump map sets at the samples
     (`solve_tree` with `jump`: inside the CPU kernel, or a solve per grid interval on the
-    Diffrax path). Returns `(ys (T, ...), stats, result, control_ts (K,), commands (K, m))`,
-    raising a failure (`options.throw`) at the output interval where it happened.
+    Diffrax path). Returns `(ys (T, ...), stats, result, control_ts (K,), commands (K, m),
+    event_t)`, raising a failure (`options.throw`) at the output interval where it happened;
+    `event`: a `rigidjax.Event` on `(t, Ω, q)` of the state `(Ω, q, ...)`, its time `event_t`
+    (None without one).
 
     With `memory0` (a controller's memory, a PyTree), `command(t_k, y_k, memory) -> (cmd,
     memory, log (log_size,))` and the commands returned are `(K, m + log_size)`: each command
@@ -137,6 +141,7 @@ def held_solve(
         _Held(vf, m if stateful else None), grid, (y0, held0), args, inner, unit=unit,
         name=name, jump=_Sample(command, stateful), jumps=sample_np[:-1], keep=keep,
         record=len(jax.tree_util.tree_leaves(y0)),
+        event=None if event is None else event.on_state(_held_omega_quat),
     )  # fmt: skip
     commands = stats.pop("recorded")
     control_ts = grid[np.flatnonzero(sample_np[:-1])]
@@ -155,4 +160,10 @@ def held_solve(
             )
 
         ys = raise_failure(result, stats["num_valid"], ts, ys, options.max_steps, probe)
-    return ys, stats, result, control_ts, commands
+    event_t = stats.pop("event_t", None)
+    return ys, stats, result, control_ts, commands, event_t
+
+
+def _held_omega_quat(y: tuple) -> tuple[Array, Array]:
+    """`(Ω, q)` of a held solve's state `((Ω, q, ...), held)`."""
+    return y[0][0], y[0][1]

@@ -99,8 +99,10 @@ def simulate(
     (`inf` where none; differentiable);
     with `terminate=True` each body stops there and the outputs after it hold the state at the
     event, with `False` the trajectory is the one without the event. `rigidjax.events.
-    flip_event(omega0)` gives the first flip of the initially dominant axis exactly. Not with
-    `ExactFreeBody`, `LiePoissonSplitting` or a gyrostat.
+    flip_event(omega0)` gives the first flip of the initially dominant axis exactly. At fixed
+    steps the event runs on the per-body kernel too (each body its own fixed steps). Also for a
+    gyrostat, with or without a controller (a terminating event holds the state: no later
+    samples act). Not with `ExactFreeBody` or `LiePoissonSplitting`.
 
     `check=False` skips the checks of `ts`, `omega0` and `q0` (like `RigidBody(check=False)`)
     for inputs validated beforehand: traced inputs then compile without runtime checks, which
@@ -113,15 +115,12 @@ def simulate(
     per body, seeds a `rigidjax.control.StatefulController`'s memory: its simulated sensors).
     """
     if isinstance(body, Gyrostat):
-        if event is not None:
-            raise ValueError(
-                "events are not supported for a gyrostat yet: give a rigidjax.RigidBody"
-            )
         return simulate_gyrostat(
             body, omega0, q0, ts, torque, kinematics, wheel_speed0=wheel_speed0,
             h_rate=h_rate, controller=controller, control_period=control_period,
             controller_params=controller_params, controller_key=controller_key,
-            torque_frame=torque_frame, options=options, check=check, **solve_kwargs,
+            torque_frame=torque_frame, event=event, options=options, check=check,
+            **solve_kwargs,
         )  # fmt: skip
     gyro = dict(
         wheel_speed0=wheel_speed0,

@@ -23,6 +23,7 @@ explicit Runge–Kutta steps, else Diffrax; with a `controller`, sample by sampl
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from typing import Any, Unpack
 
@@ -46,6 +47,7 @@ from ..control.stateful import StatefulController
 from ..kinematics.formulations import Quaternion
 from ..models.solve import solve_tree
 from ..rotations import quat
+from . import _per_body as _pb
 from ._gyrostat_body import Gyrostat
 from ._initial import initial_rotation
 from ._rigid import rigid_call, solve_rigid
@@ -132,6 +134,7 @@ def simulate_gyrostat(
     controller_params: Any = None,
     controller_key: Any = None,
     torque_frame: Frame = "body",
+    event: Any = None,
     options: SolveOptions | None = None,
     check: bool = True,
     **solve_kwargs: Unpack[SolveKwargs],
@@ -152,7 +155,9 @@ def simulate_gyrostat(
     keeps its memory between samples, each body its own, started from `controller_key` or the
     controller's own `key` (`controller.with_key(key)`; one PRNG key, or one per body: the
     batch shape of `omega0`/`q0`; one key is split over the bodies), and records its log
-    (`controller_log`). Options as `simulate`'s: fixed steps of
+    (`controller_log`). `event`: a `rigidjax.Event` on `(t, Ω, q)` as `simulate`'s (each body
+    its own solve; the held commands and wheels stop with a terminating event, and the
+    sample times after it repeat the last command). Options as `simulate`'s: fixed steps of
     an explicit Runge–Kutta method run on the model's CPU kernel (a jump map it cannot take,
     such as random draws, on the Diffrax path with the same steps). Other `kinematics` than
     `"quat"` are taken for a constant `h` without controller (as the torque `−Ω × h` of
@@ -178,9 +183,11 @@ def simulate_gyrostat(
         )
     if kinematics != "quat":
         return _other_kinematics(g, omega0, q0, ts, torque, kinematics, locals())
+
     ws0 = jnp.zeros(n, dtype) if wheel_speed0 is None else vector(wheel_speed0, n, "wheel_speed0")
     ws0 = check_finite(ws0.astype(dtype), "wheel_speed0")
     batch = broadcast_batch(omega0=omega0.shape[:-1], q0=q0.shape[:-1], wheel_speed0=ws0.shape[:-1])
+    event = None if event is None else _pb.checked(event, None, batch)
     one = (ts[0], omega0.reshape(-1, 3)[0], q0.reshape(-1, 4)[0])
     if torque is not None:
         _check_callable(torque, "torque", "torque(t, omega, q)", one, (3,))
@@ -221,14 +228,16 @@ def simulate_gyrostat(
     else:
         params = (I, g.body.operator()[1]) + (() if h_rate is not None else (g.h,))
 
-    def one_body(w0, qq0, x0, key=None):
+    def one_body(ev, w0, qq0, x0, key=None):
         y0 = (w0, qq0) + ((x0,) if n else (g.h,) if h_rate is not None else ())
         cmd0 = jnp.zeros(m, dtype)
         if controller is None:
+            ev = None if ev is None else ev.on_state(_omega_quat)
             ys, stats, result = solve_tree(
-                field, ts, y0, (*params, cmd0), options, unit=(1,), name="gyrostat"
+                field, ts, y0, (*params, cmd0), options, unit=(1,), name="gyrostat", event=ev
             )
-            return ys, stats, result, None, None
+            event_t = stats.pop("event_t", None)
+            return ys, stats, result, None, None, event_t
 
         def applied(u):
             return g.clip(jnp.asarray(u).astype(dtype)) if n else jnp.asarray(u).astype(dtype)
@@ -258,7 +267,7 @@ def simulate_gyrostat(
         return held_solve(
             field, command, y0, params, ts,
             None if times is None else times.astype(dtype), control_period, cmd0, options,
-            unit=(1,), name="gyrostat", **extra,
+            unit=(1,), name="gyrostat", event=ev, **extra,
         )  # fmt: skip
 
     B = int(np.prod(batch))
@@ -269,19 +278,31 @@ def simulate_gyrostat(
     if keys is not None:
         flat.append(keys.reshape(B))
     if batch:
-        ys, stats, result, cts, cmds = jax.vmap(one_body)(*flat)
+        axes = (None if event is None else event.in_axes(), *(0,) * len(flat))
+        ys, stats, result, cts, cmds, event_t = eqx.filter_vmap(one_body, in_axes=axes)(
+            event, *flat
+        )
         cts = None if cts is None else cts[0]  # the same sample times for every body
         stats = {k: jnp.min(v) if k == "num_valid" else jnp.max(v) for k, v in stats.items()}
         first = jnp.argmax(result != diffrax.RESULTS.successful)  # the first body that failed
         result = jax.tree_util.tree_map(lambda v: v[first], result)
     else:
-        ys, stats, result, cts, cmds = one_body(*(a[0] for a in flat))
+        ev = None if event is None else _pb.first(event)
+        ys, stats, result, cts, cmds, event_t = one_body(ev, *(a[0] for a in flat))
         ys = jax.tree_util.tree_map(lambda a: a[None], ys)
         cmds = None if cmds is None else cmds[None]
     log = None
     if stateful and cmds is not None:
         cmds, log = cmds[..., :m], cmds[..., m:]
-    return _trajectory(g, ts, batch, ys, stats, result, cts, cmds, h_rate is not None, log)
+    traj = _trajectory(g, ts, batch, ys, stats, result, cts, cmds, h_rate is not None, log)
+    if event_t is not None:
+        traj = dataclasses.replace(traj, event_t=jnp.reshape(event_t, batch))
+    return traj
+
+
+def _omega_quat(y: tuple) -> tuple[Array, Array]:
+    """`(Ω, q)` of one gyrostat's state `(Ω, q, ...)`."""
+    return y[0], y[1]
 
 
 def _controller_keys(key: Any, batch: tuple[int, ...]) -> Array | None:
@@ -343,14 +364,16 @@ def _other_kinematics(g, omega0, q0, ts, torque, kinematics, given) -> GyrostatT
         return tau - jnp.cross(w, h)
 
     options = SolveOptions.of(given["options"], {})
+    event = given["event"]
     call = rigid_call(
-        g.body, omega0, q0, ts, total, kinematics, "body", None, options, given["check"]
+        g.body, omega0, q0, ts, total, kinematics, "body", event, options, given["check"]
     )
     traj = solve_rigid(call, options)
     h_t = jnp.broadcast_to(h, traj.omega.shape)
     return GyrostatTrajectory(
-        traj.omega, traj.quat, h_t, ts=traj.ts, stats=traj.stats, result=traj.result
-    )
+        traj.omega, traj.quat, h_t, ts=traj.ts, stats=traj.stats, result=traj.result,
+        event_t=traj.event_t,
+    )  # fmt: skip
 
 
 def angular_momentum(gyrostat: Gyrostat, traj: GyrostatTrajectory) -> Float[Array, "*batch T 3"]:

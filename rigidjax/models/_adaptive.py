@@ -17,24 +17,34 @@ from .._batch import first_failure
 from .._integrate import SolveOptions, default_tolerances, warn_unattainable
 from ..events import Event
 from ..kernels import adaptive, tableau
+from ._diffrax_path import method_of
 
 
 def controls(
     options: SolveOptions, norm: Callable, dtype, event: Event | None = None
 ) -> np.ndarray | None:
     """The adaptive kernel's controller values (`kernels.adaptive.controls`) for `options`, or
-    None where they ask for what it does not do: fixed steps, a solver other than an embedded
-    pair of `tableau.ADAPTIVE` (`ExplicitRK(method)` asks for the Diffrax path), a controller
-    other than a plain `PIDController`, another adjoint than the default, a progress meter.
+    None where they ask for what it does not do: a solver other than an embedded pair of
+    `tableau.ADAPTIVE` (`ExplicitRK(method)` asks for the Diffrax path), a controller other
+    than a plain `PIDController`, another adjoint than the default, a progress meter.
     Without a controller, `solve_saved`'s: a `PIDController` at `options.rtol`, `options.atol`
-    (`default_tolerances`) with `norm`. An `event`'s direction and termination go with them."""
-    solver = diffrax.Tsit5() if options.solver is None else options.solver
+    (`default_tolerances`) with `norm`. An `event`'s direction and termination go with them.
+    Fixed steps (`diffrax.ConstantStepSize`, one of `tableau.METHODS`): the per-body kernel's
+    at fixed steps (`kernels.adaptive.fixed_controls`), with an `event` only (without one,
+    the fixed-step kernel steps the bodies in lockstep)."""
+    fixed = isinstance(options.stepsize_controller, diffrax.ConstantStepSize)
+    solver = method_of(options) if fixed else options.solver or diffrax.Tsit5()
     if (
-        type(solver) not in tableau.ADAPTIVE
+        type(solver) not in (tableau.METHODS if fixed else tableau.ADAPTIVE)
         or not isinstance(options.adjoint, None | diffrax.RecursiveCheckpointAdjoint)
         or not isinstance(options.progress_meter, None | diffrax.NoProgressMeter)
     ):
         return None
+    if fixed:
+        if event is None or options.dt0 is None:
+            return None
+        args = (options.dt0, options.max_steps, dtype, event.direction, event.terminate)
+        return adaptive.fixed_controls(*args)
     controller = options.stepsize_controller
     if controller is None:
         rtol, atol = default_tolerances(dtype)

@@ -121,7 +121,7 @@ def diffrax_backend(
         p = joined(list(blocks), ts.dtype)
         if jumps is not None:
             args = (model, hoisted, ts, y0, p, c, options, single)
-            ys, stats, result = diffrax_jumps(args, jumps)
+            ys, stats, result = diffrax_jumps(args, jumps, event)
         else:
             ys, stats, result = solve_components(
                 model, hoisted, ts, y0, p, c, options, single, event
@@ -138,12 +138,26 @@ def diffrax_backend(
 
 
 def diffrax_jumps(
-    problem: tuple, jumps: np.ndarray
+    problem: tuple, jumps: np.ndarray, event: Event | None = None
 ) -> tuple[Array, dict[str, Array], diffrax.RESULTS]:
     """The Diffrax path of a model with a jump map (`problem`: `solve_components`'s arguments): one
     solve per interval of `ts` inside a `lax.scan`, each started by the jump map where `jumps`
-    flags it (the scalar program of `hoisted`, or the model's own map)."""
+    flags it (the scalar program of `hoisted`, or the model's own map). With an `event` (each
+    body its own solves), its first time `stats["event_t"]`; after a terminating one the state
+    is held (no jump, empty solves)."""
     model, hoisted, ts, y0, p, c, options, single = problem
+    if event is not None and y0.shape[0] > 1:
+        p_axis = 0 if p.shape[0] > 1 else None
+
+        def one(y, pb):
+            pb = pb[None] if p_axis == 0 else pb
+            body = (model, hoisted, ts, y[None], pb, c, options, True)
+            ys, stats, result = diffrax_jumps(body, jumps, event)
+            return ys[:, 0], stats, result
+
+        ys, stats, results = jax.vmap(one, in_axes=(0, p_axis))(y0, p)
+        stats, result = first_failure(stats, results)
+        return jnp.moveaxis(ys, 0, 1), stats, result
     jump = cast(Callable, model.jump)
     pb = jnp.broadcast_to(p, (y0.shape[0], p.shape[1]))
 
@@ -154,24 +168,29 @@ def diffrax_jumps(
         return jnp.stack(out, axis=-1)
 
     keys = ("num_steps", "num_accepted_steps", "num_rejected_steps")
+    holds = event is not None and event.terminate
 
     def interval(carry, x):
-        y, result = carry
+        y, result, t_event = carry
         ta, tb, flag = x
-        y = jnp.where(flag, apply(ta, y), y)
-        ys, stats, res = solve_components(
-            model, hoisted, jnp.stack([ta, tb]), y, p, c, options, single
-        )
+        stopped = jnp.isfinite(t_event) & holds  # (by a terminating event: held)
+        y = jnp.where(flag & ~stopped, apply(ta, y), y)
+        t01 = jnp.stack([ta, jnp.where(stopped, ta, tb)])
+        ys, stats, res = solve_components(model, hoisted, t01, y, p, c, options, single, event)
+        if event is not None:
+            t_event = jnp.where(jnp.isinf(t_event), jnp.reshape(stats["event_t"], ()), t_event)
         y1 = ys[-1]
         result = diffrax.RESULTS.where(result == diffrax.RESULTS.successful, res, result)
         counts = jnp.stack([stats[k] for k in keys])
-        return (y1, result), (y1, counts, res == diffrax.RESULTS.successful)
+        return (y1, result, t_event), (y1, counts, res == diffrax.RESULTS.successful)
 
-    init = (y0, diffrax.RESULTS.successful)
+    init = (y0, diffrax.RESULTS.successful, jnp.asarray(jnp.inf, ts.dtype))
     xs = (ts[:-1], ts[1:], jnp.asarray(jumps))
-    (_, result), (ys, counts, valid) = jax.lax.scan(interval, init, xs)
+    (_, result, t_event), (ys, counts, valid) = jax.lax.scan(interval, init, xs)
     stats: dict[str, Array] = dict(zip(keys, jnp.sum(counts, axis=0), strict=True))
     stats["num_valid"] = 1 + jnp.sum(jnp.cumprod(valid))
+    if event is not None:
+        stats["event_t"] = t_event
     return jnp.concatenate([y0[None], ys]), stats, result
 
 

@@ -105,12 +105,14 @@ def solve_model(
     `(B,)`, `num_valid` and `result` the batch's (the first failure).
 
     `event`: a `rigidjax.Event` whose condition takes `(t, y (N,))` of one body
-    (`Event.on_state`), shared by the bodies; it runs on the Diffrax path (no kernel), its time
-    `stats["event_t"]` (`(B,)`, or a scalar with `single`); not with a jump map."""
+    (`Event.on_state`), shared by the bodies; its time `stats["event_t"]` (`(B,)`, or a scalar
+    with `single`). It runs on the per-body CPU kernel (`kernels.adaptive`: adaptive steps, or
+    each body's fixed steps), located by the Illinois method on the step, else on the Diffrax
+    path (Diffrax's events); its derivatives through the Diffrax path. With a jump map, a
+    terminating event holds the state: the later jumps are not applied (their records repeat
+    the held components)."""
     if (model.jump is None) != (jumps is None):
         raise ValueError("a model with a jump map takes jumps (T − 1,), and only such a model")
-    if event is not None and jumps is not None:
-        raise ValueError("events are not supported for a model with a jump map")
     quiet = dataclasses.replace(options, throw=False)
     keep = np.ones(ts.shape[0], bool) if keep is None else np.asarray(keep, bool)
     blocks = [p] if isinstance(p, jax.Array | np.ndarray) else list(p)
@@ -143,18 +145,17 @@ def _solve(
     keep: np.ndarray,
     event: Event | None = None,
 ) -> tuple[Array, dict[str, Array], diffrax.RESULTS]:
-    """`solve_model` without raising failures (with an `event`: the Diffrax path, whose
-    `solve_saved` differentiates it in every mode): the CPU kernel (each block of parameters its
-    own operand: a shared block is never copied per body), the GPU kernel, or Diffrax (`p`:
-    the blocks joined). With the default adjoint, every backend of a model with a scalar
-    program is differentiable in every mode and order (`_modes.both_modes`): its own reverse
-    mode, forward mode and higher orders through the Diffrax path on the same steps."""
+    """`solve_model` without raising failures (with an `event`: the per-body kernel or the
+    Diffrax path, whose `solve_saved` differentiates it in every mode): the CPU kernel (each
+    block of parameters its own operand: a shared block is never copied per body), the GPU
+    kernel, or Diffrax (`p`: the blocks joined). With the default adjoint, every backend of a
+    model with a scalar program is differentiable in every mode and order
+    (`_modes.both_modes`): its own reverse mode, forward mode and higher orders through the
+    Diffrax path on the same steps."""
     dtype = ts.dtype
-    ctl = (
-        None
-        if kernel_options(options)
-        else _adaptive.controls(options, BatchMaxRMS(-1), dtype, event)
-    )
+    fixed = isinstance(options.stepsize_controller, diffrax.ConstantStepSize)
+    per_body = event is not None or not kernel_options(options)  # each body its own steps
+    ctl = _adaptive.controls(options, BatchMaxRMS(-1), dtype, event) if per_body else None
     hoisted, missing = _compile(model, dtype, event if ctl is not None else None)
     backend: Backend | None = None
     if hoisted is not None and kernel_options(options) and event is None:
@@ -176,7 +177,8 @@ def _solve(
     if ctl is not None and hoisted is not None:
         try:
             method = method_of(options)
-            adaptive_kernel = adaptive.build(hoisted, model.unit, method, model.record)
+            args = (hoisted, model.unit, method, model.record)
+            adaptive_kernel = adaptive.build(*args, fixed=fixed)
         except Unsupported as e:
             hoisted, missing = None, e.primitive
     if adaptive_kernel is None and event is not None and hoisted is not None and hoisted.events:
