@@ -18,7 +18,9 @@ import jax.numpy as jnp
 import optimistix as optx
 from jaxtyping import Array
 
-__all__ = ["Event", "flip_event"]
+from .rotations import _quat_core
+
+__all__ = ["Event", "flip_event", "settling_event"]
 
 
 class Event(eqx.Module):
@@ -181,3 +183,36 @@ def flip_event(omega0, *, direction: int | None = None, terminate: bool = True) 
         w.dtype if jnp.issubdtype(w.dtype, jnp.floating) else float
     )
     return Event(_DominantComponent(axis), terminate, direction, per_body=w.ndim > 1)
+
+
+class _Settling(eqx.Module):
+    """`max(θ_e − tolerance, after − t)`, `θ_e` the angle of `q_target⁻¹ ∘ q`."""
+
+    target: Array
+    tolerance: Array
+    after: Array
+
+    def __call__(self, t, omega, q):
+        del omega
+        dtype = q.dtype
+        qe = _quat_core.mul(_quat_core.conj(self.target.astype(dtype)), q)
+        error = _quat_core._angle(qe) - self.tolerance.astype(dtype)
+        return jnp.maximum(error, self.after.astype(dtype) - t)
+
+
+def settling_event(q_target, tolerance, after=-jnp.inf, *, terminate: bool = True) -> Event:
+    """The attitude's entry into the pointing tolerance after the time `after`: the first time
+    `t > after` at which the pointing error `θ_e(t)` (the rotation angle of `q_target⁻¹ ∘ q`,
+    `observables.pointing_error`) falls to `tolerance` (radians), as the event of the
+    condition `max(θ_e − tolerance, after − t)` falling through zero. With `after` the last
+    sample outside the tolerance (where `observables.settling_time` places the settling on the
+    sample grid), `event_t` is the settling time itself, to the solver's tolerance.
+    `q_target (4,)` and `tolerance` are shared; `after (...)` may carry the batch (a per-body
+    event). A sample `after` outside the tolerance makes the condition continuous there."""
+    after = jnp.asarray(after)
+    dtype = after.dtype if jnp.issubdtype(after.dtype, jnp.floating) else float
+    batch = after.shape  # (a per-body event: every leaf leads with the batch)
+    target = jnp.broadcast_to(jnp.asarray(q_target, dtype), (*batch, 4))
+    tol = jnp.broadcast_to(jnp.asarray(tolerance, dtype), batch)
+    condition = _Settling(target, tol, after.astype(dtype))
+    return Event(condition, terminate, -1, per_body=after.ndim > 0)

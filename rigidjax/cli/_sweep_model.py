@@ -16,12 +16,15 @@ def make_model(c: Config) -> Callable[[dict], dict]:
     """The one-point model: the body and initial state with the point's factor values, the free
     motion over the config's times, and the chosen observables (plus `result`, so failed
     integrations get their status). Every point was checked eagerly (`check_points`), so the
-    model skips the runtime checks: it compiles faster and fits the persistent cache."""
+    model skips the runtime checks: it compiles faster and fits the persistent cache.
+    `first_flip_time` is the flip located by the solver (`events.flip_event`, not terminating:
+    the motion is unchanged), not interpolated between samples."""
     import diffrax
     import jax.numpy as jnp
 
     from .. import observables as obs
     from .._integrate import SolveOptions
+    from ..events import flip_event
     from ..mechanics.body import RigidBody
     from ..mechanics.dynamics import simulate
     from ..solvers import RK4
@@ -43,7 +46,7 @@ def make_model(c: Config) -> Callable[[dict], dict]:
         return _closed_loop_model(c, ts, options)
     compute = {
         "max_nutation": lambda body, tr: obs.max_nutation(tr),
-        "first_flip_time": lambda body, tr: obs.first_flip_time(tr),
+        "first_flip_time": lambda body, tr: tr.event_t,
         "energy_drift": obs.energy_drift,
         "momentum_drift": obs.momentum_drift,
         "omega_end": lambda body, tr: tr.omega[-1],
@@ -53,7 +56,10 @@ def make_model(c: Config) -> Callable[[dict], dict]:
     def model(p: dict) -> dict:
         body = RigidBody(fill(c.inertia, p, jnp).astype(dtype), check=False)
         w0, q0 = fill(c.omega0, p, jnp).astype(dtype), fill(c.q0, p, jnp).astype(dtype)
-        tr = simulate(body, w0, q0, ts, kinematics=c.kinematics, options=options, check=False)
+        flip = flip_event(w0, terminate=False) if "first_flip_time" in c.observables else None
+        tr = simulate(
+            body, w0, q0, ts, kinematics=c.kinematics, event=flip, options=options, check=False
+        )
         return {n: compute[n](body, tr) for n in c.observables} | {"result": tr.result}
 
     return model
@@ -66,13 +72,16 @@ def _closed_loop_model(c: Config, ts, options) -> Callable[[dict], dict]:
     With `[sensors]`, the law acts on the MEKF's estimate (`rigidjax.estimation.estimated`),
     the point's noise drawn from a key folded from the seed and the point's factor values
     (the bits of each, in the design's order: reproducible, and distinct for distinct points),
-    and the `ESTIMATED` observables are available."""
+    and the `ESTIMATED` observables are available. `settling_time` is exact, not a sample
+    time: the sample grid brackets the last entry into the tolerance, and a second solve of
+    the same motion locates it (`events.settling_event` after the last sample outside)."""
     import jax
     import jax.numpy as jnp
 
     from .. import observables as obs
     from ..control import quaternion_pd
     from ..estimation import control_error, estimated, knowledge_error
+    from ..events import settling_event
     from ..mechanics import Gyrostat
     from ..mechanics.dynamics import simulate
 
@@ -106,7 +115,6 @@ def _closed_loop_model(c: Config, ts, options) -> Callable[[dict], dict]:
         "knowledge_error_end": lambda tr: knowledge_error(tr)[..., -1],
         "knowledge_error_rms": lambda tr: rms(knowledge_error(tr)),
         "control_error_end": lambda tr: control_error(tr, target)[..., -1],
-        "settling_time": lambda tr: obs.settling_time(tr, target, k["tolerance"]),
         "peak_wheel_speed": obs.peak_wheel_speed,
         "saturation_count": lambda tr: (
             obs.saturation_count(tr, w["torque_max"])
@@ -126,10 +134,29 @@ def _closed_loop_model(c: Config, ts, options) -> Callable[[dict], dict]:
         )
         w0, q0 = fill(c.omega0, p, jnp).astype(dtype), fill(c.q0, p, jnp).astype(dtype)
         extra: dict[str, Any] = {} if sn is None else {"controller_key": point_key(p)}
-        tr = simulate(
-            sc, w0, q0, ts, controller=ctrl, control_period=k["period"], options=options,
-            check=False, **extra,
-        )  # fmt: skip
-        return {name: compute[name](tr) for name in c.observables} | {"result": tr.result}
+
+        def run(event=None):
+            return simulate(
+                sc, w0, q0, ts, controller=ctrl, control_period=k["period"], options=options,
+                check=False, event=event, **extra,
+            )  # fmt: skip
+
+        tr = run()
+        out = {name: compute[name](tr) for name in c.observables if name != "settling_time"}
+        if "settling_time" in c.observables:
+            out["settling_time"] = settling(tr, run)
+        return out | {"result": tr.result}
+
+    def settling(tr, run):
+        """The last entry into the tolerance, located in the sample interval that brackets it:
+        `ts[0]` if never outside, `inf` if outside at the end, NaN for NaN states (as
+        `observables.settling_time`)."""
+        tol = k["tolerance"]
+        err = obs.pointing_error(tr, target)
+        T = err.shape[-1]
+        last = jnp.max(jnp.where(err > tol, jnp.arange(T), -1))
+        grid = obs.settling_time(tr, target, tol)
+        located = run(settling_event(target, tol, ts[jnp.maximum(last, 0)])).event_t
+        return jnp.where((last >= 0) & (last < T - 1) & ~jnp.isnan(grid), located, grid)
 
     return model
