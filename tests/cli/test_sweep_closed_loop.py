@@ -1,6 +1,7 @@
 """`rigidjax sweep` of a closed loop (`[wheels]` and `[control]`): the store's observables equal
-the library's (a `Gyrostat`, `control.quaternion_pd`, `simulate` and `rigidjax.observables`) at
-every point; config errors name the key; the shipped Monte Carlo example runs with its plot."""
+the library's (a `Gyrostat`, `control.quaternion_pd`, `simulate` and `rigidjax.observables`; the
+settling time located by `events.settling_event` within the sample grid's bracket) at every
+point; config errors name the key; the shipped Monte Carlo example runs with its plot."""
 
 import contextlib
 import io
@@ -15,6 +16,7 @@ import xarray as xr
 import rigidjax as rj
 from rigidjax import observables as obs
 from rigidjax.cli import main
+from rigidjax.events import settling_event
 
 CONFIG = """
 [body]
@@ -74,12 +76,24 @@ def library(Ixx: float, wy: float, tilt: float):
                     wheel_torque_max=0.1)  # fmt: skip
     target = rj.quat.from_rotvec(jnp.array([0.0, 0.0, np.pi / 2]))
     law = rj.control.quaternion_pd(0.6, 3.0, target, wheel_axes=A)
-    tr = rj.simulate(
-        g, [0.0, wy, 0.0], None, jnp.linspace(0.0, 60.0, 121), controller=law, control_period=0.5,
-        solver=rj.RK4(), stepsize_controller=diffrax.ConstantStepSize(), dt0=0.25,
-    )  # fmt: skip
+    ts = jnp.linspace(0.0, 60.0, 121)
+
+    def run(event=None):
+        return rj.simulate(
+            g, [0.0, wy, 0.0], None, ts, controller=law, control_period=0.5, solver=rj.RK4(),
+            stepsize_controller=diffrax.ConstantStepSize(), dt0=0.25, event=event,
+        )  # fmt: skip
+
+    tr = run()
+    tol = np.radians(1.0)
+    # the settling time on the sample grid brackets the last entry into the tolerance, which
+    # the event after the last sample outside locates
+    grid = float(obs.settling_time(tr, target, tol))
+    after = grid - 0.5
+    settled = run(settling_event(target, tol, after)).event_t
+    assert after < float(settled) <= grid
     return dict(
-        settling_time=obs.settling_time(tr, target, np.radians(1.0)),
+        settling_time=settled,
         peak_wheel_speed=obs.peak_wheel_speed(tr),
         saturation_count=obs.saturation_count(tr, 0.1),
         pointing_error_end=obs.pointing_error(tr, target)[-1],
@@ -125,13 +139,17 @@ def test_config_errors(tmp_path, old, new, needles):
 
 @pytest.mark.slow
 def test_monte_carlo_example_runs_with_its_plot(tmp_path):
-    """examples/slew_montecarlo.toml as shipped: 1e4 draws, every one settled, some saturated,
-    the Zarr store and the histograms written."""
+    """examples/slew_montecarlo.toml as shipped: 1e4 draws, every one settled (at located
+    times, not on the 0.5 s sample grid), some saturated, the Zarr store and the histograms
+    written."""
     out = tmp_path / "out"
     rc, err = sweep(EXAMPLE, out)
     assert rc == 0, err
     ds = xr.open_zarr(out / "sweep.zarr")
     assert ds["status"].size == 10_000 and (ds["status"].values == 0).all()
-    assert np.isfinite(ds["settling_time"].values).all()
+    settling = ds["settling_time"].values
+    assert np.isfinite(settling).all()
+    on_grid = np.isclose(settling * 2, np.round(settling * 2), rtol=0, atol=1e-9)
+    assert on_grid.mean() < 0.01
     assert (ds["saturation_count"].values > 0).any()
     assert (out / "sweep.png").stat().st_size > 10_000

@@ -199,3 +199,25 @@ def test_examples_parse():
     for path in examples:
         c = _config.load(path)
         check_points(c, _config.make_design(c))
+
+
+def test_first_flip_time_is_located(tmp_path):
+    """`first_flip_time` in a sweep is the solver's located flip (`events.flip_event`), the
+    closed form to the tolerance, not an interpolation between the 5 samples."""
+    config = tmp_path / "flip.toml"
+    text = CONFIG.replace("t_end = 4.0", "t_end = 20.0").replace(
+        '"max_nutation", "energy_drift", "omega_end"', '"first_flip_time", "omega_end"'
+    )
+    config.write_text(text.replace("values = [1.6, 2.0]", "values = [1.6, 2.0, 2.2]"))
+    rc, _, err = sweep(config, tmp_path / "out")
+    assert rc == 0, err
+    ds = xr.open_zarr(tmp_path / "out" / "sweep.zarr")
+    for I2 in (1.6, 2.0, 2.2):
+        for offset in ds["offset"].values:
+            w0 = jnp.array([offset, 1.0, 0.0])
+            want = rj.analytic.time_of_first_flip(jnp.array([1.0, I2, 2.5]), w0)
+            got = ds["first_flip_time"].sel(I2=I2, offset=offset).values
+            assert np.isfinite(got) and got < 20.0
+            np.testing.assert_allclose(got, want, rtol=1e-7)
+    plain = rj.simulate(rj.RigidBody(jnp.array([1.0, 2.0, 2.5])), w0, None, jnp.linspace(0, 20, 5))
+    np.testing.assert_allclose(ds["omega_end"].sel(I2=2.0).values[-1], plain.omega[-1], atol=1e-8)
