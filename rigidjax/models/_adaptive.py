@@ -33,7 +33,10 @@ def controls(
     at fixed steps (`kernels.adaptive.fixed_controls`), with an `event` only (without one,
     the fixed-step kernel steps the bodies in lockstep)."""
     fixed = isinstance(options.stepsize_controller, diffrax.ConstantStepSize)
-    solver = method_of(options) if fixed else options.solver or diffrax.Tsit5()
+    if fixed:
+        solver = method_of(options)
+    else:
+        solver = diffrax.Tsit5() if options.solver is None else options.solver
     if (
         type(solver) not in (tableau.METHODS if fixed else tableau.ADAPTIVE)
         or not isinstance(options.adjoint, None | diffrax.RecursiveCheckpointAdjoint)
