@@ -344,7 +344,10 @@ void Body(const Ctl<T>& c, T* y, const T* p, const T* ts, const int32_t* jump, c
     if constexpr (Model::kJump) {
       if (jump[k]) {  // (stopped by an event: held, the held state recorded)
         T u[N];
-        if (!ev.stopped) Model::J(a, y, p, u), std::memcpy(y, u, sizeof(u));
+        if (!ev.stopped) {
+          Model::J(a, y, p, u);
+          std::memcpy(y, u, sizeof(u));
+        }
         RJ_UNROLL
         for (int j = 0; j < Model::NR; ++j) rec[(jump[k] - 1) * Model::NR + j] = y[Model::R0 + j];
       }
