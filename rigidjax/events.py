@@ -1,10 +1,15 @@
 """Events: the first time a scalar condition of the motion crosses zero, located by the solver.
 
 `simulate(..., event=Event(condition))` integrates each body until `condition(t, omega, q)` (of
-one body: `t` scalar, `omega (3,)`, `q (4,)`) crosses zero, finds that time by a Newton root
-find on the step's interpolant (Diffrax's events, `diffrax.Event` with
-`optimistix.Newton(rtol, atol)` at the solver's tolerances), and returns it as the
-trajectory's `event_t` (`inf` where there is none)."""
+one body: `t` scalar, `omega (3,)`, `q (4,)`) crosses zero and returns that time as the
+trajectory's `event_t` (`inf` where there is none). On the CPU's per-body kernel
+(`rigidjax.kernels.adaptive`, adaptive or fixed steps, the gyrostat and its closed loop
+included) the crossing is located on the step itself by the Illinois method; on the Diffrax
+path by a Newton root find on the step's interpolant (`diffrax.Event` with
+`optimistix.Newton(rtol, atol)` at the solver's tolerances). Two ready-made events:
+`flip_event(omega0)` (the tennis-racket flip) and `settling_event(q_target, tolerance, after)`
+(the entry into a pointing tolerance).
+"""
 
 from __future__ import annotations
 

@@ -79,6 +79,7 @@ def test_settling_event_lies_in_the_grid_bracket_at_the_tolerance(stopped, last_
         np.testing.assert_array_equal(cmds, np.broadcast_to(cmds[0], cmds.shape))
 
 
+@pytest.mark.slow
 def test_a_body_alone_is_as_in_the_batch(stopped, last_outside):
     alone = rj.simulate(
         SAT, W0[1], None, TS, controller=LAW, control_period=0.25, solver=rj.RK4(),
@@ -88,6 +89,7 @@ def test_a_body_alone_is_as_in_the_batch(stopped, last_outside):
     np.testing.assert_array_equal(alone.quat, stopped.quat[1])
 
 
+@pytest.mark.slow
 def test_not_terminating_keeps_the_motion(plain, last_outside, stopped):
     event = settling_event(Q_T, TOL, TS[last_outside], terminate=False)
     going = _loop(rj.RK4(), event)
@@ -152,6 +154,7 @@ def test_fixed_step_flip_on_the_kernel_is_the_closed_form():
         )
 
 
+@pytest.mark.slow
 def test_fixed_step_event_fails_a_body_past_max_steps():
     """max_steps per body: the per-body kernel stops where Diffrax would, with its error."""
     options = dict(solver=rj.RK4(), stepsize_controller=diffrax.ConstantStepSize(), dt0=0.001)
@@ -159,6 +162,7 @@ def test_fixed_step_event_fails_a_body_past_max_steps():
         rj.simulate(BODY, W, ts=FLIP_TS, event=flip_event(W), max_steps=100, **options)
 
 
+@pytest.mark.slow
 def test_gyrostat_without_controller_stops_at_its_event():
     """A Zhukovsky–Volterra gyrostat (constant h) at its flip, quaternion kernel and the
     rotation-vector path (another formulation, the same motion) to the tolerance."""
