@@ -151,7 +151,9 @@ def settling_time(traj: Trajectory, q_target: QuatLike, tolerance: float) -> Sca
     """First sample time after which the pointing error (`pointing_error`) stays within
     `tolerance` (radians) up to the last sample: `ts[i + 1]`, `i` the last sample outside;
     `ts[0]` if it never leaves, `inf` if the last sample is outside (it has not settled within
-    `traj.ts`). Resolution: the sample spacing. NaN states give NaN."""
+    `traj.ts`). Resolution: the sample spacing. NaN states give NaN. The exact time lies in
+    `(ts[i], ts[i + 1]]`: `simulate(..., event=events.settling_event(q_target, tolerance,
+    ts[i]))` locates it (`traj.event_t`), as `rigidjax sweep` does."""
     err = pointing_error(traj, q_target)
     T = err.shape[-1]
     last = jnp.max(jnp.where(err > tolerance, jnp.arange(T), -1), axis=-1)
