@@ -20,6 +20,7 @@ import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optimistix as optx
 from jaxtyping import Array
 
@@ -214,6 +215,12 @@ def settling_event(q_target, tolerance, after=-jnp.inf, *, terminate: bool = Tru
     sample grid), `event_t` is the settling time itself, to the solver's tolerance.
     `q_target (4,)` and `tolerance` are shared; `after (...)` may carry the batch (a per-body
     event). A sample `after` outside the tolerance makes the condition continuous there."""
+    shapes = np.shape(q_target), np.shape(tolerance)
+    if shapes[0] != (4,) or shapes[1] != ():
+        raise ValueError(
+            "settling_event takes one target attitude q_target (4,) (a unit quaternion) and a "
+            f"scalar tolerance (radians), got shapes {shapes[0]} and {shapes[1]}"
+        )
     after = jnp.asarray(after)
     dtype = after.dtype if jnp.issubdtype(after.dtype, jnp.floating) else float
     batch = after.shape  # (a per-body event: every leaf leads with the batch)

@@ -175,3 +175,10 @@ def test_gyrostat_without_controller_stops_at_its_event():
     np.testing.assert_allclose(quat.event_t, rotvec.event_t, rtol=0, atol=1e-8)
     k = int(np.argmax(np.asarray(FLIP_TS) > float(quat.event_t)))
     np.testing.assert_allclose(quat.omega[k, 1], 0.0, atol=1e-10)
+
+
+def test_settling_event_refuses_a_batch_of_targets():
+    with pytest.raises(ValueError, match=r"q_target \(4,\)"):
+        settling_event(np.tile(Q_T, (2, 1)), TOL)
+    with pytest.raises(ValueError, match="scalar tolerance"):
+        settling_event(Q_T, [TOL, TOL])
