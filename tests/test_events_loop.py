@@ -106,6 +106,12 @@ def test_kernel_equals_the_diffrax_path(stopped, last_outside):
     through = _loop(rj.ExplicitRK(rj.RK4()), event)
     np.testing.assert_allclose(through.event_t, stopped.event_t, rtol=0, atol=1e-9)
     np.testing.assert_allclose(through.quat, stopped.quat, rtol=0, atol=1e-9)
+    for b in range(3):  # before the event: the same steps, the same numbers
+        k = last_outside[b] + 1
+        np.testing.assert_allclose(through.quat[b, :k], stopped.quat[b, :k], rtol=0, atol=1e-13)
+        np.testing.assert_allclose(
+            through.wheel_speed[b, :k], stopped.wheel_speed[b, :k], rtol=0, atol=1e-13
+        )
     tight = dict(rtol=1e-10, atol=1e-10)
     kernel = _loop(None, event, **tight)
     diffrax_path = _loop(rj.ExplicitRK(diffrax.Tsit5()), event, **tight)
@@ -115,7 +121,8 @@ def test_kernel_equals_the_diffrax_path(stopped, last_outside):
 
 @pytest.mark.slow
 def test_event_time_gradient_is_central_differences(last_outside):
-    """d event_t / d Ω0 through the Diffrax path's events, with the sampled law in the loop."""
+    """d event_t / d Ω0 of the closed loop on the per-body kernel (its derivatives through the
+    Diffrax path's events), reverse and forward mode, against central differences."""
     event = settling_event(Q_T, TOL, TS[last_outside[1]])
 
     def t_event(w):
@@ -130,6 +137,46 @@ def test_event_time_gradient_is_central_differences(last_outside):
     eps = 1e-6
     fd = [(t_event(w + eps * e) - t_event(w - eps * e)) / (2 * eps) for e in np.eye(3)]
     np.testing.assert_allclose(grad, fd, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(jax.jacfwd(t_event)(w), grad, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.slow
+def test_flip_event_on_the_kernel_in_every_mode():
+    """`jax.jacfwd` and `jax.jacrev` of a flip time located on the adaptive kernel agree with
+    each other and with the closed form's gradient (`analytic.time_of_first_flip`)."""
+    w0 = jnp.array([0.05, 1.0, 0.02])
+
+    def t_event(w):
+        tight = dict(rtol=1e-12, atol=1e-12)
+        return rj.simulate(BODY, w, ts=FLIP_TS, event=flip_event(w), **tight).event_t
+
+    rev, fwd = jax.jacrev(t_event)(w0), jax.jacfwd(t_event)(w0)
+    exact = jax.grad(lambda w: rj.analytic.time_of_first_flip(BODY.inertia.diagonal(), w))(w0)
+    np.testing.assert_allclose(fwd, rev, rtol=1e-9)
+    np.testing.assert_allclose(rev, exact, rtol=1e-6)
+
+
+@pytest.mark.slow
+def test_a_controller_the_kernel_refuses_falls_back_with_one_warning(stopped, last_outside):
+    """A law with a data-dependent `while` runs on the Diffrax path (one warning naming it):
+    the same states before the event (1e-13) and the same event (to the root finders')."""
+
+    def law(t, w, q, p):
+        n = jax.lax.while_loop(lambda c: c < 1 + (w[0] > 10.0), lambda c: c + 1, 0)
+        return LAW(t, w, q, p) * n
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        got = rj.simulate(
+            SAT, W0, None, TS, controller=law, control_period=0.25, solver=rj.RK4(),
+            event=settling_event(Q_T, TOL, TS[last_outside]), **FIXED,
+        )  # fmt: skip
+    messages = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
+    assert len(messages) == 1 and "`while`" in messages[0], messages
+    np.testing.assert_allclose(got.event_t, stopped.event_t, rtol=0, atol=1e-9)
+    for b in range(3):
+        k = last_outside[b] + 1
+        np.testing.assert_allclose(got.quat[b, :k], stopped.quat[b, :k], rtol=0, atol=1e-13)
 
 
 BODY = rj.RigidBody(jnp.array([1.0, 2.0, 3.0]))

@@ -97,8 +97,9 @@ class _StepEnd(eqx.Module):
 
 
 Backend = Callable[..., Any]
-"""`(y0 (B, N), blocks, c (Pc,), ts (T,)) -> ((ys (S, B, N), recorded (J, B, NR)),
-(stats, result))`: one backend's solve (`S` the kept times, `J` the recorded jumps)."""
+"""`(y0 (B, N), blocks, c (Pc,), ts (T,)) -> ((ys (S, B, N), recorded (J, B, NR)[, event_t]),
+(stats, result))`: one backend's solve (`S` the kept times, `J` the recorded jumps; with an
+event, its time `(B,)`, a scalar for one body)."""
 
 
 def diffrax_backend(
@@ -110,8 +111,8 @@ def diffrax_backend(
     event: Event | None = None,
 ) -> Backend:
     """The Diffrax path's solve of `problem` (`(model, hoisted, single, jumps, keep)`) with
-    `options` (and `adjoint`, if given); `values`: the states and records only; `event`: as
-    `solve_model`'s (its time in the stats)."""
+    `options` (and `adjoint`, if given); `values`: the states and records only (and the event's
+    time); `event`: as `solve_model`'s (its time after the records)."""
     model, hoisted, single, jumps, keep = problem
     if adjoint is not None:
         options = dataclasses.replace(options, adjoint=adjoint)
@@ -129,8 +130,10 @@ def diffrax_backend(
         R0, NR = model.record
         at = np.flatnonzero(jumps) + 1 if NR and jumps is not None else np.zeros(0, int)
         out = (ys[kept], ys[at, :, R0 : R0 + NR])
-        if values:  # (and the event's time, with an event)
-            return out if event is None else (*out, stats["event_t"])
+        if event is not None:  # the event's time: a value, differentiated with the states
+            out = (*out, stats.pop("event_t"))
+        if values:
+            return out
         stats["num_valid"] = jnp.sum(jnp.asarray(kept) < stats["num_valid"])
         return out, (stats, result)
 

@@ -105,8 +105,8 @@ def adaptive_backend(
     kernel: adaptive.AdaptiveKernel, ctl, problem: tuple, options, event: Event | None = None
 ) -> Backend:
     """The adaptive CPU kernel's solve (`kernels.adaptive.run`; each body its own steps, its
-    `event` located on the kernel: `stats["event_t"]`), the output times and the events
-    differentiated through the Diffrax path."""
+    `event` located on the kernel: its time after the records), the output times and the
+    events differentiated through the Diffrax path."""
     model, _, single, jumps, keep = problem
     checkpointed = diffrax.RecursiveCheckpointAdjoint()
     through_diffrax = diffrax_backend(problem, options, checkpointed, values=True, event=event)
@@ -127,9 +127,10 @@ def adaptive_backend(
 
         ys, rec, st, ev = adaptive.run(kernel, y0, pk, ts, ctl, through, jumps, keep)
         stats, result = _adaptive.per_body(st, single, np.flatnonzero(keep))
+        out = (jnp.moveaxis(ys, 1, 0), jnp.moveaxis(rec, 1, 0))
         if event is not None:
-            stats["event_t"] = ev[0] if single else ev
-        return (jnp.moveaxis(ys, 1, 0), jnp.moveaxis(rec, 1, 0)), (stats, result)
+            out = (*out, ev[0] if single else ev)
+        return out, (stats, result)
 
     return backend
 

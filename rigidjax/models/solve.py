@@ -201,23 +201,28 @@ def _solve(
     elif event is not None:
         backend = diffrax_backend(problem, options, event=event)
     if (
-        event is None
+        (event is None or adaptive_kernel is not None)
         and hoisted is not None
         and isinstance(options.adjoint, None | diffrax.RecursiveCheckpointAdjoint)
     ):
         # the scalar program: every input explicit (`c`), so one rule differentiates it all
-        # (the model's own field: `solve_saved`'s rule, its closure converted)
+        # (the model's own field: `solve_saved`'s rule, its closure converted); an event's
+        # time is one of the values (the Diffrax path with an event differentiates itself)
         if backend is None:
             checkpointed = diffrax.RecursiveCheckpointAdjoint()
             backend = diffrax_backend(problem, options, checkpointed)
-        forward = diffrax_backend(problem, options, diffrax.ForwardMode(), values=True)
-        second = diffrax_backend(problem, options, diffrax.DirectAdjoint(), values=True)
+        modes = (diffrax.ForwardMode(), diffrax.DirectAdjoint())
+        forward, second = (
+            diffrax_backend(problem, options, a, values=True, event=event) for a in modes
+        )
         backend = both_modes(backend, forward, second)
     if backend is None:
         backend = diffrax_backend(problem, options)
-    (ys, recorded), (stats, result) = backend(y0, tuple(blocks), c, ts)
+    (ys, recorded, *event_t), (stats, result) = backend(y0, tuple(blocks), c, ts)
     if model.record[1]:
         stats["recorded"] = recorded
+    if event_t:
+        stats["event_t"] = event_t[0]
     return ys, stats, result
 
 
