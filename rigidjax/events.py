@@ -24,6 +24,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array
 
+from ._custom_types import RealLike
 from .rotations import _quat_core
 
 __all__ = ["Event", "flip_event", "settling_event"]
@@ -206,7 +207,9 @@ class _Settling(eqx.Module):
         return jnp.maximum(error, self.after.astype(dtype) - t)
 
 
-def settling_event(q_target, tolerance, after=-jnp.inf, *, terminate: bool = True) -> Event:
+def settling_event(
+    q_target: RealLike, tolerance: RealLike, after: RealLike = -np.inf, *, terminate: bool = True
+) -> Event:
     """The attitude's entry into the pointing tolerance after the time `after`: the first time
     `t > after` at which the pointing error `θ_e(t)` (the rotation angle of `q_target⁻¹ ∘ q`,
     `observables.pointing_error`) falls to `tolerance` (radians), as the event of the
@@ -215,16 +218,16 @@ def settling_event(q_target, tolerance, after=-jnp.inf, *, terminate: bool = Tru
     sample grid), `event_t` is the settling time itself, to the solver's tolerance.
     `q_target (4,)` and `tolerance` are shared; `after (...)` may carry the batch (a per-body
     event). A sample `after` outside the tolerance makes the condition continuous there."""
-    shapes = np.shape(q_target), np.shape(tolerance)
-    if shapes[0] != (4,) or shapes[1] != ():
+    q_target, tolerance = jnp.asarray(q_target), jnp.asarray(tolerance)
+    if q_target.shape != (4,) or tolerance.shape != ():
         raise ValueError(
             "settling_event takes one target attitude q_target (4,) (a unit quaternion) and a "
-            f"scalar tolerance (radians), got shapes {shapes[0]} and {shapes[1]}"
+            f"scalar tolerance (radians), got shapes {q_target.shape} and {tolerance.shape}"
         )
     after = jnp.asarray(after)
     dtype = after.dtype if jnp.issubdtype(after.dtype, jnp.floating) else float
     batch = after.shape  # (a per-body event: every leaf leads with the batch)
-    target = jnp.broadcast_to(jnp.asarray(q_target, dtype), (*batch, 4))
-    tol = jnp.broadcast_to(jnp.asarray(tolerance, dtype), batch)
+    target = jnp.broadcast_to(q_target.astype(dtype), (*batch, 4))
+    tol = jnp.broadcast_to(tolerance.astype(dtype), batch)
     condition = _Settling(target, tol, after.astype(dtype))
     return Event(condition, terminate, -1, per_body=after.ndim > 0)

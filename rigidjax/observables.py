@@ -15,7 +15,8 @@ these are principal axes), the same contract as `rigidjax.analytic.time_of_first
 time located by the solver, not interpolated between samples as `first_flip_time` does.
 
 Closed loops (a `Gyrostat` with wheels and a controller: `GyrostatTrajectory`):
-`pointing_error`, `settling_time`, `peak_wheel_speed`, `saturation_count`.
+`pointing_error`, `settling_time` (and `settling_bracket`, the samples around it),
+`peak_wheel_speed`, `saturation_count`.
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ __all__ = [
     "peak_wheel_speed",
     "pointing_error",
     "saturation_count",
+    "settling_bracket",
     "settling_time",
 ]
 
@@ -147,20 +149,36 @@ def pointing_error(traj: Trajectory, q_target: QuatLike) -> Float[Array, "*batch
     return 2 * jnp.arctan2(_safe_norm(qe[..., 1:]), jnp.abs(qe[..., 0]))
 
 
-def settling_time(traj: Trajectory, q_target: QuatLike, tolerance: float) -> Scalar:
-    """First sample time after which the pointing error (`pointing_error`) stays within
-    `tolerance` (radians) up to the last sample: `ts[i + 1]`, `i` the last sample outside;
-    `ts[0]` if it never leaves, `inf` if the last sample is outside (it has not settled within
-    `traj.ts`). Resolution: the sample spacing. NaN states give NaN. The exact time lies in
-    `(ts[i], ts[i + 1]]`: `simulate(..., event=events.settling_event(q_target, tolerance,
-    ts[i]))` locates it (`traj.event_t`), as `rigidjax sweep` does."""
+def settling_bracket(
+    traj: Trajectory, q_target: QuatLike, tolerance: float
+) -> tuple[Scalar, Scalar]:
+    """The samples around the settling: `(ts[i], ts[i + 1])`, `i` the last sample at which the
+    pointing error (`pointing_error`) exceeds `tolerance` (radians), so that the last entry
+    into the tolerance lies in `(ts[i], ts[i + 1]]`. `(-inf, ts[0])` if the error never
+    exceeds it, `(ts[-1], inf)` if it does at the last sample (not settled within
+    `traj.ts`); NaN states give NaN. `simulate(..., event=events.settling_event(q_target,
+    tolerance, ts[i]))` locates the entry (`traj.event_t`), as `rigidjax sweep` does."""
     err = pointing_error(traj, q_target)
     T = err.shape[-1]
     last = jnp.max(jnp.where(err > tolerance, jnp.arange(T), -1), axis=-1)
     ts = jnp.broadcast_to(traj.ts, err.shape)
-    t = jnp.take_along_axis(ts, jnp.clip(last + 1, 0, T - 1)[..., None], axis=-1)[..., 0]
-    t = jnp.where(last + 1 < T, t, jnp.inf)
-    return jnp.where(jnp.any(jnp.isnan(err), axis=-1), jnp.nan, t)
+
+    def at(i):
+        return jnp.take_along_axis(ts, jnp.clip(i, 0, T - 1)[..., None], axis=-1)[..., 0]
+
+    nan = jnp.any(jnp.isnan(err), axis=-1)
+    before = jnp.where(nan, jnp.nan, jnp.where(last >= 0, at(last), -jnp.inf))
+    after = jnp.where(nan, jnp.nan, jnp.where(last + 1 < T, at(last + 1), jnp.inf))
+    return before, after
+
+
+def settling_time(traj: Trajectory, q_target: QuatLike, tolerance: float) -> Scalar:
+    """First sample time after which the pointing error (`pointing_error`) stays within
+    `tolerance` (radians) up to the last sample: `ts[i + 1]`, `i` the last sample outside;
+    `ts[0]` if it never leaves, `inf` if the last sample is outside (it has not settled within
+    `traj.ts`). Resolution: the sample spacing (`settling_bracket` gives the sample before,
+    from which an event locates the exact time). NaN states give NaN."""
+    return settling_bracket(traj, q_target, tolerance)[1]
 
 
 def peak_wheel_speed(traj: Trajectory) -> Scalar:

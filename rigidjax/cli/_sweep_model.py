@@ -152,11 +152,8 @@ def _closed_loop_model(c: Config, ts, options) -> Callable[[dict], dict]:
         `ts[0]` if never outside, `inf` if outside at the end, NaN for NaN states (as
         `observables.settling_time`)."""
         tol = k["tolerance"]
-        err = obs.pointing_error(tr, target)
-        T = err.shape[-1]
-        last = jnp.max(jnp.where(err > tol, jnp.arange(T), -1))
-        grid = obs.settling_time(tr, target, tol)
-        located = run(settling_event(target, tol, ts[jnp.maximum(last, 0)])).event_t
-        return jnp.where((last >= 0) & (last < T - 1) & ~jnp.isnan(grid), located, grid)
+        before, grid = obs.settling_bracket(tr, target, tol)
+        located = run(settling_event(target, tol, before)).event_t
+        return jnp.where(jnp.isfinite(before) & jnp.isfinite(grid), located, grid)
 
     return model

@@ -150,17 +150,11 @@ def diffrax_jumps(
     is held (no jump, empty solves)."""
     model, hoisted, ts, y0, p, c, options, single = problem
     if event is not None and y0.shape[0] > 1:
-        p_axis = 0 if p.shape[0] > 1 else None
 
         def one(y, pb):
-            pb = pb[None] if p_axis == 0 else pb
-            body = (model, hoisted, ts, y[None], pb, c, options, True)
-            ys, stats, result = diffrax_jumps(body, jumps, event)
-            return ys[:, 0], stats, result
+            return diffrax_jumps((model, hoisted, ts, y, pb, c, options, True), jumps, event)
 
-        ys, stats, results = jax.vmap(one, in_axes=(0, p_axis))(y0, p)
-        stats, result = first_failure(stats, results)
-        return jnp.moveaxis(ys, 0, 1), stats, result
+        return each_body(one, y0, p)
     jump = cast(Callable, model.jump)
     pb = jnp.broadcast_to(p, (y0.shape[0], p.shape[1]))
 
@@ -197,6 +191,23 @@ def diffrax_jumps(
     return jnp.concatenate([y0[None], ys]), stats, result
 
 
+def each_body(
+    solve_one: Callable, y0: Array, p: Array
+) -> tuple[Array, dict[str, Array], diffrax.RESULTS]:
+    """`solve_one(y (1, N), p (1, P)) -> (ys (T, 1, N), stats, result)` mapped over the bodies
+    of `y0 (B, N)` and `p (B or 1, P)` (`jax.vmap`: each body its own steps and events), joined
+    into `(ys (T, B, N), stats (B,) each, the batch's first failure)`."""
+    p_axis = 0 if p.shape[0] > 1 else None
+
+    def one(y, pb):
+        ys, stats, result = solve_one(y[None], pb[None] if p_axis == 0 else pb)
+        return ys[:, 0], stats, result
+
+    ys, stats, results = jax.vmap(one, in_axes=(0, p_axis))(y0, p)
+    stats, result = first_failure(stats, results)
+    return jnp.moveaxis(ys, 0, 1), stats, result
+
+
 def joined(blocks: list[Array], dtype) -> Array:
     """The parameters `(Bp, P)` from their blocks of columns `(Bp or 1, Pj)`."""
     rows = max((b.shape[0] for b in blocks), default=1)
@@ -223,18 +234,11 @@ def solve_components(
     keep one state for the batch (the same steps for every body)."""
     adaptive = not isinstance(options.stepsize_controller, diffrax.ConstantStepSize)
     if not single and y0.shape[0] > 1 and (adaptive or event is not None):
-        p_axis = 0 if p.shape[0] > 1 else None
 
         def one(y, pb):
-            pb = pb[None] if p_axis == 0 else pb
-            ys, stats, result = solve_components(
-                model, hoisted, ts, y[None], pb, c, options, True, event
-            )
-            return ys[:, 0], stats, result
+            return solve_components(model, hoisted, ts, y, pb, c, options, True, event)
 
-        ys, stats, results = jax.vmap(one, in_axes=(0, p_axis))(y0, p)
-        stats, result = first_failure(stats, results)
-        return jnp.moveaxis(ys, 0, 1), stats, result
+        return each_body(one, y0, p)
     field = model.field if hoisted is None else hoisted.components
     shared = p.shape[0] == 1
     comps = (lambda a: tuple(a[0])) if (single or shared) else (lambda a: tuple(a.T))

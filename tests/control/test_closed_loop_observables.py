@@ -55,6 +55,22 @@ def test_settling_time_is_a_numpy_loop(loop, tolerance):
         assert got[b] == want
 
 
+@pytest.mark.parametrize("tolerance", [np.radians(0.5), np.radians(5.0), np.pi])
+def test_settling_bracket_is_the_last_sample_outside_and_the_next(loop, tolerance):
+    err = np.asarray(obs.pointing_error(loop, Q_T))
+    before, after = (np.asarray(x) for x in obs.settling_bracket(loop, Q_T, tolerance))
+    ts = np.asarray(TS)
+    for b in range(3):
+        outside = np.flatnonzero(err[b] > tolerance)
+        if outside.size == 0:  # never outside: settled at the first sample
+            assert before[b] == -np.inf and after[b] == ts[0]
+        else:
+            i = outside[-1]
+            assert before[b] == ts[i]
+            assert after[b] == (ts[i + 1] if i + 1 < ts.size else np.inf)
+    np.testing.assert_array_equal(after, obs.settling_time(loop, Q_T, tolerance))
+
+
 def test_wheel_observables_are_numpy_maxima_and_counts(loop):
     np.testing.assert_array_equal(
         obs.peak_wheel_speed(loop), np.abs(np.asarray(loop.wheel_speed)).max(axis=(1, 2))
