@@ -75,19 +75,32 @@ def step(spec: Spec, p, c, t, h, y: tuple) -> tuple:
     group renormalised: `q ← u_q · (1 / sqrt(u_q · u_q))`, as in the C++ kernel (in float64 on
     NVIDIA GPUs, IEEE `sqrt.rn` and `div.rn`; `rsqrt` would lower to the approximate
     `rsqrt.approx.f64`), then the step-end map (`Hoisted.end_components`; None: none)."""
-    fn, end = spec.hoisted.components, spec.hoisted.end_components
+    ks = stages(spec, p, c, t, h, y)
+    u = [a + b for a, b in zip(y, _stages.increment(h, spec.tab.b_sol, ks), strict=True)]
+    return step_end(spec, p, c, t + h, u)
+
+
+def stages(spec: Spec, p, c, t, h, y: tuple) -> list:
+    """The stage rates `k_i = f(t + c_i h, y + h Σ_{l<i} a_il k_l)` of a step from `y` at `t`
+    (`_stages.stages`, every stage of the tableau of `spec`)."""
+    fn = spec.hoisted.components
 
     def field(ts, inc):
         z = y if inc is None else tuple(a + b for a, b in zip(y, inc, strict=True))
         return fn(ts, z, p, c)
 
-    ks = _stages.stages(spec.tab, t, h, field)
-    u = [a + b for a, b in zip(y, _stages.increment(h, spec.tab.b_sol, ks), strict=True)]
+    return _stages.stages(spec.tab, t, h, field)
+
+
+def step_end(spec: Spec, p, c, t, u: list) -> tuple:
+    """A step's end `u` at time `t`: each unit group divided by its norm, `u_q · (1 /
+    sqrt(u_q · u_q))`, then the step-end map, if any (`step`)."""
+    end = spec.hoisted.end_components
     for a, m in spec.unit:
         r = 1 / jnp.sqrt(sum(u[j] * u[j] for j in range(a, a + m)))
         for j in range(a, a + m):
             u[j] = u[j] * r
-    return tuple(u) if end is None else end(t + h, tuple(u), p, c)
+    return tuple(u) if end is None else end(t, tuple(u), p, c)
 
 
 def _kernel(spec: Spec, K: int, N: int, P: int, Pc: int, L: int, C: int):

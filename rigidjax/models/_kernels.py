@@ -1,6 +1,7 @@
 """The kernels as backends of `models.solve`: the CPU kernel at fixed steps (`cpu_backend`), the
-adaptive CPU kernel (`adaptive_backend`), the Pallas kernel (`gpu_backend`); each a `Backend`
-with the steps and failures of `solve_saved`."""
+adaptive CPU kernel (`adaptive_backend`), the Pallas kernel (`gpu_backend`) and the adaptive
+Pallas kernel (`adaptive_gpu_backend`); each a `Backend` with the steps and failures of
+`solve_saved`."""
 
 from __future__ import annotations
 
@@ -20,7 +21,7 @@ from .._integrate import (
     fixed_step_count,
 )
 from ..events import Event
-from ..kernels import adaptive, model_pallas
+from ..kernels import adaptive, model_pallas, model_pallas_adaptive
 from ..kernels import model as model_kernel
 from ..solvers.explicit_rk import ExplicitRK
 from . import _adaptive
@@ -131,6 +132,38 @@ def adaptive_backend(
         if event is not None:
             out = (*out, ev[0] if single else ev)
         return out, (stats, result)
+
+    return backend
+
+
+def adaptive_gpu_backend(solver: diffrax.AbstractSolver, ctl, problem: tuple, options) -> Backend:
+    """The adaptive Pallas kernel's solve (`kernels.model_pallas_adaptive`, each body its own
+    steps; in Pallas' interpreter where the backend is not a GPU: the tests); its derivatives
+    those of the same solve on the Diffrax path, whose per-body steps are the kernel's."""
+    model, hoisted, single, _, keep = problem
+    method = cast(type[diffrax.AbstractERK], type(solver))  # one of ADAPTIVE: `serves` checked
+    spec = model_pallas.Spec(hoisted, model.unit, method)
+    through_diffrax = diffrax_backend(
+        problem, options, diffrax.RecursiveCheckpointAdjoint(), values=True
+    )
+    interpret = jax.default_backend() != "gpu"
+
+    def forward(y0, p, c, ts):
+        return model_pallas_adaptive.run(spec, y0, _packed(p, c), ts, ctl, interpret=interpret)
+
+    def states(y0, p, c, ts):  # (B, T, N), as the kernel's
+        return jnp.moveaxis(through_diffrax(y0, (p,), c, ts)[0], 0, 1)
+
+    def bwd(args, g):
+        return jax.vjp(states, *args)[1](g[0])
+
+    run = jax.custom_vjp(forward)
+    run.defvjp(lambda *args: (forward(*args), args), bwd)
+
+    def backend(y0, blocks, c, ts):
+        ys, st = run(y0, joined(list(blocks), ts.dtype), c, ts)
+        stats, result = _adaptive.per_body(st, single, np.flatnonzero(keep))
+        return (jnp.moveaxis(ys, 1, 0), jnp.zeros((0, ys.shape[0], 0), ys.dtype)), (stats, result)
 
     return backend
 

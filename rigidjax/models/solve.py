@@ -24,7 +24,7 @@ from .._integrate import (
     raise_failure,
 )
 from .._modes import both_modes
-from ..kernels import adaptive, model_pallas
+from ..kernels import adaptive, model_pallas, model_pallas_adaptive
 from ..kernels import model as model_kernel
 from ..kernels._scalar import Unsupported
 from . import _adaptive
@@ -35,7 +35,13 @@ from ._diffrax_path import (
     joined,
     method_of,
 )
-from ._kernels import adaptive_backend, cpu_backend, gpu_backend, kernel_options
+from ._kernels import (
+    adaptive_backend,
+    adaptive_gpu_backend,
+    cpu_backend,
+    gpu_backend,
+    kernel_options,
+)
 from .model import Model, TreeModel, flat, leaves, ravel
 
 __all__ = ["BatchMaxRMS", "kernel_options", "method_of", "solve_model", "solve_tree"]
@@ -200,6 +206,10 @@ def _solve(
         backend = adaptive_backend(adaptive_kernel, ctl, problem, options, event)
     elif event is not None:
         backend = diffrax_backend(problem, options, event=event)
+    elif ctl is not None and hoisted is not None and jumps is None and keep.all():
+        method = method_of(options)
+        if model_pallas_adaptive.serves(hoisted, model.unit, method):
+            backend = adaptive_gpu_backend(method, ctl, problem, options)
     if (
         (event is None or adaptive_kernel is not None)
         and hoisted is not None

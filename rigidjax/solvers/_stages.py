@@ -15,7 +15,7 @@ import jax.tree_util as jtu
 import numpy as np
 from jaxtyping import Float, PyTree
 
-from .._custom_types import RealScalarLike
+from .._custom_types import RealLike, RealScalarLike
 from ._stateless import AbstractStatelessSolver
 
 
@@ -45,19 +45,20 @@ def lincomb(coeffs: Float[np.ndarray, " k"], trees: list[PyTree]) -> PyTree:
     return jtu.tree_map(comb, *[t for _, t in pairs])
 
 
-def increment(h: RealScalarLike, coeffs: Float[np.ndarray, " k"], ks: list[PyTree]) -> PyTree:
-    """h Σ c_k k_k."""
+def increment(h: RealLike, coeffs: Float[np.ndarray, " k"], ks: list[PyTree]) -> PyTree:
+    """h Σ c_k k_k (`h` a scalar, or one per body: the adaptive Pallas kernel's)."""
     return jtu.tree_map(lambda d: h * d, lincomb(coeffs, ks))
 
 
 def stages(
     tab: diffrax.ButcherTableau,
-    t0: RealScalarLike,
-    h: RealScalarLike,
-    stage: Callable[[RealScalarLike, PyTree | None], PyTree],
+    t0: RealLike,
+    h: RealLike,
+    stage: Callable[[RealLike, PyTree | None], PyTree],
 ) -> list[PyTree]:
     """Stage derivatives `k_i = stage(t0 + c_i h, h Σ_j a_ij k_j)`; the first stage gets `None`
-    as its (zero) increment."""
+    as its (zero) increment. `t0` and `h` are scalars, or one per body (the adaptive Pallas
+    kernel's, each body its own step)."""
     ks: list[PyTree] = []
     for i in range(tab.num_stages):
         if i == 0:

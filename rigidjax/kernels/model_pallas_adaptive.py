@@ -1,0 +1,268 @@
+"""Any model's ODE `ẏ = f(t, y, p)` at adaptive steps of an embedded Runge–Kutta pair (Bosh3,
+Tsit5, Dopri5, Dopri8) as one Pallas kernel, each body its own step size: the GPU counterpart of
+the adaptive CPU kernel (`model_adaptive.h`), step for step Diffrax's `PIDController` on one
+body (its RMS error norm, coefficients, initial-step heuristic and the clipping of the last step
+to each output time), so that a body's trajectory is the same alone, in any batch, under
+`jax.vmap`, on the CPU kernel and on the Diffrax path (to rounding).
+
+A program takes a block of `model_pallas.BLOCK` bodies, one per GPU thread, and keeps their
+states in registers over all intervals. Within an output interval the block loops while any of
+its bodies has steps left; each loop is one attempt of every body still integrating, whose
+results a finished body ignores (its time, state and controller are its own, masked). So a
+block costs its slowest body's attempts, and a batch each of its blocks' own:
+
+    attempt   u = y + h Σ b_l k_l (unit groups normalised, then the step-end map),
+              err = h Σ e_l k_l,  ε = RMS_j err_j / (atol + rtol max(|y_j|, |u_j|))
+    accept    ε < 1;  h' = h · clip(safety ε^−β1 ε_prev^−β2 ε_prev2^−β3,
+              accepted: [1, factormax], rejected: [factormin, safety]), min(h', dtmax)
+    the end   a proposal within 100 ulp of the interval's end t1 becomes t1 (accepted) or
+              halves the rest (rejected)
+    intervals from the previous interval's mean accepted step (the first from dt0 or the
+              heuristic of Hairer, Nørsett & Wanner, *Solving ODEs I*, II.4); at most
+              max_steps attempts each; a non-finite state is not integrated further
+
+(Söderlind, "Digital filters in adaptive time-stepping", ACM TOMS 29, 2003, in Diffrax's form.)
+The controller's values are `kernels.adaptive.CONTROLS`. Derivatives go through the Diffrax
+path (the caller's custom rule), as the CPU kernel's do for output times and events.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import cast
+
+import diffrax
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.experimental import pallas as pl
+from jax.experimental.pallas import triton as pltriton
+from jaxtyping import Array, Float, Int
+
+from ..solvers import _stages
+from . import adaptive, tableau
+from .model import Hoisted
+from .model_pallas import (
+    BLOCK,
+    Spec,
+    Unit,
+    _compare,
+    _joining,
+    _padded,
+    _parameters,
+    _sample,
+    stages,
+    step_end,
+)
+
+
+def floors(ts: Float[Array, " T"]) -> Float[Array, " K"]:
+    """Each interval's end less 100 ulp (Diffrax's `t1_clip_floor`, `model_adaptive.h`'s
+    `Below`): a proposed step end beyond it is clipped to the end."""
+    return jax.lax.fori_loop(0, 100, lambda _, b: jnp.nextafter(b, -jnp.inf), ts[1:])
+
+
+def _rms(terms: list) -> Array:
+    s = terms[0] * terms[0]
+    for x in terms[1:]:
+        s = s + x * x
+    return jnp.sqrt(s / len(terms))
+
+
+def attempt(spec: Spec, p, c, t, h, y: tuple, rtol, atol) -> tuple[tuple, Array]:
+    """One attempt of size `h` from `y` at `t`: its end (unit groups normalised, the step-end
+    map) and its scaled error (RMS over the components; a NaN error is ∞, a NaN end counts as
+    `y`)."""
+    ks = stages(spec, p, c, t, h, y)
+    inc = _stages.increment(h, spec.tab.b_sol, ks)
+    u = step_end(spec, p, c, t + h, [a + b for a, b in zip(y, inc, strict=True)])
+    err = _stages.increment(h, np.asarray(spec.tab.b_error), ks)
+    nan = functools.reduce(jnp.logical_or, [jnp.isnan(x) for x in u])
+    q = [
+        jnp.where(jnp.isnan(e), jnp.inf, e)
+        / (atol + jnp.maximum(jnp.abs(a), jnp.abs(jnp.where(nan, a, b))) * rtol)
+        for e, a, b in zip(err, y, u, strict=True)
+    ]
+    return u, _rms(q)
+
+
+def initial_step(spec: Spec, p, c, t, y: tuple, rtol, atol, inv_order) -> Array:
+    """Diffrax's `_select_initial_step` (Hairer, Nørsett & Wanner, II.4) from `y` at `t`."""
+    fn = spec.hoisted.components
+    f0 = fn(t, y, p, c)
+    scale = [atol + jnp.abs(a) * rtol for a in y]
+    d0 = _rms([a / s for a, s in zip(y, scale, strict=True)])
+    d1 = _rms([f / s for f, s in zip(f0, scale, strict=True)])
+    h0 = jnp.where((d0 < 1e-5) | (d1 < 1e-5), 1e-6, 0.01 * (d0 / d1))
+    f1 = fn(t + h0, tuple(a + h0 * f for a, f in zip(y, f0, strict=True)), p, c)
+    d2 = _rms([(b - a) / s for a, b, s in zip(f0, f1, scale, strict=True)]) / h0
+    most = jnp.maximum(d1, d2)
+    h1 = jnp.where(most <= 1e-15, jnp.maximum(1e-6, h0 * 1e-3), jnp.power(0.01 / most, inv_order))
+    return jnp.minimum(100 * h0, h1)
+
+
+def _power(x, e):
+    """`x^e`, or 1 for a coefficient 0 (as Diffrax skips it)."""
+    return jnp.where(e == 0, 1, jnp.power(x, e))
+
+
+def _kernel(spec: Spec, K: int, N: int, P: int, Pc: int):
+    """The kernel of one block over K output intervals: the states at the K + 1 output times,
+    and per body its attempts, accepted and rejected steps, output times reached and result
+    (0 successful, 1 max_steps reached, 2 non-finite), as the CPU kernel's."""
+
+    def kernel(ts_ref, floor_ref, ctl_ref, x0_ref, p_ref, out_ref, st_ref):
+        rtol, atol, safety, fmin, fmax, dtmax, dt0, c1, c2, c3, inv_order = (
+            ctl_ref[i] for i in range(11)
+        )
+        max_steps = ctl_ref[11].astype(jnp.int32)
+        p = tuple(p_ref[j] for j in range(P))
+        c = tuple(p_ref[P + j] for j in range(Pc))
+        y = tuple(x0_ref[j] for j in range(N))
+        for j in range(N):
+            out_ref[0, j] = y[j]
+        zero, none = jnp.zeros_like(y[0]), jnp.zeros(y[0].shape, jnp.int32)
+        a = ts_ref[0]
+        guess = (a + jnp.minimum(initial_step(spec, p, c, a, y, rtol, atol, inv_order), dtmax)) - a
+        h = jnp.where(jnp.isnan(dt0), guess, dt0)
+
+        def finite(y):
+            return functools.reduce(jnp.logical_and, [jnp.isfinite(x) for x in y])
+
+        def interval(k, carry):
+            y, h, attempts, accepted, valid, result = carry
+            a, floor = ts_ref[k], floor_ref[k]
+            alive = finite(y)
+            b = jnp.where(alive, ts_ref[k + 1], a)
+
+            def going(tprev, n):
+                return (tprev < b) & (n < max_steps)
+
+            def more(s):
+                return jnp.max(going(s[1], s[5]).astype(jnp.int32)) > 0
+
+            def one(s):
+                y, tprev, tnext, inv1, inv2, n, taken = s
+                go = going(tprev, n)
+                size = tnext - tprev
+                u, eps = attempt(spec, p, c, tprev, size, y, rtol, atol)
+                ok = eps < 1
+                inv = 1 / eps
+                f = safety * _power(inv, c1) * _power(inv1, c2) * _power(inv2, c3)
+                lo, hi = jnp.where(ok, 1, fmin), jnp.where(ok, fmax, safety)
+                dt = jnp.minimum(size * jnp.minimum(jnp.maximum(f, lo), hi), dtmax)
+                inv = jnp.where((inv == 0) | jnp.isinf(inv), 1, inv)
+                t0 = jnp.where(ok, tnext, tprev)
+                t1 = t0 + dt
+                last = jnp.minimum(t0, b)
+                proposed = jnp.where(t1 > floor, jnp.where(ok, b, last + 0.5 * (b - last)), t1)
+                take = go & ok
+                return (
+                    tuple(jnp.where(take, new, old) for new, old in zip(u, y, strict=True)),
+                    jnp.where(go, last, tprev),
+                    jnp.where(go, proposed, tnext),
+                    jnp.where(take, inv, inv1),
+                    jnp.where(take, inv1, inv2),
+                    n + go.astype(jnp.int32),
+                    taken + take.astype(jnp.int32),
+                )
+
+            start = (y, a + zero, jnp.minimum(a + jnp.minimum(h, dtmax), b), zero + 1, zero + 1)
+            y, tprev, _, _, _, n, taken = jax.lax.while_loop(more, one, (*start, none, none))
+            code = jnp.where(tprev < b, 1, jnp.where(finite(y), 0, 2))
+            h = jnp.where(alive, (b - a) / jnp.maximum(taken, 1).astype(h.dtype), h)
+            result = jnp.where(result == 0, code, result)
+            for j in range(N):
+                out_ref[k + 1, j] = y[j]
+            return y, h, attempts + n, accepted + taken, valid + (result == 0), result
+
+        carry = (y, h, none, none, none + 1, none)
+        _, _, attempts, accepted, valid, result = jax.lax.fori_loop(0, K, interval, carry)
+        for i, x in enumerate((attempts, accepted, attempts - accepted, valid, result)):
+            st_ref[i] = x
+
+    return kernel
+
+
+def run(
+    spec: Spec,
+    y0: Float[Array, "B N"],
+    p: Float[Array, "P Bc"],
+    ts: Float[Array, " T"],
+    ctl: Float[np.ndarray, " 14"] | Float[Array, " 14"],
+    *,
+    interpret: bool = False,
+) -> tuple[Float[Array, "B T N"], Int[Array, "B 5"]]:
+    """The states `(B, T, N)` of B bodies at the output times `ts` under the controller `ctl`
+    (`kernels.adaptive.controls`), and per body `(B, 5)`: attempts, accepted and rejected
+    steps, the leading output times reached and the result (0 successful, 1 max_steps
+    reached, 2 non-finite). `p (P + Pc, B or 1)` as `model_pallas.run`; `interpret=True` runs
+    Pallas' interpreter (any backend: the CPU tests). Under `jax.vmap` over the bodies the
+    mapped bodies join one kernel call."""
+    call = functools.partial(_blocks, spec, interpret=interpret)
+    args = (ts, floors(ts), jnp.asarray(ctl, ts.dtype))
+    return cast(tuple, _joining(call, states=1, out_body_axes=(0, 0))(y0, p, *args))
+
+
+def _blocks(spec: Spec, *arrays: Array, interpret: bool) -> tuple[Array, Array]:
+    """`run` of one batch (`arrays`: its `y0, p, ts, floors, ctl`): the `pallas_call` over its
+    blocks."""
+    y0, p, ts, fl, ctl = arrays
+    B, N, T, dtype = y0.shape[0], y0.shape[1], ts.shape[0], y0.dtype
+    P = spec.hoisted.p
+    Bp = -(-B // BLOCK) * BLOCK
+    pp = _parameters(p, B, Bp, dtype)
+    ys, st = pl.pallas_call(
+        _kernel(spec, T - 1, N, P, p.shape[0] - P),
+        out_shape=[
+            jax.ShapeDtypeStruct((T, N, Bp), dtype),
+            jax.ShapeDtypeStruct((5, Bp), jnp.int32),
+        ],
+        grid=(Bp // BLOCK,),
+        in_specs=[
+            pl.BlockSpec((T,), lambda i: (0,)),
+            pl.BlockSpec((T - 1,), lambda i: (0,)),
+            pl.BlockSpec(ctl.shape, lambda i: (0,)),
+            pl.BlockSpec((N, BLOCK), lambda i: (0, i)),
+            pl.BlockSpec((pp.shape[0], BLOCK), lambda i: (0, i)),
+        ],
+        out_specs=[
+            pl.BlockSpec((T, N, BLOCK), lambda i: (0, 0, i)),
+            pl.BlockSpec((5, BLOCK), lambda i: (0, i)),
+        ],
+        compiler_params=pltriton.CompilerParams(num_warps=BLOCK // 32, num_stages=1),
+        interpret=interpret,
+    )(ts.astype(dtype), fl.astype(dtype), ctl.astype(dtype), _padded(y0, Bp), pp)
+    return jnp.moveaxis(ys[..., :B], -1, 0), st[:, :B].T
+
+
+def serves(hoisted: Hoisted, unit: Unit, solver: diffrax.AbstractSolver) -> bool:
+    """Whether the kernel integrates `hoisted` with `solver` (one of `tableau.ADAPTIVE`) on the
+    default backend: a GPU, float32 or float64, and the kernel checked there (once per model,
+    pair and element type: a small batch compiled must give the interpreter's states and
+    counts, else one warning and the Diffrax path)."""
+    return (
+        type(solver) in tableau.ADAPTIVE
+        and jax.default_backend() == "gpu"
+        and hoisted.dtype.name in tableau.DTYPES
+        and _checked(Spec(hoisted, unit, cast(type[diffrax.AbstractERK], type(solver))))
+    )
+
+
+def sample_controls(spec: Spec) -> np.ndarray:
+    """The checks' controller: Diffrax's `PIDController` at rtol = atol = 1e-6, the initial
+    step by the heuristic, at most 1000 steps an interval."""
+    pid = diffrax.PIDController(rtol=1e-6, atol=1e-6)
+    ctl = adaptive.controls(pid, spec.method(), None, 1000, spec.hoisted.dtype)
+    assert ctl is not None
+    return ctl
+
+
+@functools.cache
+def _checked(spec: Spec) -> bool:
+    """Whether the compiled kernel runs here and agrees with Pallas' interpreter on two blocks
+    of bodies (`model_pallas._sample`) over three intervals, one of them empty."""
+    y, p, _ = _sample(spec)
+    ts = np.array([0.0, 0.03, 0.03, 0.3], y.dtype)
+    fn = functools.partial(run, spec)
+    return _compare("adaptive kernel", spec, fn, (y, p, ts, sample_controls(spec)))

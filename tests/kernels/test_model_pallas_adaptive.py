@@ -1,0 +1,220 @@
+"""The adaptive Pallas kernel (the GPU fast path at a tolerance: each body its own steps of an
+embedded pair under Diffrax's PIDController), run in Pallas' interpreter on the CPU, against the
+adaptive CPU kernel and the Diffrax path of one body mapped over the bodies (`ExplicitRK`, which
+never takes a kernel); its wiring into `simulate` with the backend's choice forced to it; and
+its lowering to Triton for CUDA, on a machine without a GPU."""
+
+import functools
+import re
+import warnings
+
+import diffrax
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import rigidjax as rj
+from rigidjax.kernels import adaptive
+from rigidjax.kernels import model as model_kernel
+from rigidjax.kernels import model_pallas as pk
+from rigidjax.kernels import model_pallas_adaptive as pa
+from rigidjax.mechanics._rigid_model import moments_params, rigid_body_model
+from rigidjax.solvers import ExplicitRK
+
+TS = jnp.asarray([0.0, 0.5, 0.7, 2.0])
+TOL = dict(rtol=1e-8, atol=1e-8)
+E_Z = jnp.array([0.0, 0.0, 1.0])
+
+
+def _bodies(B, seed=0):
+    """Random attitudes, |Ω| log-uniform in 0.14–2.7 rad/s (spread step sizes), per-body
+    moments."""
+    rng = np.random.default_rng(seed)
+    q = rng.normal(size=(B, 4))
+    q /= np.linalg.norm(q, axis=1)[:, None]
+    w = rng.normal(size=(B, 3)) * np.exp(rng.uniform(-2, 1, size=(B, 1)))
+    return jnp.asarray(rng.uniform(1.5, 2.5, size=(B, 3))), jnp.asarray(w), jnp.asarray(q)
+
+
+def _run(method, I, w, q, ts=TS, max_steps=4096, dtype=jnp.float64):
+    model = rigid_body_model(None)
+    hoisted = model_kernel.hoist(model.field, model.size, model.params, dtype)
+    spec = pk.Spec(hoisted, model.unit, method)
+    ctl = adaptive.controls(diffrax.PIDController(**TOL), method(), None, max_steps, dtype)
+    assert ctl is not None
+    y0 = jnp.concatenate([w, q], axis=1).astype(dtype)
+    return pa.run(spec, y0, moments_params(I).T.astype(dtype), ts, ctl, interpret=True)
+
+
+@pytest.mark.parametrize("method", [diffrax.Tsit5, diffrax.Dopri5], ids=lambda m: m.__name__)
+def test_kernel_equals_cpu_kernel_and_diffrax_path(method):
+    """Two blocks of bodies (one partial, padded) with spread rates and moments: each body's
+    states and step counts those of the adaptive CPU kernel and of the Diffrax path (the same
+    steps, to rounding: measured 4.4e-15), and a body alone the same bits as in the batch."""
+    B = pk.BLOCK + 5
+    I, w, q = _bodies(B)
+    ys, st = _run(method, I, w, q)
+    assert ys.shape == (B, 4, 7) and st.shape == (B, 5)
+    kw = dict(solver=method(), **TOL)
+    cpu = rj.simulate(rj.RigidBody(I), w, q, TS, **kw)
+    path = rj.simulate(rj.RigidBody(I), w, q, TS, **{**kw, "solver": ExplicitRK(method())})
+    for want in (cpu, path):
+        np.testing.assert_allclose(ys[..., :3], want.omega, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(ys[..., 3:], want.quat, rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(st[:, 0], want.stats["num_steps"])
+        np.testing.assert_array_equal(st[:, 1], want.stats["num_accepted_steps"])
+    assert np.ptp(np.asarray(st[:, 1])) > 5  # the bodies' own step counts, not the batch's
+    np.testing.assert_array_equal(st[:, 3:], np.tile([4, 0], (B, 1)))
+    alone, st_alone = _run(method, I[B - 1 :], w[B - 1 :], q[B - 1 :])
+    np.testing.assert_array_equal(alone[0], ys[B - 1])
+    np.testing.assert_array_equal(st_alone[0], st[B - 1])
+
+
+def test_float32_max_steps_and_nonfinite():
+    """float32 within its rounding of float64; `max_steps` reached per body and interval (the
+    later output times not reached, the body's code 1); a non-finite initial state: code 2,
+    not integrated (its attempts 0)."""
+    I, w, q = _bodies(3, seed=1)
+    y64, _ = _run(diffrax.Tsit5, I, w, q)
+    y32, st32 = _run(diffrax.Tsit5, I, w, q, dtype=jnp.float32)
+    assert y32.dtype == jnp.float32 and np.all(st32[:, 4] == 0)
+    np.testing.assert_allclose(y32, y64, rtol=0, atol=2e-5)
+    fast = jnp.asarray([[0.1, 0.2, 0.3], [5.0, -4.0, 3.0], [np.nan, 0.0, 0.0]])
+    _, st = _run(diffrax.Tsit5, I, fast, q, max_steps=12)
+    assert st[0, 4] == 0 and st[0, 3] == 4  # slow: done within 12 an interval
+    assert st[1, 4] == 1 and st[1, 3] < 4 and st[1, 0] >= 12  # fast: max_steps reached
+    assert st[2, 4] == 2 and st[2, 3] == 1 and st[2, 0] == 0
+
+
+@pytest.fixture
+def on_gpu_adaptive(monkeypatch):
+    """`simulate` at a tolerance as on a GPU: no CPU kernel, and the adaptive Pallas kernel
+    served for its pairs (run in Pallas' interpreter here)."""
+    monkeypatch.setattr(adaptive, "build", lambda *args, **kwargs: None)
+    monkeypatch.setattr(
+        pa, "serves", lambda hoisted, unit, solver: type(solver) in pa.tableau.ADAPTIVE
+    )
+
+
+def _torque(gain):
+    def torque(t, w, q):
+        c = rj.quat.to_matrix(q).T @ E_Z
+        return gain * jnp.cross(c, jnp.array([1.0, 2.0, 3.0]) * c) - 0.1 * jnp.sin(t) * w
+
+    return torque
+
+
+@pytest.mark.slow  # ~25 s: the interpreter, the gradients' compiles
+def test_torque_through_adaptive_gpu_kernel(on_gpu_adaptive):
+    """`simulate` at a tolerance with a torque (attitude, traced gain, time-dependent) takes the
+    adaptive Pallas kernel: the Diffrax path's trajectory and per-body step counts; a body under
+    `jax.vmap` the batch's; reverse- and forward-mode derivatives w.r.t. the moments, gain,
+    initial rates and output times the Diffrax path's."""
+    I, w, q = _bodies(4, seed=2)
+
+    def run(I, g, w, ts, solver):
+        return rj.simulate(rj.RigidBody(I), w, q, ts, torque=_torque(g), solver=solver, **TOL)
+
+    assert "pallas_call" in str(jax.make_jaxpr(lambda g: run(I, g, w, TS, None).omega)(0.3))
+    fast, slow = run(I, 0.3, w, TS, None), run(I, 0.3, w, TS, ExplicitRK(diffrax.Tsit5()))
+    np.testing.assert_allclose(fast.omega, slow.omega, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(fast.quat, slow.quat, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(fast.stats["num_steps"], slow.stats["num_steps"])
+    mapped = jax.vmap(lambda I, w, q: rj.simulate(rj.RigidBody(I), w, q, TS, **TOL).omega)
+    batch = rj.simulate(rj.RigidBody(I), w, q, TS, **TOL).omega
+    np.testing.assert_allclose(mapped(I, w, q), batch, rtol=0, atol=1e-15)
+
+    def loss(I, g, w, ts, solver):
+        tr = run(I, g, w, ts, solver)
+        return jnp.sum(tr.omega[:, 1:] ** 2) + jnp.sum(tr.quat[:, -1, 1:] * jnp.arange(1.0, 4.0))
+
+    args = (I, jnp.asarray(0.3), w, TS)
+    grads = jax.jit(jax.grad(loss, argnums=(0, 1, 2, 3)), static_argnums=4)
+    want = grads(*args, ExplicitRK(diffrax.Tsit5()))
+    for got, ref in zip(grads(*args, None), want, strict=True):
+        np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-12)
+    jf = jax.jacfwd(lambda g: loss(I, g, w, TS, None))(0.3)
+    np.testing.assert_allclose(jf, want[1], rtol=1e-9)
+
+
+def test_simulate_reports_max_steps(on_gpu_adaptive):
+    """A body that needs more attempts than `max_steps` is the same clear error as on the
+    Diffrax path."""
+    I, w, q = _bodies(2, seed=3)
+    with pytest.raises(rj.IntegrationError, match="max_steps"):
+        rj.simulate(rj.RigidBody(I), 3 * w, q, TS, max_steps=5, **TOL)
+
+
+def test_served_only_where_checked(monkeypatch):
+    """Not on the CPU; on a GPU only after a small batch, compiled, gave the interpreter's
+    states and counts: a kernel that fails to lower, or gives other numbers, warns once and is
+    not served."""
+    model = rigid_body_model(None)
+    hoisted = model_kernel.hoist(model.field, model.size, model.params, jnp.float64)
+    spec = pk.Spec(hoisted, model.unit, diffrax.Tsit5)
+    assert not pa.serves(hoisted, model.unit, diffrax.Tsit5())
+    assert not pa.serves(hoisted, model.unit, rj.RK4())
+    with pytest.warns(RuntimeWarning, match="Pallas adaptive kernel for Tsit5 in float64"):
+        assert not pa._checked.__wrapped__(spec)  # Pallas can't compile for CPU
+    run = pa.run
+
+    def interpreted(*args, interpret=False, shift=0.0):
+        ys, st = run(*args, interpret=True)
+        return ys + (0.0 if interpret else shift), st
+
+    monkeypatch.setattr(pa, "run", interpreted)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert pa._checked.__wrapped__(spec)
+    monkeypatch.setattr(pa, "run", lambda *a, **k: interpreted(*a, **k, shift=1e-6))
+    with pytest.warns(RuntimeWarning, match="differ from Pallas' interpreter"):
+        assert not pa._checked.__wrapped__(spec)
+
+
+@pytest.fixture
+def triton_modules(monkeypatch):
+    """The text of each Triton module that Pallas builds (a private JAX function wrapped:
+    skipped where this JAX lays it out otherwise)."""
+    try:
+        from jax._src.pallas.triton import lowering
+    except ImportError as e:
+        pytest.skip(f"this JAX has no Pallas Triton lowering where expected: {e}")
+    modules = []
+    lower = lowering.lower_jaxpr_to_triton_module
+
+    def lower_and_keep(*args, **kwargs):
+        result = lower(*args, **kwargs)
+        modules.append(result.module.operation.get_asm())
+        return result
+
+    monkeypatch.setattr(lowering, "lower_jaxpr_to_triton_module", lower_and_keep)
+    return modules
+
+
+@pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
+def test_kernel_lowers_to_triton(triton_modules, dtype):
+    """Lowered for CUDA on a machine without a GPU, the adaptive kernel of an attitude torque
+    takes Pallas' Triton backend, whose module Triton takes: one Triton call per batch, also
+    under `jax.vmap` (a sweep), with the intervals' loop and, inside it, the attempts' loop
+    (`scf.while` on the block's reduction), `pow` of the controller and `1 / sqrt`. What
+    remains untested without a GPU, Triton's compile and the numbers, `serves` checks on the
+    GPU before first use."""
+    model = rigid_body_model(_torque(0.3))
+    hoisted = model_kernel.hoist(model.field, model.size, model.params, dtype)
+    spec = pk.Spec(hoisted, model.unit, diffrax.Tsit5)
+    _, w, q = _bodies(pk.BLOCK + 5)
+    y0 = jnp.concatenate([w, q], axis=1).astype(dtype)
+    p = moments_params(jnp.ones(3, dtype))[:, None]
+    ctl = adaptive.controls(diffrax.PIDController(**TOL), diffrax.Tsit5(), None, 100, dtype)
+    run = functools.partial(pa.run, spec, ctl=ctl)
+    vrun = jax.vmap(run, in_axes=(0, None, None))
+    for f, y in ((run, y0), (vrun, jnp.stack([y0, y0]))):
+        text = jax.jit(f).trace(y, p, TS.astype(dtype)).lower(lowering_platforms=("cuda",))
+        assert text.as_text().count("__gpu$xla.gpu.triton") == 1
+    assert len(triton_modules) == 2
+    for module in triton_modules:
+        symbols = set(re.findall(r'symbol = "(\w*)"', module))
+        assert symbols & {"__nv_pow", "__nv_powf"} and symbols & {"__nv_sqrt", "__nv_sqrtf"}
+        assert not any("rsqrt" in s for s in symbols)
+        assert module.count("scf.for") == 1 and module.count("scf.while") == 1
