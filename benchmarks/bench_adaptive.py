@@ -152,8 +152,9 @@ def errors(ys: np.ndarray, ref: np.ndarray) -> dict:
     return dict(omega=float(np.max(dw)), quat_angle=float(np.max(angle)))
 
 
-def jax_calls(model: str, ts):
-    """(batch, vmapped) forwards of (I, w, q) → (ys (B, T, 7), accepted, rejected) at TOL."""
+def jax_calls(model: str, ts, solver=None):
+    """(batch, vmapped) forwards of (I, w, q) → (ys (B, T, 7), accepted, rejected) at TOL
+    (`solver`: simulate's default, Tsit5, where None)."""
     import jax
     import jax.numpy as jnp
 
@@ -162,7 +163,9 @@ def jax_calls(model: str, ts):
     torque = None if model == "free_body" else attitude_torque()
 
     def call(I, w, q):  # a batch (I (B, 3), ...), or one body under `jax.vmap`
-        tr = rj.simulate(rj.RigidBody(I), w, q, ts, torque=torque, rtol=TOL, atol=TOL)
+        tr = rj.simulate(
+            rj.RigidBody(I), w, q, ts, torque=torque, solver=solver, rtol=TOL, atol=TOL
+        )
         st = tr.stats
         return (
             jnp.concatenate([tr.omega, tr.quat], -1),

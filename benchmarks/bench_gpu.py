@@ -20,10 +20,18 @@ Parts (one run, on the default JAX backend: a GPU)
               and the same steps through Diffrax, whose gradients it must equal.
     first     The first forward call of the gravity-gradient model (trace, the kernel's one-time
               check against Pallas' interpreter, Triton compile, run), in this process.
+    adaptive  At a tolerance, bench_adaptive.py's problem (|Ω0| log-uniform in 0.1–3 rad/s,
+              t ∈ [0, 20], 21 output times, rtol = atol = 1e-8; free body and attitude torque)
+              on --adaptive-bodies bodies: ``simulate`` (on a GPU the adaptive Pallas kernel,
+              each body its own steps; ``pallas`` records whether it was served) and
+              ``jax.vmap(simulate)`` against the Diffrax path (``solver=ExplicitRK(Tsit5())``,
+              each body its own steps through XLA): ``speedup_over_diffrax_path`` (≥ 2 wanted
+              at 1e6 bodies) and ``max_diff_vs_diffrax_path`` (the same steps: ~1e-12).
 
 Usage
     python benchmarks/bench_gpu.py [--bodies 1000000] [--steps 1000] [--repeats 5]
-        [--parts first,speed,gradient] [--models all] [--out benchmarks/results/gpu.json]
+        [--parts first,speed,gradient,adaptive] [--models all] [--adaptive-bodies 1000000]
+        [--out benchmarks/results/gpu.json]
 """
 
 from __future__ import annotations
@@ -37,6 +45,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _c_reference import CudaReference  # noqa: E402
 from _harness import Log, finish, interleaved, machine_info, measure, parser  # noqa: E402
+from bench_adaptive import MODELS, N_OUT, T_END, TOL, inputs, jax_calls  # noqa: E402
 from bench_models import models  # noqa: E402
 
 CUDA_MODELS = ("free_body", "damping", "gravity_gradient", "heavy_top", "sixdof", "satellite",
@@ -191,11 +200,54 @@ def first_call(log) -> dict:
     return dict(first_forward_s=first, bodies=B, steps=200)
 
 
+def adaptive(B: int, repeats: int, log) -> dict:
+    """The adaptive part (module docstring): per model, seconds, steps per body and the
+    difference from the Diffrax path's states."""
+    import diffrax
+    import jax
+    import jax.numpy as jnp
+
+    import rigidjax as rj
+
+    x = inputs(B)
+    ts = jnp.linspace(0.0, T_END, N_OUT)
+    args = tuple(jnp.asarray(x[k]) for k in ("I", "w", "q"))
+    out: dict = dict(bodies=B, rtol=TOL, atol=TOL, output_times=N_OUT, t_end=T_END)
+    for model in MODELS:
+        batch, vmapped = jax_calls(model, ts)
+        path = jax_calls(model, ts, rj.ExplicitRK(diffrax.Tsit5()))[0]
+        served = "pallas_call" in str(jax.make_jaxpr(batch)(*args))
+        runs = {"simulate": batch, "vmap_simulate": vmapped, "diffrax_path": path}
+        timings = {name: measure(fn, *args, repeats=1) for name, fn in runs.items()}
+        interleaved(timings.values(), repeats - 1)
+        base = timings["diffrax_path"]
+        ref = np.asarray(base.output[0])
+        rows: dict = {}
+        for name, t in timings.items():
+            ys, acc, rej = (np.asarray(a) for a in t.output)
+            rows[name] = dict(
+                seconds=t.best,
+                all_seconds=t.times,
+                accepted_steps_mean=float(np.mean(acc)),
+                accepted_steps_max=int(np.max(acc)),
+                rejected_steps_mean=float(np.mean(rej)),
+                speedup_over_diffrax_path=base.best / t.best,
+                max_diff_vs_diffrax_path=float(np.max(np.abs(ys - ref))),
+            )
+        out[model] = dict(pallas=served, **rows)
+        log(
+            f"adaptive {model} (Pallas served: {served}): "
+            + ", ".join(f"{k} {v['seconds']:.3f} s" for k, v in rows.items())
+        )
+    return out
+
+
 def main(argv=None) -> None:
     p = parser(__doc__, "gpu.json", repeats=5)
     p.add_argument("--bodies", type=int, default=1_000_000)
     p.add_argument("--steps", type=int, default=1000)
-    p.add_argument("--parts", default="first,speed,gradient", help="comma-separated")
+    p.add_argument("--parts", default="first,speed,gradient,adaptive", help="comma-separated")
+    p.add_argument("--adaptive-bodies", type=int, default=1_000_000)
     p.add_argument("--models", default="all", help="comma-separated (speed, gradient)")
     args = p.parse_args(argv)
     import jax
@@ -213,6 +265,8 @@ def main(argv=None) -> None:
         out["speed"] = speed(args.bodies, args.steps, args.repeats, log, args.models)[0]
     if "gradient" in parts:
         out["gradient"] = gradient(args.bodies, args.steps, args.repeats, log, args.models)
+    if "adaptive" in parts:
+        out["adaptive"] = adaptive(args.adaptive_bodies, args.repeats, log)
     out["load_average_start"] = log.load_start
     finish(out, args.out, log.t0)
 
