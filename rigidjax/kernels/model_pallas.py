@@ -37,7 +37,7 @@ from jax.experimental.pallas import triton as pltriton
 from jaxtyping import Array, Float, Int
 
 from ..solvers import _stages
-from .model import Hoisted
+from .model import Hoisted, Schedule
 from .tableau import DTYPES, METHODS
 
 BLOCK = 128
@@ -49,17 +49,25 @@ Steps = tuple[Int[Array, " K"], Float[Array, " K"], Float[Array, " K"]]
 
 
 class Spec:
-    """What a kernel integrates: a model (`Hoisted`), its unit groups and the method (a type in
-    `tableau.METHODS`). Equal (and hashed, as the checks' caches key them) by the model's
-    jaxprs' text, sizes, unit groups, element type and method: the lowering depends on nothing
+    """What a kernel integrates: a model (`Hoisted`), its unit groups, the method (a type in
+    `tableau.METHODS`) and, for a model with a jump map, the components `(R0, NR)` that each
+    jump records. Equal (and hashed, as the checks' caches key them) by the model's jaxprs'
+    text, sizes, unit groups, element type, method and records: the lowering depends on nothing
     else (the constants' values are the checks' random ones)."""
 
-    def __init__(self, hoisted: Hoisted, unit: Unit, method: type[diffrax.AbstractERK]):
-        self.hoisted, self.unit, self.method = hoisted, unit, method
+    def __init__(
+        self,
+        hoisted: Hoisted,
+        unit: Unit,
+        method: type[diffrax.AbstractERK],
+        record: tuple[int, int] = (0, 0),
+    ):
+        self.hoisted, self.unit, self.method, self.record = hoisted, unit, method, record
         self.tab = _stages.tableau_of(method())
         end = str(hoisted.jaxpr(hoisted.end_fn)) if hoisted.ends else None
-        self.text = (str(hoisted.forward), end, hoisted.n, hoisted.p, hoisted.c.shape, unit)
-        self.text += (hoisted.dtype.name, method)
+        jump = str(hoisted.jaxpr(hoisted.jump_fn)) if hoisted.jumps else None
+        self.text = (str(hoisted.forward), end, jump, hoisted.n, hoisted.p, hoisted.c.shape, unit)
+        self.text += (hoisted.dtype.name, method, record)
 
     def __hash__(self) -> int:
         return hash(self.text)
@@ -107,29 +115,47 @@ def _kernel(spec: Spec, K: int, N: int, P: int, Pc: int, L: int, C: int):
     """The kernel of one block: `K` intervals of `n[k]` steps of size `h[k]` from `t0[k]`, the
     state written at their ends; with `L > 0` also the state every L steps of each interval
     into its C slots of `ck_ref` (the reverse mode's checkpoints: the steps and their order
-    unchanged; every slot written, so that the compiled kernel's output is defined)."""
+    unchanged; every slot written, so that the compiled kernel's output is defined).
+    A model with a jump map takes `jump (K,)` and `save (K + 1,)` (`model.Schedule`): interval
+    k starts with the jump map where `jump[k] ≠ 0`, whose recorded components go to slot
+    `jump[k]` of `rec_ref`, and the state at time k goes to slot `save[k]` of `out_ref` (slot 0
+    of each: a dummy, written where nothing is kept)."""
+    R0, NR = spec.record
 
-    def kernel(n_ref, h_ref, t0_ref, x0_ref, p_ref, out_ref, *ck_ref):
+    def kernel(n_ref, h_ref, t0_ref, x0_ref, p_ref, *refs):
+        names = ("jump", "save", "out", "rec") if spec.hoisted.jumps else ("out", "ck")
+        ref = dict(zip(names, refs, strict=False))
+        out_ref = ref["out"]
         p = tuple(p_ref[j] for j in range(P))
         c = tuple(p_ref[P + j] for j in range(Pc))
         y = tuple(x0_ref[j] for j in range(N))
-        for j in range(N):
-            out_ref[0, j] = y[j]
+
+        def save(k, y):
+            at = ref["save"][k] if spec.hoisted.jumps else k
+            for j in range(N):
+                out_ref[at, j] = y[j]
+
+        save(0, y)
 
         def interval(k, y):
             h, t0, n = h_ref[k], t0_ref[k], n_ref[k]
+            if spec.hoisted.jumps:
+                slot = ref["jump"][k]
+                jump = spec.hoisted.jump_components
+                y = jax.lax.cond(slot != 0, lambda y: jump(t0, y, p, c), lambda y: y, y)
+                for j in range(NR):
+                    ref["rec"][slot, j] = y[R0 + j]
 
             def one(s, y):
                 return step(spec, p, c, t0 + s.astype(h.dtype) * h, h, y)
 
             def slot(s, y):  # a slot past the interval's last segment: its end state, no step
                 for j in range(N):
-                    ck_ref[0][k, s, j] = y[j]
+                    ref["ck"][k, s, j] = y[j]
                 return jax.lax.fori_loop(s * L, jnp.minimum(s * L + L, n), one, y)
 
             y = jax.lax.fori_loop(0, C, slot, y) if L else jax.lax.fori_loop(0, n, one, y)
-            for j in range(N):
-                out_ref[k + 1, j] = y[j]
+            save(k + 1, y)
             return y
 
         jax.lax.fori_loop(0, K, interval, y)
@@ -145,7 +171,8 @@ def run(
     *,
     interpret: bool = False,
     longest: int = 0,
-) -> Float[Array, "B T N"] | tuple[Float[Array, "B T N"], Float[Array, "B K C N"]]:
+    schedule: Schedule | None = None,
+) -> Float[Array, "B T N"] | tuple[Float[Array, "B _ N"], Float[Array, "B ..."]]:
     """States `(B, K + 1, N)` of B bodies at the start and after each of K intervals of
     `steps` (`Steps`) of the model and method of `spec`; `p (P + Pc, B
     or 1)` holds the parameters and the lifted constants, as `model.run` takes them.
@@ -153,9 +180,17 @@ def run(
     batch is padded to whole blocks with copies of the first body. Under `jax.vmap` over the
     bodies (a sweep of one-body solves), the mapped bodies join one kernel call. With
     `longest` (a bound on the steps of an interval), also `run_back`'s checkpoints: each
-    interval's states every L ≈ √longest steps, `(B, K, C, N)` (`checkpoints`)."""
+    interval's states every L ≈ √longest steps, `(B, K, C, N)` (`checkpoints`).
+    A model with a jump map takes its `schedule` (`model.Schedule`: the intervals that start
+    with the jump map, the kept times) and gives, as `model.run`, the kept states `(B, S, N)`
+    and the components `spec.record` after each recorded jump `(B, R, NR)`."""
+    if schedule is not None:
+        sizes = (schedule.kept.size, schedule.at.size)
+        call = functools.partial(_blocks, spec, 0, 0, sizes, interpret=interpret)
+        args = (y0, p, *steps, schedule.jump, schedule.save)
+        return cast(tuple, _joining(call, states=1, out_body_axes=(0, 0))(*args))
     L, C = checkpoints(longest)
-    call = functools.partial(_blocks, spec, L, C, interpret=interpret)
+    call = functools.partial(_blocks, spec, L, C, None, interpret=interpret)
     out = _joining(call, states=1, out_body_axes=(0, 0) if L else (0,))(y0, p, *steps)
     return out if L else out[0]
 
@@ -221,20 +256,31 @@ def _parameters(p: Array, B: int, Bp: int, dtype) -> Array:
     return _padded(jnp.concatenate([p, jnp.zeros((int(p.shape[0] == 0), B), dtype)]).T, Bp)
 
 
-def _blocks(spec: Spec, L: int, C: int, *arrays: Array, interpret: bool) -> tuple[Array, ...]:
-    """`run` of one batch (`arrays`: its `y0, p, n, h, t0`): the `pallas_call` over its
-    blocks; the states `(B, T, N)` and, with `L`, the checkpoints `(B, K, C, N)`."""
-    y0, p, n, h, t0 = arrays
+def _per_body(shape: tuple[int, ...]) -> pl.BlockSpec:
+    """The block of an output `(*shape, Bp)`: the whole `shape` for the program's bodies."""
+    return pl.BlockSpec((*shape, BLOCK), lambda i: (*(0,) * len(shape), i))
+
+
+def _blocks(
+    spec: Spec, L: int, C: int, slots: tuple[int, int] | None, *arrays: Array, interpret: bool
+) -> tuple[Array, ...]:
+    """`run` of one batch (`arrays`: its `y0, p, n, h, t0` and, with `slots`, `jump, save`):
+    the `pallas_call` over its blocks; the states `(B, T, N)` and, with `L`, the checkpoints
+    `(B, K, C, N)`; with `slots = (S, R)` (a jump map), the S kept states and R records."""
+    y0, p, n, h, t0, *schedule = arrays
     B, N, K, dtype = y0.shape[0], y0.shape[1], h.shape[0], y0.dtype
     P = spec.hoisted.p
     Bp = -(-B // BLOCK) * BLOCK
     x0 = _padded(y0, Bp)  # (N, Bp)
     pp = _parameters(p, B, Bp, dtype)
-    shapes: list[tuple[int, ...]] = [(K + 1, N)]
-    specs = [pl.BlockSpec((K + 1, N, BLOCK), lambda i: (0, 0, i))]
+    # with slots, each output's slot 0 is the kernel's dummy (dropped)
+    shapes: list[tuple[int, ...]] = [(K + 1 if slots is None else slots[0] + 1, N)]
+    if slots is not None:
+        shapes.append((slots[1] + 1, max(spec.record[1], 1)))
     if L:
         shapes.append((K, C, N))
-        specs.append(pl.BlockSpec((K, C, N, BLOCK), lambda i: (0, 0, 0, i)))
+    specs = [_per_body(shape) for shape in shapes]
+    ins = [pl.BlockSpec((m,), lambda i: (0,)) for m in (K, K + 1)[: len(schedule)]]
     outs = pl.pallas_call(
         _kernel(spec, K, N, P, p.shape[0] - P, L, C),
         out_shape=[jax.ShapeDtypeStruct((*shape, Bp), dtype) for shape in shapes],
@@ -245,12 +291,17 @@ def _blocks(spec: Spec, L: int, C: int, *arrays: Array, interpret: bool) -> tupl
             pl.BlockSpec((K,), lambda i: (0,)),
             pl.BlockSpec((N, BLOCK), lambda i: (0, i)),
             pl.BlockSpec((pp.shape[0], BLOCK), lambda i: (0, i)),
+            *ins,
         ],
         out_specs=specs,
         # Triton, one body per thread (Pallas' default on NVIDIA GPUs is Mosaic GPU)
         compiler_params=pltriton.CompilerParams(num_warps=BLOCK // 32, num_stages=1),
         interpret=interpret,
-    )(n.astype(jnp.int32), h.astype(dtype), t0.astype(dtype), x0, pp)
+    )(n.astype(jnp.int32), h.astype(dtype), t0.astype(dtype), x0, pp,
+      *(a.astype(jnp.int32) for a in schedule))  # fmt: skip
+    if slots is not None:
+        ys, rec = outs
+        outs = [ys[1:], rec[1:, : spec.record[1]]]
     return tuple(jnp.moveaxis(o[..., :B], -1, 0) for o in outs)  # bodies first
 
 
@@ -405,16 +456,23 @@ def _back_kernel(spec: Spec, K: int, N: int, P: int, Pc: int, L: int, stored: bo
     return kernel
 
 
-def serves(hoisted: Hoisted, unit: Unit, solver: diffrax.AbstractSolver) -> bool:
-    """Whether the kernel integrates `hoisted` with `solver` (one of `tableau.METHODS`) on the
-    default backend: a GPU, float32 or float64, and the kernel checked there (once per model,
-    method and element type: a small batch compiled must give the interpreter's states, else
-    one warning and the Diffrax path)."""
+def serves(
+    hoisted: Hoisted,
+    unit: Unit,
+    solver: diffrax.AbstractSolver,
+    record: tuple[int, int] = (0, 0),
+) -> bool:
+    """Whether the kernel integrates `hoisted` (with a jump map: recording the components
+    `record`) with `solver` (one of `tableau.METHODS`) on the default backend: a GPU, float32 or
+    float64, and the kernel checked there (once per model, method and element type: a small
+    batch compiled must give the interpreter's states, else one warning and the Diffrax
+    path)."""
+    method = cast(type[diffrax.AbstractERK], type(solver))
     return (
         type(solver) in METHODS
         and jax.default_backend() == "gpu"
         and hoisted.dtype.name in DTYPES
-        and _checked(Spec(hoisted, unit, cast(type[diffrax.AbstractERK], type(solver))))
+        and _checked(Spec(hoisted, unit, method, record))
     )
 
 
@@ -487,7 +545,12 @@ def _checked_back(spec: Spec) -> bool:
 @functools.cache
 def _checked(spec: Spec) -> bool:
     """Whether the compiled kernel runs here and agrees with Pallas' interpreter on `_sample`
-    (two blocks of bodies over three intervals)."""
+    (two blocks of bodies over three intervals; a model with a jump map: jumps at the first and
+    last, the second time not kept)."""
     y, p, steps = _sample(spec)
     fn = functools.partial(run, spec)
+    if spec.hoisted.jumps:
+        keep = np.array([True, False, True, True])
+        schedule = Schedule.of(3, np.array([True, False, True]), keep, spec.record[1])
+        fn = functools.partial(fn, schedule=schedule)
     return _compare("kernel", spec, fn, (y, p, steps))

@@ -25,7 +25,7 @@ from ..kernels import adaptive, model_pallas, model_pallas_adaptive
 from ..kernels import model as model_kernel
 from ..solvers.explicit_rk import ExplicitRK
 from . import _adaptive
-from ._diffrax_path import Backend, diffrax_backend, joined, method_of, solve_components
+from ._diffrax_path import Backend, diffrax_backend, joined, method_of
 from .model import Model
 
 
@@ -168,13 +168,13 @@ def adaptive_gpu_backend(solver: diffrax.AbstractSolver, ctl, problem: tuple, op
     return backend
 
 
-def gpu_backend(model: Model, hoisted: model_kernel.Hoisted, options: SolveOptions) -> Backend:
+def gpu_backend(problem: tuple, options: SolveOptions) -> Backend:
     """The Pallas kernel's solve (`_gpu`)."""
 
     def backend(y0, blocks, c, ts):
         p = joined(list(blocks), ts.dtype)
-        ys, stats, result = _gpu(model, hoisted, ts, y0, p, c, options)
-        return (ys, jnp.zeros((0, *ys.shape[1:-1], 0), ys.dtype)), (stats, result)
+        (ys, rec), stats, result = _gpu(problem, ts, y0, p, c, options)
+        return (ys, rec), (stats, result)
 
     return backend
 
@@ -185,35 +185,44 @@ def _packed(p: Array, c: Array) -> Array:
 
 
 def _gpu(
-    model: Model,
-    hoisted: model_kernel.Hoisted,
+    problem: tuple,
     ts: Array,
     y0: Array,
     p: Array,
     c: Array,
     options: SolveOptions,
-) -> tuple[Array, dict[str, Array], diffrax.RESULTS]:
+) -> tuple[tuple[Array, Array], dict[str, Array], diffrax.RESULTS]:
     """The Pallas kernel's solve (`model_pallas`, in Pallas' interpreter where the backend is
-    not a GPU: the tests). Reverse mode runs the kernel's own adjoint (`model_pallas.run_back`,
-    the same steps reversed); where the output times are differentiated, the same steps
-    through Diffrax (`ExplicitRK(method)`), whose reverse mode differentiates them."""
+    not a GPU: the tests): the kept states `(S, B, N)` and the records `(J, B, NR)` (a model
+    with a jump map: its held commands). Reverse mode runs the kernel's own adjoint
+    (`model_pallas.run_back`, the same steps reversed); where the output times are
+    differentiated, or the model has a jump map, the same steps through Diffrax
+    (`ExplicitRK(method)`), whose reverse mode differentiates them."""
+    model, hoisted, _, jumps, keep = problem
     method = cast(diffrax.AbstractERK, method_of(options))  # one of METHODS: `serves` checked
     through = dataclasses.replace(options, solver=ExplicitRK(method), throw=False)
     interpret = jax.default_backend() != "gpu"
+    K, NR = ts.shape[0] - 1, model.record[1]
+    sc = None if jumps is None else model_kernel.Schedule.of(K, jumps, keep, NR)
 
     def steps(ts):
         width = ts[1:] - ts[:-1]
         n = fixed_step_count(width, jnp.asarray(options.dt0, ts.dtype))
         return jnp.minimum(n, options.max_steps).astype(jnp.int32), width / n, ts[:-1]
 
-    spec = model_pallas.Spec(hoisted, model.unit, type(method))
+    spec = model_pallas.Spec(hoisted, model.unit, type(method), model.record)
 
     def forward(y0, p, c, ts):
-        return model_pallas.run(spec, y0, _packed(p, c), steps(ts), interpret=interpret)
+        args = (spec, y0, _packed(p, c), steps(ts))
+        if sc is None:
+            ys = model_pallas.run(*args, interpret=interpret)
+            return ys, jnp.zeros((y0.shape[0], 0, 0), ys.dtype)
+        return model_pallas.run(*args, interpret=interpret, schedule=sc)
+
+    through_values = diffrax_backend(problem, through, values=True)
 
     def through_diffrax(y0, p, c, ts):
-        ys = solve_components(model, hoisted, ts, y0, p, c, through, False)[0]
-        return jnp.moveaxis(ys, 0, 1)
+        return tuple(jnp.moveaxis(a, 0, 1) for a in through_values(y0, (p,), c, ts))
 
     def schedule(ts) -> tuple[tuple[Array, Array, Array], int]:
         """The steps, and a bound on an interval's (static: the checkpoints' shape)."""
@@ -224,9 +233,9 @@ def _gpu(
 
     def fwd(y0, p, c, ts):
         args = (y0.value, p.value, c.value, ts.value)
-        if ts.perturbed or not (interpret or model_pallas.serves_back(spec)):
-            ys, pullback = jax.vjp(through_diffrax, *args)
-            return ys, (pullback, None)
+        if ts.perturbed or sc is not None or not (interpret or model_pallas.serves_back(spec)):
+            out, pullback = jax.vjp(through_diffrax, *args)
+            return out, (pullback, out)
         y0, p, c, ts = args
         (n, h, t0), longest = schedule(ts)
         if is_concrete(n) and model_pallas.stores_checkpoints(np.asarray(n), longest):
@@ -234,18 +243,22 @@ def _gpu(
             ys, src = model_pallas.run(
                 spec, y0, _packed(p, c), (n, h, t0), interpret=interpret, longest=longest
             )
+            out = (ys, jnp.zeros((y0.shape[0], 0, 0), ys.dtype))
         else:  # the reverse mode recomputes them from the states
-            ys = src = forward(y0, p, c, ts)
-        return ys, ((src, p, c, ts), ys)
+            out = forward(y0, p, c, ts)
+            src = out[0]
+        return out, ((src, p, c, ts), out)
 
     def bwd(residuals, g):
-        if residuals[1] is None:
+        g = tuple(
+            jnp.zeros_like(x) if isinstance(d, jax.custom_derivatives.SymbolicZero) else d
+            for d, x in zip(g, residuals[1], strict=True)
+        )
+        if callable(residuals[0]):
             return residuals[0](g)
-        (src, p, c, ts), ys = residuals
-        if isinstance(g, jax.custom_derivatives.SymbolicZero):
-            g = jnp.zeros_like(ys)
+        (src, p, c, ts), _ = residuals
         stepped, longest = schedule(ts)
-        args = (spec, src, g, _packed(p, c), stepped)
+        args = (spec, src, g[0], _packed(p, c), stepped)
         y0b, pb = model_pallas.run_back(*args, longest=longest, interpret=interpret)
         P = p.shape[1]
         pbar = pb[:P].T if p.shape[0] > 1 else jnp.sum(pb[:P], axis=1)[None]
@@ -253,5 +266,12 @@ def _gpu(
 
     run = jax.custom_vjp(forward)
     run.defvjp(fwd, bwd, symbolic_zeros=True)
-    ys, stats, result = kernel_solve(lambda n, taken, h, t0: run(y0, p, c, ts), ts, options)
-    return jnp.moveaxis(ys, 1, 0), stats, result
+    recorded = []
+
+    def kernel_run(n, taken, h, t0):
+        ys, rec = run(y0, p, c, ts)
+        recorded.append(rec)
+        return ys if sc is not None or keep.all() else ys[:, np.flatnonzero(keep)]
+
+    ys, stats, result = kernel_solve(kernel_run, ts, options, keep)
+    return (jnp.moveaxis(ys, 1, 0), jnp.moveaxis(recorded[0], 1, 0)), stats, result

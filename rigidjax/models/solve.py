@@ -168,17 +168,13 @@ def _solve(
         method = method_of(options)
         try:
             kernel = model_kernel.build(hoisted, model.unit, method, model.record)
-            gpu = (
-                kernel is None
-                and jumps is None
-                and model_pallas.serves(hoisted, model.unit, method)
-            )
+            gpu = kernel is None and model_pallas.serves(hoisted, model.unit, method, model.record)
         except Unsupported as e:
             kernel, gpu, hoisted, missing = None, False, None, e.primitive
         if kernel is not None:
             backend = cpu_backend(kernel, model, options, jumps, keep)
-        elif gpu and hoisted is not None and keep.all():
-            backend = gpu_backend(model, hoisted, options)
+        elif gpu and hoisted is not None:
+            backend = gpu_backend((model, hoisted, single, jumps, keep), options)
     adaptive_kernel = None
     if ctl is not None and hoisted is not None:
         try:

@@ -13,9 +13,9 @@ import equinox as eqx
 import jax.numpy as jnp
 import jax.tree_util as jtu
 import numpy as np
-from jaxtyping import Float, PyTree
+from jaxtyping import Array, Float, PyTree
 
-from .._custom_types import RealLike, RealScalarLike
+from .._custom_types import RealScalarLike
 from ._stateless import AbstractStatelessSolver
 
 
@@ -45,16 +45,21 @@ def lincomb(coeffs: Float[np.ndarray, " k"], trees: list[PyTree]) -> PyTree:
     return jtu.tree_map(comb, *[t for _, t in pairs])
 
 
-def increment(h: RealLike, coeffs: Float[np.ndarray, " k"], ks: list[PyTree]) -> PyTree:
+Lanes = RealScalarLike | Float[Array, " bodies"]
+"""A time or step size: a scalar, or one per body (the adaptive Pallas kernel's, each body its
+own step)."""
+
+
+def increment(h: Lanes, coeffs: Float[np.ndarray, " k"], ks: list[PyTree]) -> PyTree:
     """h Σ c_k k_k (`h` a scalar, or one per body: the adaptive Pallas kernel's)."""
     return jtu.tree_map(lambda d: h * d, lincomb(coeffs, ks))
 
 
 def stages(
     tab: diffrax.ButcherTableau,
-    t0: RealLike,
-    h: RealLike,
-    stage: Callable[[RealLike, PyTree | None], PyTree],
+    t0: Lanes,
+    h: Lanes,
+    stage: Callable[[Lanes, PyTree | None], PyTree],
 ) -> list[PyTree]:
     """Stage derivatives `k_i = stage(t0 + c_i h, h Σ_j a_ij k_j)`; the first stage gets `None`
     as its (zero) increment. `t0` and `h` are scalars, or one per body (the adaptive Pallas

@@ -51,7 +51,7 @@ def on_gpu_kernel(monkeypatch):
     """`solve_model` as on a GPU: no C++ kernel, and the Pallas kernel served for its methods
     (run in Pallas' interpreter here)."""
     monkeypatch.setattr(model_kernel, "build", lambda *args: None)
-    monkeypatch.setattr(pk, "serves", lambda hoisted, unit, solver: type(solver) in pk.METHODS)
+    monkeypatch.setattr(pk, "serves", lambda hoisted, unit, solver, *_: type(solver) in pk.METHODS)
 
 
 @pytest.mark.parametrize(
