@@ -415,3 +415,84 @@ def test_gpu_kernel_forward_mode(on_gpu_kernel):
     np.testing.assert_allclose(forward, reverse, rtol=0, atol=1e-12)
     eps = 1e-6
     np.testing.assert_allclose(forward[..., 0], (f(g + eps) - f(g - eps)) / (2 * eps), atol=1e-8)
+
+
+AXES = np.array([[1.0, 0.0, 0.0, 0.6], [0.0, 1.0, 0.0, 0.6], [0.0, 0.0, 1.0, 0.52915026]])
+Q_T = np.array([np.cos(0.6), np.sin(0.6) * 0.6, np.sin(0.6) * 0.8, 0.0])
+
+
+@pytest.mark.slow  # ~40 s: Pallas' interpreter, the gradients' compiles
+def test_closed_loop_through_gpu_kernel(on_gpu_kernel):
+    """A closed loop (a gyrostat with four wheels under a quaternion PD law sampled every 5
+    steps and held, the outputs every 2 samples) takes the GPU kernel with its jump map: the
+    Diffrax path's attitudes, wheel speeds and held commands (the records), and the gradient
+    of a loss of the attitudes and commands w.r.t. the initial rates (through the Diffrax
+    path) equal to the Diffrax path's."""
+    sat = rj.Gyrostat(
+        np.array([1.0, 1.5, 2.0]), wheel_axes=AXES, wheel_inertia=[0.01] * 4,
+        wheel_torque_max=0.05,
+    )  # fmt: skip
+    law = rj.control.quaternion_pd(0.4, 0.9, Q_T, wheel_axes=AXES)
+    ts = jnp.linspace(0.0, 2.0, 5)
+    w0 = jnp.asarray([[0.0, 0.0, 0.0], [0.02, -0.01, 0.0], [0.0, 0.03, 0.01]])
+
+    def run(w0, solver):
+        kw = dict(controller=law, control_period=0.25, solver=solver, **FIXED)
+        return rj.simulate(sat, w0, None, ts, **{**kw, "dt0": 0.05})
+
+    assert "pallas_call" in str(jax.make_jaxpr(lambda w: run(w, rj.RK4()).quat)(w0))
+    fast, slow = run(w0, rj.RK4()), run(w0, ExplicitRK(rj.RK4()))
+    for name in ("quat", "omega", "wheel_speed", "command"):
+        np.testing.assert_allclose(getattr(fast, name), getattr(slow, name), rtol=0, atol=1e-14)
+    assert fast.command.shape[1] == 8 and np.ptp(np.asarray(fast.command)) > 0.01
+
+    def loss(w0, solver):
+        tr = run(w0, solver)
+        return jnp.sum(tr.quat[:, -1, 1:] * jnp.arange(1.0, 4.0)) + jnp.sum(tr.command**2)
+
+    got = jax.grad(loss)(w0, rj.RK4())
+    np.testing.assert_allclose(got, jax.grad(loss)(w0, ExplicitRK(rj.RK4())), rtol=1e-10)
+
+
+def _held(t, y, p):
+    """A damped oscillator driven by a held command y[2] (its rate 0)."""
+    return jnp.stack([y[1], -p[0] * y[0] - 0.1 * y[1] + y[2], 0.0 * y[2]])
+
+
+def _sample_law(t, y, p):
+    """The jump map: the command sampled from the state, `u = −2 x − v + sin t`."""
+    return jnp.stack([y[0], y[1], -2.0 * y[0] - y[1] + jnp.sin(t)])
+
+
+def test_jump_map_lowers_to_triton(triton_modules):
+    """Lowered for CUDA on a machine without a GPU, the kernel of a model with a jump map (a
+    held command, sampled at flagged intervals and recorded) is one Triton call whose module
+    has the jump's branch (`scf.if`) inside the intervals' loop; and in the interpreter its
+    kept states and records equal a loop that applies the jump map and the kernel's steps
+    interval by interval."""
+    hoisted = model_kernel.hoist(_held, 3, 1, jnp.float64, _sample_law)
+    spec = pk.Spec(hoisted, (), rj.RK4, (2, 1))
+    jumps, keep = np.array([True, False, True]), np.array([True, False, True, True])
+    schedule = model_kernel.Schedule.of(3, jumps, keep, 1)
+    y0 = jnp.asarray(np.random.default_rng(0).normal(size=(5, 3)))
+    p = jnp.asarray([[2.0]])
+    steps = (jnp.asarray([3, 0, 5], jnp.int32), jnp.asarray([0.1, 0.2, 0.05]), TS[:-1])
+    run = functools.partial(pk.run, spec, schedule=schedule)
+    lowered = jax.jit(run).trace(y0, p, steps).lower(lowering_platforms=("cuda",))
+    assert lowered.as_text().count("__gpu$xla.gpu.triton") == 1
+    (module,) = triton_modules
+    assert module.count("scf.for") == 2 and module.count("scf.if") >= 1
+    ys, rec = run(y0, p, steps, interpret=True)
+    assert ys.shape == (5, 3, 3) and rec.shape == (5, 2, 1)
+    plain = functools.partial(
+        pk.run, pk.Spec(model_kernel.hoist(_held, 3, 1, jnp.float64), (), rj.RK4)
+    )
+    y, want, recs = y0, [y0], []
+    for k in range(3):
+        if jumps[k]:
+            y = jax.vmap(_sample_law, in_axes=(None, 0, None))(TS[k], y, p[0])
+            recs.append(y[:, 2:])
+        y = plain(y, p, tuple(a[k : k + 1] for a in steps), interpret=True)[:, 1]
+        want.append(y)
+    np.testing.assert_allclose(ys, jnp.stack(want, 1)[:, keep], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(rec, jnp.stack(recs, 1), rtol=0, atol=1e-15)
