@@ -41,7 +41,7 @@ from jaxtyping import Array, Float, Int
 
 from ..solvers import _stages
 from . import adaptive, tableau
-from .model import Hoisted
+from .model import Hoisted, Schedule
 from .model_pallas import (
     BLOCK,
     Spec,
@@ -50,6 +50,7 @@ from .model_pallas import (
     _joining,
     _padded,
     _parameters,
+    _per_body,
     _sample,
     stages,
     step_end,
@@ -109,9 +110,16 @@ def _power(x, e):
 def _kernel(spec: Spec, K: int, N: int, P: int, Pc: int):
     """The kernel of one block over K output intervals: the states at the K + 1 output times,
     and per body its attempts, accepted and rejected steps, output times reached and result
-    (0 successful, 1 max_steps reached, 2 non-finite), as the CPU kernel's."""
+    (0 successful, 1 max_steps reached, 2 non-finite), as the CPU kernel's. A model with a
+    jump map takes `jump (K,)` and `save (K + 1,)` (`model.Schedule`, as `model_pallas`'s
+    kernel: slot 0 of the states and records a dummy) and starts every interval from dt0 or
+    the initial-step heuristic, as the CPU kernel."""
+    R0, NR = spec.record
+    jumps = spec.hoisted.jumps
 
-    def kernel(ts_ref, floor_ref, ctl_ref, x0_ref, p_ref, out_ref, st_ref):
+    def kernel(ts_ref, floor_ref, ctl_ref, x0_ref, p_ref, *refs):
+        names = ("jump", "save", "out", "rec", "st") if jumps else ("out", "st")
+        ref = dict(zip(names, refs, strict=True))
         rtol, atol, safety, fmin, fmax, dtmax, dt0, c1, c2, c3, inv_order = (
             ctl_ref[i] for i in range(11)
         )
@@ -119,12 +127,16 @@ def _kernel(spec: Spec, K: int, N: int, P: int, Pc: int):
         p = tuple(p_ref[j] for j in range(P))
         c = tuple(p_ref[P + j] for j in range(Pc))
         y = tuple(x0_ref[j] for j in range(N))
-        for j in range(N):
-            out_ref[0, j] = y[j]
         zero, none = jnp.zeros_like(y[0]), jnp.zeros(y[0].shape, jnp.int32)
-        a = ts_ref[0]
-        guess = (a + jnp.minimum(initial_step(spec, p, c, a, y, rtol, atol, inv_order), dtmax)) - a
-        h = jnp.where(jnp.isnan(dt0), guess, dt0)
+
+        def save(k, y):
+            at = ref["save"][k] if jumps else k
+            for j in range(N):
+                ref["out"][at, j] = y[j]
+
+        def first_step(a, y):  # dt0, or the heuristic's (rounded as a step from a)
+            guess = initial_step(spec, p, c, a, y, rtol, atol, inv_order)
+            return jnp.where(jnp.isnan(dt0), (a + jnp.minimum(guess, dtmax)) - a, dt0)
 
         def finite(y):
             return functools.reduce(jnp.logical_and, [jnp.isfinite(x) for x in y])
@@ -132,6 +144,13 @@ def _kernel(spec: Spec, K: int, N: int, P: int, Pc: int):
         def interval(k, carry):
             y, h, attempts, accepted, valid, result = carry
             a, floor = ts_ref[k], floor_ref[k]
+            if jumps:
+                slot = ref["jump"][k]
+                jump = spec.hoisted.jump_components
+                y = jax.lax.cond(slot != 0, lambda y: jump(a, y, p, c), lambda y: y, y)
+                for j in range(NR):
+                    ref["rec"][slot, j] = y[R0 + j]
+                h = first_step(a, y)
             alive = finite(y)
             b = jnp.where(alive, ts_ref[k + 1], a)
 
@@ -172,14 +191,15 @@ def _kernel(spec: Spec, K: int, N: int, P: int, Pc: int):
             code = jnp.where(tprev < b, 1, jnp.where(finite(y), 0, 2))
             h = jnp.where(alive, (b - a) / jnp.maximum(taken, 1).astype(h.dtype), h)
             result = jnp.where(result == 0, code, result)
-            for j in range(N):
-                out_ref[k + 1, j] = y[j]
+            save(k + 1, y)
             return y, h, attempts + n, accepted + taken, valid + (result == 0), result
 
+        save(0, y)
+        h = zero if jumps else first_step(ts_ref[0], y)
         carry = (y, h, none, none, none + 1, none)
         _, _, attempts, accepted, valid, result = jax.lax.fori_loop(0, K, interval, carry)
         for i, x in enumerate((attempts, accepted, attempts - accepted, valid, result)):
-            st_ref[i] = x
+            ref["st"][i] = x
 
     return kernel
 
@@ -192,32 +212,42 @@ def run(
     ctl: Float[np.ndarray, " 14"] | Float[Array, " 14"],
     *,
     interpret: bool = False,
-) -> tuple[Float[Array, "B T N"], Int[Array, "B 5"]]:
-    """The states `(B, T, N)` of B bodies at the output times `ts` under the controller `ctl`
-    (`kernels.adaptive.controls`), and per body `(B, 5)`: attempts, accepted and rejected
-    steps, the leading output times reached and the result (0 successful, 1 max_steps
-    reached, 2 non-finite). `p (P + Pc, B or 1)` as `model_pallas.run`; `interpret=True` runs
-    Pallas' interpreter (any backend: the CPU tests). Under `jax.vmap` over the bodies the
-    mapped bodies join one kernel call."""
-    call = functools.partial(_blocks, spec, interpret=interpret)
+    schedule: Schedule | None = None,
+) -> tuple[Float[Array, "B S N"], Float[Array, "B R NR"], Int[Array, "B 5"]]:
+    """The states `(B, S, N)` of B bodies at the output times `ts` under the controller `ctl`
+    (`kernels.adaptive.controls`), the components `spec.record` after each recorded jump
+    `(B, R, NR)` (a model with a jump map, its `schedule`, `model.Schedule`: the intervals that
+    start with the jump map, the kept times; without one every time is kept and R = 0), and
+    per body `(B, 5)`: attempts, accepted and rejected steps, the leading output times reached
+    and the result (0 successful, 1 max_steps reached, 2 non-finite). `p (P + Pc, B or 1)` as
+    `model_pallas.run`; `interpret=True` runs Pallas' interpreter (any backend: the CPU
+    tests). Under `jax.vmap` over the bodies the mapped bodies join one kernel call."""
+    T = ts.shape[0]
+    sizes = (T, 0) if schedule is None else (schedule.kept.size, schedule.at.size)
+    call = functools.partial(_blocks, spec, sizes, interpret=interpret)
     args = (ts, floors(ts), jnp.asarray(ctl, ts.dtype))
-    return cast(tuple, _joining(call, states=1, out_body_axes=(0, 0))(y0, p, *args))
+    if schedule is not None:
+        args += (schedule.jump, schedule.save)
+    return cast(tuple, _joining(call, states=1, out_body_axes=(0, 0, 0))(y0, p, *args))
 
 
-def _blocks(spec: Spec, *arrays: Array, interpret: bool) -> tuple[Array, Array]:
-    """`run` of one batch (`arrays`: its `y0, p, ts, floors, ctl`): the `pallas_call` over its
-    blocks."""
-    y0, p, ts, fl, ctl = arrays
+def _blocks(
+    spec: Spec, sizes: tuple[int, int], *arrays: Array, interpret: bool
+) -> tuple[Array, Array, Array]:
+    """`run` of one batch (`arrays`: its `y0, p, ts, floors, ctl` and, with a jump map, `jump,
+    save`; `sizes`: the kept times and the records): the `pallas_call` over its blocks."""
+    y0, p, ts, fl, ctl, *schedule = arrays
     B, N, T, dtype = y0.shape[0], y0.shape[1], ts.shape[0], y0.dtype
-    P = spec.hoisted.p
+    P, (S, R), NR = spec.hoisted.p, sizes, spec.record[1]
     Bp = -(-B // BLOCK) * BLOCK
     pp = _parameters(p, B, Bp, dtype)
-    ys, st = pl.pallas_call(
+    jumps = bool(schedule)
+    shapes = [(S + 1, N), (R + 1, max(NR, 1))] if jumps else [(S, N)]
+    out_shape = [jax.ShapeDtypeStruct((*s, Bp), dtype) for s in shapes]
+    out_shape.append(jax.ShapeDtypeStruct((5, Bp), jnp.int32))
+    outs = pl.pallas_call(
         _kernel(spec, T - 1, N, P, p.shape[0] - P),
-        out_shape=[
-            jax.ShapeDtypeStruct((T, N, Bp), dtype),
-            jax.ShapeDtypeStruct((5, Bp), jnp.int32),
-        ],
+        out_shape=out_shape,
         grid=(Bp // BLOCK,),
         in_specs=[
             pl.BlockSpec((T,), lambda i: (0,)),
@@ -225,44 +255,54 @@ def _blocks(spec: Spec, *arrays: Array, interpret: bool) -> tuple[Array, Array]:
             pl.BlockSpec(ctl.shape, lambda i: (0,)),
             pl.BlockSpec((N, BLOCK), lambda i: (0, i)),
             pl.BlockSpec((pp.shape[0], BLOCK), lambda i: (0, i)),
+            *(pl.BlockSpec(a.shape, lambda i: (0,)) for a in schedule),
         ],
-        out_specs=[
-            pl.BlockSpec((T, N, BLOCK), lambda i: (0, 0, i)),
-            pl.BlockSpec((5, BLOCK), lambda i: (0, i)),
-        ],
+        out_specs=[_per_body(s) for s in [*shapes, (5,)]],
         compiler_params=pltriton.CompilerParams(num_warps=BLOCK // 32, num_stages=1),
         interpret=interpret,
-    )(ts.astype(dtype), fl.astype(dtype), ctl.astype(dtype), _padded(y0, Bp), pp)
-    return jnp.moveaxis(ys[..., :B], -1, 0), st[:, :B].T
+    )(ts.astype(dtype), fl.astype(dtype), ctl.astype(dtype), _padded(y0, Bp), pp,
+      *(a.astype(jnp.int32) for a in schedule))  # fmt: skip
+    if jumps:
+        ys, rec, st = outs
+        ys, rec = ys[1:], rec[1:, :NR]
+    else:
+        (ys, st), rec = outs, jnp.zeros((0, 0, Bp), dtype)
+    ys, rec = (jnp.moveaxis(a[..., :B], -1, 0) for a in (ys, rec))
+    return ys, rec, st[:, :B].T
 
 
-def serves(hoisted: Hoisted, unit: Unit, solver: diffrax.AbstractSolver) -> bool:
-    """Whether the kernel integrates `hoisted` with `solver` (one of `tableau.ADAPTIVE`) on the
-    default backend: a GPU, float32 or float64, and the kernel checked there (once per model,
-    pair and element type: a small batch compiled must give the interpreter's states and
-    counts, else one warning and the Diffrax path)."""
+def serves(
+    hoisted: Hoisted,
+    unit: Unit,
+    solver: diffrax.AbstractSolver,
+    record: tuple[int, int] = (0, 0),
+) -> bool:
+    """Whether the kernel integrates `hoisted` (with a jump map: recording the components
+    `record`) with `solver` (one of `tableau.ADAPTIVE`) on the default backend: a GPU, float32
+    or float64, and the kernel checked there (once per model, pair and element type: a small
+    batch compiled must give the interpreter's states and counts, else one warning and the
+    Diffrax path)."""
+    method = cast(type[diffrax.AbstractERK], type(solver))
     return (
         type(solver) in tableau.ADAPTIVE
         and jax.default_backend() == "gpu"
         and hoisted.dtype.name in tableau.DTYPES
-        and _checked(Spec(hoisted, unit, cast(type[diffrax.AbstractERK], type(solver))))
+        and _checked(Spec(hoisted, unit, method, record))
     )
-
-
-def sample_controls(spec: Spec) -> np.ndarray:
-    """The checks' controller: Diffrax's `PIDController` at rtol = atol = 1e-6, the initial
-    step by the heuristic, at most 1000 steps an interval."""
-    pid = diffrax.PIDController(rtol=1e-6, atol=1e-6)
-    ctl = adaptive.controls(pid, spec.method(), None, 1000, spec.hoisted.dtype)
-    assert ctl is not None
-    return ctl
 
 
 @functools.cache
 def _checked(spec: Spec) -> bool:
     """Whether the compiled kernel runs here and agrees with Pallas' interpreter on two blocks
-    of bodies (`model_pallas._sample`) over three intervals, one of them empty."""
+    of bodies (`model_pallas._sample`) over three intervals, one of them empty (a model with a
+    jump map: jumps at the first and last, the second time not kept), at rtol = atol = 1e-6."""
     y, p, _ = _sample(spec)
     ts = np.array([0.0, 0.03, 0.03, 0.3], y.dtype)
+    pid = diffrax.PIDController(rtol=1e-6, atol=1e-6)
+    ctl = adaptive.controls(pid, spec.method(), None, 1000, spec.hoisted.dtype)
     fn = functools.partial(run, spec)
-    return _compare("adaptive kernel", spec, fn, (y, p, ts, sample_controls(spec)))
+    if spec.hoisted.jumps:
+        keep = np.array([True, False, True, True])
+        schedule = Schedule.of(3, np.array([True, False, True]), keep, spec.record[1])
+        fn = functools.partial(fn, schedule=schedule)
+    return _compare("adaptive kernel", spec, fn, (y, p, ts, ctl))

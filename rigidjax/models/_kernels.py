@@ -138,32 +138,38 @@ def adaptive_backend(
 
 def adaptive_gpu_backend(solver: diffrax.AbstractSolver, ctl, problem: tuple, options) -> Backend:
     """The adaptive Pallas kernel's solve (`kernels.model_pallas_adaptive`, each body its own
-    steps; in Pallas' interpreter where the backend is not a GPU: the tests); its derivatives
-    those of the same solve on the Diffrax path, whose per-body steps are the kernel's."""
-    model, hoisted, single, _, keep = problem
+    steps; in Pallas' interpreter where the backend is not a GPU: the tests), with a jump map's
+    schedule and records as the CPU kernel's; its derivatives those of the same solve on the
+    Diffrax path, whose per-body steps are the kernel's."""
+    model, hoisted, single, jumps, keep = problem
     method = cast(type[diffrax.AbstractERK], type(solver))  # one of ADAPTIVE: `serves` checked
-    spec = model_pallas.Spec(hoisted, model.unit, method)
+    spec = model_pallas.Spec(hoisted, model.unit, method, model.record)
     through_diffrax = diffrax_backend(
         problem, options, diffrax.RecursiveCheckpointAdjoint(), values=True
     )
     interpret = jax.default_backend() != "gpu"
 
     def forward(y0, p, c, ts):
-        return model_pallas_adaptive.run(spec, y0, _packed(p, c), ts, ctl, interpret=interpret)
+        K = ts.shape[0] - 1
+        sc = None if jumps is None else model_kernel.Schedule.of(K, jumps, keep, model.record[1])
+        args = (spec, y0, _packed(p, c), ts, ctl)
+        return model_pallas_adaptive.run(*args, interpret=interpret, schedule=sc)
 
-    def states(y0, p, c, ts):  # (B, T, N), as the kernel's
-        return jnp.moveaxis(through_diffrax(y0, (p,), c, ts)[0], 0, 1)
+    def values(y0, p, c, ts):  # (B, S, N) and (B, R, NR), as the kernel's
+        return tuple(jnp.moveaxis(a, 0, 1) for a in through_diffrax(y0, (p,), c, ts))
 
     def bwd(args, g):
-        return jax.vjp(states, *args)[1](g[0])
+        return jax.vjp(values, *args)[1](g[:2])
 
     run = jax.custom_vjp(forward)
     run.defvjp(lambda *args: (forward(*args), args), bwd)
 
     def backend(y0, blocks, c, ts):
-        ys, st = run(y0, joined(list(blocks), ts.dtype), c, ts)
+        ys, rec, st = run(y0, joined(list(blocks), ts.dtype), c, ts)
+        if jumps is None and not keep.all():
+            ys = ys[:, np.flatnonzero(keep)]
         stats, result = _adaptive.per_body(st, single, np.flatnonzero(keep))
-        return (jnp.moveaxis(ys, 1, 0), jnp.zeros((0, ys.shape[0], 0), ys.dtype)), (stats, result)
+        return (jnp.moveaxis(ys, 1, 0), jnp.moveaxis(rec, 1, 0)), (stats, result)
 
     return backend
 
@@ -215,7 +221,7 @@ def _gpu(
     def forward(y0, p, c, ts):
         args = (spec, y0, _packed(p, c), steps(ts))
         if sc is None:
-            ys = model_pallas.run(*args, interpret=interpret)
+            ys = cast(Array, model_pallas.run(*args, interpret=interpret))
             return ys, jnp.zeros((y0.shape[0], 0, 0), ys.dtype)
         return model_pallas.run(*args, interpret=interpret, schedule=sc)
 

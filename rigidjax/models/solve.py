@@ -202,9 +202,9 @@ def _solve(
         backend = adaptive_backend(adaptive_kernel, ctl, problem, options, event)
     elif event is not None:
         backend = diffrax_backend(problem, options, event=event)
-    elif ctl is not None and hoisted is not None and jumps is None and keep.all():
+    elif ctl is not None and hoisted is not None:
         method = method_of(options)
-        if model_pallas_adaptive.serves(hoisted, model.unit, method):
+        if model_pallas_adaptive.serves(hoisted, model.unit, method, model.record):
             backend = adaptive_gpu_backend(method, ctl, problem, options)
     if (
         (event is None or adaptive_kernel is not None)

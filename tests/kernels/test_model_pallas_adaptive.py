@@ -58,7 +58,7 @@ def test_kernel_equals_cpu_kernel_and_diffrax_path(method):
     steps, to rounding: measured 4.4e-15), and a body alone the same bits as in the batch."""
     B = pk.BLOCK + 5
     I, w, q = _bodies(B)
-    ys, st = _run(method, I, w, q)
+    ys, _, st = _run(method, I, w, q)
     assert ys.shape == (B, 4, 7) and st.shape == (B, 5)
     kw = dict(solver=method(), **TOL)
     cpu = rj.simulate(rj.RigidBody(I), w, q, TS, **kw)
@@ -70,7 +70,7 @@ def test_kernel_equals_cpu_kernel_and_diffrax_path(method):
         np.testing.assert_array_equal(st[:, 1], want.stats["num_accepted_steps"])
     assert np.ptp(np.asarray(st[:, 1])) > 5  # the bodies' own step counts, not the batch's
     np.testing.assert_array_equal(st[:, 3:], np.tile([4, 0], (B, 1)))
-    alone, st_alone = _run(method, I[B - 1 :], w[B - 1 :], q[B - 1 :])
+    alone, _, st_alone = _run(method, I[B - 1 :], w[B - 1 :], q[B - 1 :])
     np.testing.assert_array_equal(alone[0], ys[B - 1])
     np.testing.assert_array_equal(st_alone[0], st[B - 1])
 
@@ -81,12 +81,12 @@ def test_float32_max_steps_and_nonfinite():
     later output times not reached, the body's code 1); a non-finite initial state: code 2,
     not integrated (its attempts 0)."""
     I, w, q = _bodies(3, seed=1)
-    y64, _ = _run(diffrax.Tsit5, I, w, q)
-    y32, st32 = _run(diffrax.Tsit5, I, w, q, dtype=jnp.float32)
+    y64, *_ = _run(diffrax.Tsit5, I, w, q)
+    y32, _, st32 = _run(diffrax.Tsit5, I, w, q, dtype=jnp.float32)
     assert y32.dtype == jnp.float32 and np.all(st32[:, 4] == 0)
     np.testing.assert_allclose(y32, y64, rtol=0, atol=2e-5)
     fast = jnp.asarray([[0.1, 0.2, 0.3], [5.0, -4.0, 3.0], [np.nan, 0.0, 0.0]])
-    _, st = _run(diffrax.Tsit5, I, fast, q, max_steps=12)
+    *_, st = _run(diffrax.Tsit5, I, fast, q, max_steps=12)
     assert st[0, 4] == 0 and st[0, 3] == 4  # slow: done within 12 an interval
     assert st[1, 4] == 1 and st[1, 3] < 4 and st[1, 0] >= 12  # fast: max_steps reached
     assert st[2, 4] == 2 and st[2, 3] == 1 and st[2, 0] == 0
@@ -98,7 +98,7 @@ def on_gpu_adaptive(monkeypatch):
     served for its pairs (run in Pallas' interpreter here)."""
     monkeypatch.setattr(adaptive, "build", lambda *args, **kwargs: None)
     monkeypatch.setattr(
-        pa, "serves", lambda hoisted, unit, solver: type(solver) in pa.tableau.ADAPTIVE
+        pa, "serves", lambda hoisted, unit, solver, *_: type(solver) in pa.tableau.ADAPTIVE
     )
 
 
@@ -162,9 +162,9 @@ def test_served_only_where_checked(monkeypatch):
         assert not pa._checked.__wrapped__(spec)  # Pallas can't compile for CPU
     run = pa.run
 
-    def interpreted(*args, interpret=False, shift=0.0):
-        ys, st = run(*args, interpret=True)
-        return ys + (0.0 if interpret else shift), st
+    def interpreted(*args, interpret=False, shift=0.0, **kw):
+        ys, rec, st = run(*args, interpret=True, **kw)
+        return ys + (0.0 if interpret else shift), rec, st
 
     monkeypatch.setattr(pa, "run", interpreted)
     with warnings.catch_warnings():
@@ -221,3 +221,88 @@ def test_kernel_lowers_to_triton(triton_modules, dtype):
         assert symbols & {"__nv_pow", "__nv_powf"} and symbols & {"__nv_sqrt", "__nv_sqrtf"}
         assert not any("rsqrt" in s for s in symbols)
         assert module.count("scf.for") == 1 and module.count("scf.while") == 1
+
+
+AXES = np.array([[1.0, 0.0, 0.0, 0.6], [0.0, 1.0, 0.0, 0.6], [0.0, 0.0, 1.0, 0.52915026]])
+Q_T = np.array([np.cos(0.6), np.sin(0.6) * 0.6, np.sin(0.6) * 0.8, 0.0])
+
+
+@pytest.mark.slow  # ~90 s: Pallas' interpreter, the gradients' compiles
+def test_closed_loop_at_a_tolerance(on_gpu_adaptive):
+    """A closed loop (a gyrostat with four wheels under a quaternion PD law sampled every
+    0.25 s and held, outputs every 0.5 s) at rtol = atol = 1e-8 takes the adaptive kernel with
+    its jump map, each interval from the initial-step heuristic: the Diffrax path's attitudes,
+    wheel speeds, held commands and per-body step counts, and its gradient w.r.t. the initial
+    rates (through the Diffrax path)."""
+    sat = rj.Gyrostat(
+        np.array([1.0, 1.5, 2.0]), wheel_axes=AXES, wheel_inertia=[0.01] * 4,
+        wheel_torque_max=0.05,
+    )  # fmt: skip
+    law = rj.control.quaternion_pd(0.4, 0.9, Q_T, wheel_axes=AXES)
+    ts = jnp.linspace(0.0, 2.0, 5)
+    w0 = jnp.asarray([[0.0, 0.0, 0.0], [0.02, -0.01, 0.0], [0.3, 0.03, 0.01]])
+
+    def run(w0, solver=None):
+        kw = dict(controller=law, control_period=0.25, solver=solver, **TOL)
+        return rj.simulate(sat, w0, None, ts, **kw)
+
+    assert "pallas_call" in str(jax.make_jaxpr(lambda w: run(w).quat)(w0))
+    fast, slow = run(w0), run(w0, ExplicitRK(diffrax.Tsit5()))
+    for name in ("quat", "omega", "wheel_speed", "command"):
+        np.testing.assert_allclose(getattr(fast, name), getattr(slow, name), rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(fast.stats["num_steps"], slow.stats["num_steps"])
+    assert fast.command.shape[1] == 8 and np.ptp(np.asarray(fast.command)) > 0.01
+
+    def loss(w0, solver=None):
+        tr = run(w0, solver)
+        return jnp.sum(tr.quat[:, -1, 1:] * jnp.arange(1.0, 4.0)) + jnp.sum(tr.command**2)
+
+    want = jax.grad(loss)(w0, ExplicitRK(diffrax.Tsit5()))
+    np.testing.assert_allclose(jax.grad(loss)(w0), want, rtol=1e-9, atol=1e-12)
+
+
+def _held(t, y, p):
+    """A damped oscillator driven by a held command y[2] (its rate 0)."""
+    return jnp.stack([y[1], -p[0] * y[0] - 0.1 * y[1] + y[2], 0.0 * y[2]])
+
+
+def _sample_law(t, y, p):
+    """The jump map: the command sampled from the state, `u = −2 x − v + sin t`."""
+    return jnp.stack([y[0], y[1], -2.0 * y[0] - y[1] + jnp.sin(t)])
+
+
+def test_jump_map_lowers_to_triton_and_restarts_each_interval(triton_modules):
+    """A model with a jump map (a held command, sampled at flagged intervals and recorded):
+    lowered for CUDA, one Triton call with the jump's branch (`scf.if`) and the attempts'
+    `while` inside the intervals' loop; in the interpreter, its kept states, records and step
+    counts those of a loop that applies the jump map and then the kernel, interval by
+    interval (each interval from the initial-step heuristic, as the CPU kernel)."""
+    hoisted = model_kernel.hoist(_held, 3, 1, jnp.float64, _sample_law)
+    spec = pk.Spec(hoisted, (), diffrax.Tsit5, (2, 1))
+    ts = jnp.asarray([0.0, 0.4, 0.5, 1.5])
+    jumps, keep = np.array([True, False, True]), np.array([True, False, True, True])
+    schedule = model_kernel.Schedule.of(3, jumps, keep, 1)
+    ctl = adaptive.controls(diffrax.PIDController(**TOL), diffrax.Tsit5(), None, 100, jnp.float64)
+    y0 = jnp.asarray(np.random.default_rng(0).normal(size=(5, 3)))
+    p = jnp.asarray([[2.0]])
+    run = functools.partial(pa.run, spec, ctl=ctl, schedule=schedule)
+    lowered = jax.jit(run).trace(y0, p, ts).lower(lowering_platforms=("cuda",))
+    assert lowered.as_text().count("__gpu$xla.gpu.triton") == 1
+    (module,) = triton_modules
+    assert module.count("scf.for") == 1 and module.count("scf.while") == 1
+    assert module.count("scf.if") >= 1
+    ys, rec, st = run(y0, p, ts, interpret=True)
+    assert ys.shape == (5, 3, 3) and rec.shape == (5, 2, 1)
+    plain = pk.Spec(model_kernel.hoist(_held, 3, 1, jnp.float64), (), diffrax.Tsit5)
+    y, want, recs, steps = y0, [y0], [], 0
+    for k in range(3):
+        if jumps[k]:
+            y = jax.vmap(_sample_law, in_axes=(None, 0, None))(ts[k], y, p[0])
+            recs.append(y[:, 2:])
+        out, _, s = pa.run(plain, y, p, ts[k : k + 2], ctl, interpret=True)
+        y, steps = out[:, 1], steps + s[:, 0]
+        want.append(y)
+    # (the jump map there evaluated by XLA: measured 1.2e-15 apart)
+    np.testing.assert_allclose(ys, jnp.stack(want, 1)[:, keep], rtol=0, atol=1e-14)
+    np.testing.assert_allclose(rec, jnp.stack(recs, 1), rtol=0, atol=1e-14)
+    np.testing.assert_array_equal(st[:, 0], steps)
