@@ -128,6 +128,12 @@ class Hoisted:
         without one."""
         return self._on_components(self.jaxpr(self.end_fn)) if self.ends else None
 
+    @functools.cached_property
+    def event_components(self) -> Callable | None:
+        """The event's condition on component arrays (as `components`: a 1-tuple), the
+        kernel's `G`; None without one."""
+        return self._on_components(self.jaxpr(self.event_fn)) if self.events else None
+
     def _on_components(self, forward) -> Callable:
         n, p = self.n, self.p
 

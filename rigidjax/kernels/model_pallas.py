@@ -66,7 +66,9 @@ class Spec:
         self.tab = _stages.tableau_of(method())
         end = str(hoisted.jaxpr(hoisted.end_fn)) if hoisted.ends else None
         jump = str(hoisted.jaxpr(hoisted.jump_fn)) if hoisted.jumps else None
-        self.text = (str(hoisted.forward), end, jump, hoisted.n, hoisted.p, hoisted.c.shape, unit)
+        event = str(hoisted.jaxpr(hoisted.event_fn)) if hoisted.events else None
+        self.text = (str(hoisted.forward), end, jump, event, hoisted.n, hoisted.p)
+        self.text += (hoisted.c.shape, unit)
         self.text += (hoisted.dtype.name, method, record)
 
     def __hash__(self) -> int:

@@ -37,7 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.experimental import pallas as pl
 from jax.experimental.pallas import triton as pltriton
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, Float
 
 from ..solvers import _stages
 from . import adaptive, tableau
@@ -53,6 +53,7 @@ from .model_pallas import (
     _per_body,
     _sample,
     stages,
+    step,
     step_end,
 )
 
@@ -107,23 +108,90 @@ def _power(x, e):
     return jnp.where(e == 0, 1, jnp.power(x, e))
 
 
+def _sign(x):
+    return (x > 0).astype(jnp.int32) - (x < 0).astype(jnp.int32)
+
+
+def _crossed(direction, g0, g1):
+    """Whether the condition's change from g0 to g1 is an event in `direction` (0 either, 1
+    rising, −1 falling), as Diffrax decides it (`model_adaptive.h`'s `Crossed`)."""
+    s0, s1 = _sign(g0), _sign(g1)
+    rising, falling = (s0 <= 0) & (s1 > 0), (s0 > 0) & (s1 <= 0)
+    return jnp.where(direction == 0, s0 != s1, jnp.where(direction > 0, rising, falling))
+
+
+def locate(spec: Spec, p, c, y: tuple, t, h, g0, g1, hit) -> tuple[Array, tuple]:
+    """The events of the bodies `hit` on their steps of size `h` from `y` at `t` (the
+    condition `g0` there, `g1` at the step's end): the time, located by the Illinois method
+    on τ ↦ G(t + τ, the step of size τ from y) (Dowell & Jarratt, BIT 11, 1971; each value
+    one step of the pair, `model_adaptive.h`'s `Locate`), and the state there; the bodies
+    iterate together, each until its bracket is below 4 ulp of the time, a root, or 200
+    iterations."""
+    G = spec.hoisted.event_components
+    assert G is not None
+    dtype = y[0].dtype
+    tiny = 4 * jnp.finfo(dtype).eps * jnp.maximum(jnp.abs(t) + h, 1)
+    zero = jnp.zeros_like(h)
+
+    def active(s):
+        i, a, b, _, _, _, _, done = s
+        return ~done & (i < 200) & (b - a > tiny)
+
+    def more(s):
+        return jnp.max(active(s).astype(jnp.int32)) > 0
+
+    def one(s):
+        i, a, b, fa, fb, side, m, done = s
+        go = active(s)
+        mid = (a * fb - b * fa) / (fb - fa)
+        mid = jnp.where((mid > a) & (mid < b), mid, 0.5 * (a + b))
+        fm = G(t + mid, step(spec, p, c, t, mid, y), p, c)[0]
+        root = fm == 0
+        same = _sign(fm) == _sign(fb)
+        nb, nfb = jnp.where(same, mid, b), jnp.where(same, fm, fb)
+        nfa = jnp.where(same & (side == -1), 0.5 * fa, fa)
+        na, nfa = jnp.where(same, a, mid), jnp.where(same, nfa, fm)
+        nfb = jnp.where(~same & (side == 1), 0.5 * nfb, nfb)
+        move = go & ~root
+        return (
+            i + 1,
+            jnp.where(move, na, a),
+            jnp.where(move, nb, b),
+            jnp.where(move, nfa, fa),
+            jnp.where(move, nfb, fb),
+            jnp.where(move, jnp.where(same, -1, 1), side),
+            jnp.where(go, jnp.where(root, mid, nb), m),
+            done | (go & root),
+        )
+
+    side = jnp.zeros(h.shape, jnp.int32)
+    start = (jnp.int32(0), zero, h, g0, g1, side, jnp.where(g0 == 0, zero, h), ~hit | (g0 == 0))
+    m = jax.lax.while_loop(more, one, start)[6]
+    u = step(spec, p, c, t, m, y)
+    return t + m, tuple(jnp.where(m == 0, a, b) for a, b in zip(y, u, strict=True))
+
+
 def _kernel(spec: Spec, K: int, N: int, P: int, Pc: int):
     """The kernel of one block over K output intervals: the states at the K + 1 output times,
     and per body its attempts, accepted and rejected steps, output times reached and result
     (0 successful, 1 max_steps reached, 2 non-finite), as the CPU kernel's. A model with a
     jump map takes `jump (K,)` and `save (K + 1,)` (`model.Schedule`, as `model_pallas`'s
     kernel: slot 0 of the states and records a dummy) and starts every interval from dt0 or
-    the initial-step heuristic, as the CPU kernel."""
+    the initial-step heuristic, as the CPU kernel. A model with an event's condition watches
+    it after each accepted step (`locate`), writes each body's first event time (∞: none)
+    and, where the event terminates, holds the body from the event on (no later jump)."""
     R0, NR = spec.record
-    jumps = spec.hoisted.jumps
+    jumps, events = spec.hoisted.jumps, spec.hoisted.events
+    G = spec.hoisted.event_components
 
     def kernel(ts_ref, floor_ref, ctl_ref, x0_ref, p_ref, *refs):
-        names = ("jump", "save", "out", "rec", "st") if jumps else ("out", "st")
-        ref = dict(zip(names, refs, strict=True))
+        names = ("jump", "save", "out", "rec") if jumps else ("out",)
+        ref = dict(zip((*names, "st", "ev")[: len(refs)], refs, strict=True))
         rtol, atol, safety, fmin, fmax, dtmax, dt0, c1, c2, c3, inv_order = (
             ctl_ref[i] for i in range(11)
         )
         max_steps = ctl_ref[11].astype(jnp.int32)
+        direction, terminate = ctl_ref[12], ctl_ref[13] != 0
         p = tuple(p_ref[j] for j in range(P))
         c = tuple(p_ref[P + j] for j in range(Pc))
         y = tuple(x0_ref[j] for j in range(N))
@@ -141,28 +209,39 @@ def _kernel(spec: Spec, K: int, N: int, P: int, Pc: int):
         def finite(y):
             return functools.reduce(jnp.logical_and, [jnp.isfinite(x) for x in y])
 
+        def condition(t, y):
+            assert G is not None
+            return G(t, y, p, c)[0]
+
         def interval(k, carry):
-            y, h, attempts, accepted, valid, result = carry
+            y, h, attempts, accepted, valid, result, watch = carry
+            stopped = watch[2]
             a, floor = ts_ref[k], floor_ref[k]
-            if jumps:
+            if jumps:  # (a body stopped by its event: held)
                 slot = ref["jump"][k]
-                jump = spec.hoisted.jump_components
-                y = jax.lax.cond(slot != 0, lambda y: jump(a, y, p, c), lambda y: y, y)
+
+                def jump(y):
+                    u = spec.hoisted.jump_components(a, y, p, c)
+                    return tuple(jnp.where(stopped, x, v) for x, v in zip(y, u, strict=True))
+
+                y = jax.lax.cond(slot != 0, jump, lambda y: y, y)
                 for j in range(NR):
                     ref["rec"][slot, j] = y[R0 + j]
                 h = first_step(a, y)
             alive = finite(y)
-            b = jnp.where(alive, ts_ref[k + 1], a)
+            b = jnp.where(alive & ~stopped, ts_ref[k + 1], a)
+            if events:
+                watch = (jnp.where(stopped, watch[0], condition(a, y)), *watch[1:])
 
-            def going(tprev, n):
-                return (tprev < b) & (n < max_steps)
+            def going(tprev, n, stopped):
+                return (tprev < b) & (n < max_steps) & ~stopped
 
             def more(s):
-                return jnp.max(going(s[1], s[5]).astype(jnp.int32)) > 0
+                return jnp.max(going(s[1], s[5], s[7][2]).astype(jnp.int32)) > 0
 
             def one(s):
-                y, tprev, tnext, inv1, inv2, n, taken = s
-                go = going(tprev, n)
+                y, tprev, tnext, inv1, inv2, n, taken, watch = s
+                go = going(tprev, n, watch[2])
                 size = tnext - tprev
                 u, eps = attempt(spec, p, c, tprev, size, y, rtol, atol)
                 ok = eps < 1
@@ -176,30 +255,52 @@ def _kernel(spec: Spec, K: int, N: int, P: int, Pc: int):
                 last = jnp.minimum(t0, b)
                 proposed = jnp.where(t1 > floor, jnp.where(ok, b, last + 0.5 * (b - last)), t1)
                 take = go & ok
+                new = tuple(jnp.where(take, v, x) for v, x in zip(u, y, strict=True))
+                if events:
+                    g, when, stopped = watch
+                    g1 = condition(tprev + size, u)
+                    hit = take & jnp.isinf(when) & _crossed(direction, g, g1)
+
+                    def located():
+                        return locate(spec, p, c, y, tprev, size, g, g1, hit)
+
+                    def missed():
+                        return jnp.full_like(when, jnp.inf), y
+
+                    t_hit, v = jax.lax.cond(jnp.max(hit.astype(jnp.int32)) > 0, located, missed)
+                    stop = hit & terminate
+                    new = tuple(jnp.where(stop, a, x) for a, x in zip(v, new, strict=True))
+                    g = jnp.where(take & ~stop, g1, g)
+                    watch = (g, jnp.where(hit, t_hit, when), stopped | stop)
                 return (
-                    tuple(jnp.where(take, new, old) for new, old in zip(u, y, strict=True)),
+                    new,
                     jnp.where(go, last, tprev),
                     jnp.where(go, proposed, tnext),
                     jnp.where(take, inv, inv1),
                     jnp.where(take, inv1, inv2),
                     n + go.astype(jnp.int32),
                     taken + take.astype(jnp.int32),
+                    watch,
                 )
 
             start = (y, a + zero, jnp.minimum(a + jnp.minimum(h, dtmax), b), zero + 1, zero + 1)
-            y, tprev, _, _, _, n, taken = jax.lax.while_loop(more, one, (*start, none, none))
-            code = jnp.where(tprev < b, 1, jnp.where(finite(y), 0, 2))
+            s = jax.lax.while_loop(more, one, (*start, none, none, watch))
+            y, tprev, n, taken, watch = s[0], s[1], s[5], s[6], s[7]
+            code = jnp.where((tprev < b) & ~watch[2], 1, jnp.where(finite(y), 0, 2))
             h = jnp.where(alive, (b - a) / jnp.maximum(taken, 1).astype(h.dtype), h)
             result = jnp.where(result == 0, code, result)
             save(k + 1, y)
-            return y, h, attempts + n, accepted + taken, valid + (result == 0), result
+            return y, h, attempts + n, accepted + taken, valid + (result == 0), result, watch
 
         save(0, y)
         h = zero if jumps else first_step(ts_ref[0], y)
-        carry = (y, h, none, none, none + 1, none)
-        _, _, attempts, accepted, valid, result = jax.lax.fori_loop(0, K, interval, carry)
+        watch = (zero, zero + jnp.inf, none != 0)  # the condition, the event's time, stopped
+        carry = (y, h, none, none, none + 1, none, watch)
+        *_, attempts, accepted, valid, result, watch = jax.lax.fori_loop(0, K, interval, carry)
         for i, x in enumerate((attempts, accepted, attempts - accepted, valid, result)):
             ref["st"][i] = x
+        if events:
+            ref["ev"][0] = watch[1]
 
     return kernel
 
@@ -213,27 +314,28 @@ def run(
     *,
     interpret: bool = False,
     schedule: Schedule | None = None,
-) -> tuple[Float[Array, "B S N"], Float[Array, "B R NR"], Int[Array, "B 5"]]:
+) -> tuple[Array, ...]:
     """The states `(B, S, N)` of B bodies at the output times `ts` under the controller `ctl`
-    (`kernels.adaptive.controls`), the components `spec.record` after each recorded jump
-    `(B, R, NR)` (a model with a jump map, its `schedule`, `model.Schedule`: the intervals that
-    start with the jump map, the kept times; without one every time is kept and R = 0), and
-    per body `(B, 5)`: attempts, accepted and rejected steps, the leading output times reached
-    and the result (0 successful, 1 max_steps reached, 2 non-finite). `p (P + Pc, B or 1)` as
-    `model_pallas.run`; `interpret=True` runs Pallas' interpreter (any backend: the CPU
-    tests). Under `jax.vmap` over the bodies the mapped bodies join one kernel call."""
+    (`kernels.adaptive.controls`, with the event's direction and termination), the components
+    `spec.record` after each recorded jump `(B, R, NR)` (a model with a jump map, its
+    `schedule`, `model.Schedule`: the intervals that start with the jump map, the kept times;
+    without one every time is kept and R = 0), per body `(B, 5)`: attempts, accepted and
+    rejected steps, the leading output times reached and the result (0 successful, 1
+    max_steps reached, 2 non-finite), and, for a model with an event's condition, each body's
+    first event time `(B,)` (∞: none). `p (P + Pc, B or 1)` as `model_pallas.run`;
+    `interpret=True` runs Pallas' interpreter (any backend: the CPU tests). Under `jax.vmap`
+    over the bodies the mapped bodies join one kernel call."""
     T = ts.shape[0]
     sizes = (T, 0) if schedule is None else (schedule.kept.size, schedule.at.size)
     call = functools.partial(_blocks, spec, sizes, interpret=interpret)
     args = (ts, floors(ts), jnp.asarray(ctl, ts.dtype))
     if schedule is not None:
         args += (schedule.jump, schedule.save)
-    return cast(tuple, _joining(call, states=1, out_body_axes=(0, 0, 0))(y0, p, *args))
+    axes = (0,) * (4 if spec.hoisted.events else 3)
+    return cast(tuple, _joining(call, states=1, out_body_axes=axes)(y0, p, *args))
 
 
-def _blocks(
-    spec: Spec, sizes: tuple[int, int], *arrays: Array, interpret: bool
-) -> tuple[Array, Array, Array]:
+def _blocks(spec: Spec, sizes: tuple[int, int], *arrays: Array, interpret: bool) -> tuple:
     """`run` of one batch (`arrays`: its `y0, p, ts, floors, ctl` and, with a jump map, `jump,
     save`; `sizes`: the kept times and the records): the `pallas_call` over its blocks."""
     y0, p, ts, fl, ctl, *schedule = arrays
@@ -241,10 +343,14 @@ def _blocks(
     P, (S, R), NR = spec.hoisted.p, sizes, spec.record[1]
     Bp = -(-B // BLOCK) * BLOCK
     pp = _parameters(p, B, Bp, dtype)
-    jumps = bool(schedule)
-    shapes = [(S + 1, N), (R + 1, max(NR, 1))] if jumps else [(S, N)]
+    jumps, events = bool(schedule), spec.hoisted.events
+    shapes: list[tuple[int, ...]] = [(S + 1, N), (R + 1, max(NR, 1))] if jumps else [(S, N)]
     out_shape = [jax.ShapeDtypeStruct((*s, Bp), dtype) for s in shapes]
     out_shape.append(jax.ShapeDtypeStruct((5, Bp), jnp.int32))
+    shapes.append((5,))
+    if events:
+        out_shape.append(jax.ShapeDtypeStruct((1, Bp), dtype))
+        shapes.append((1,))
     outs = pl.pallas_call(
         _kernel(spec, T - 1, N, P, p.shape[0] - P),
         out_shape=out_shape,
@@ -257,18 +363,18 @@ def _blocks(
             pl.BlockSpec((pp.shape[0], BLOCK), lambda i: (0, i)),
             *(pl.BlockSpec(a.shape, lambda i: (0,)) for a in schedule),
         ],
-        out_specs=[_per_body(s) for s in [*shapes, (5,)]],
+        out_specs=[_per_body(s) for s in shapes],
         compiler_params=pltriton.CompilerParams(num_warps=BLOCK // 32, num_stages=1),
         interpret=interpret,
     )(ts.astype(dtype), fl.astype(dtype), ctl.astype(dtype), _padded(y0, Bp), pp,
       *(a.astype(jnp.int32) for a in schedule))  # fmt: skip
     if jumps:
-        ys, rec, st = outs
+        ys, rec, st, *ev = outs
         ys, rec = ys[1:], rec[1:, :NR]
     else:
-        (ys, st), rec = outs, jnp.zeros((0, 0, Bp), dtype)
+        (ys, st, *ev), rec = outs, jnp.zeros((0, 0, Bp), dtype)
     ys, rec = (jnp.moveaxis(a[..., :B], -1, 0) for a in (ys, rec))
-    return ys, rec, st[:, :B].T
+    return (ys, rec, st[:, :B].T, *(e[0, :B] for e in ev))
 
 
 def serves(

@@ -136,16 +136,19 @@ def adaptive_backend(
     return backend
 
 
-def adaptive_gpu_backend(solver: diffrax.AbstractSolver, ctl, problem: tuple, options) -> Backend:
+def adaptive_gpu_backend(
+    solver: diffrax.AbstractSolver, ctl, problem: tuple, options, event: Event | None = None
+) -> Backend:
     """The adaptive Pallas kernel's solve (`kernels.model_pallas_adaptive`, each body its own
     steps; in Pallas' interpreter where the backend is not a GPU: the tests), with a jump map's
-    schedule and records as the CPU kernel's; its derivatives those of the same solve on the
-    Diffrax path, whose per-body steps are the kernel's."""
+    schedule and records as the CPU kernel's and an `event` located in the kernel (its time
+    after the records); its derivatives those of the same solve on the Diffrax path, whose
+    per-body steps are the kernel's."""
     model, hoisted, single, jumps, keep = problem
     method = cast(type[diffrax.AbstractERK], type(solver))  # one of ADAPTIVE: `serves` checked
     spec = model_pallas.Spec(hoisted, model.unit, method, model.record)
     through_diffrax = diffrax_backend(
-        problem, options, diffrax.RecursiveCheckpointAdjoint(), values=True
+        problem, options, diffrax.RecursiveCheckpointAdjoint(), values=True, event=event
     )
     interpret = jax.default_backend() != "gpu"
 
@@ -153,23 +156,32 @@ def adaptive_gpu_backend(solver: diffrax.AbstractSolver, ctl, problem: tuple, op
         K = ts.shape[0] - 1
         sc = None if jumps is None else model_kernel.Schedule.of(K, jumps, keep, model.record[1])
         args = (spec, y0, _packed(p, c), ts, ctl)
-        return model_pallas_adaptive.run(*args, interpret=interpret, schedule=sc)
+        ys, rec, st, *ev = model_pallas_adaptive.run(*args, interpret=interpret, schedule=sc)
+        return (ys, rec, *ev), st
 
-    def values(y0, p, c, ts):  # (B, S, N) and (B, R, NR), as the kernel's
-        return tuple(jnp.moveaxis(a, 0, 1) for a in through_diffrax(y0, (p,), c, ts))
+    def values(y0, p, c, ts):  # (B, S, N), (B, R, NR) and the event times, as the kernel's
+        ys, rec, *ev = through_diffrax(y0, (p,), c, ts)
+        ev = [jnp.reshape(e, y0.shape[:1]) for e in ev]  # (one body: a scalar there)
+        return (jnp.moveaxis(ys, 0, 1), jnp.moveaxis(rec, 0, 1), *ev)
 
-    def bwd(args, g):
-        return jax.vjp(values, *args)[1](g[:2])
+    def fwd(*args):  # (the pullback made here: values closes over the caller's tracers)
+        return forward(*args), jax.vjp(values, *args)[1]
+
+    def bwd(pullback, g):
+        return pullback(g[0])
 
     run = jax.custom_vjp(forward)
-    run.defvjp(lambda *args: (forward(*args), args), bwd)
+    run.defvjp(fwd, bwd)
 
     def backend(y0, blocks, c, ts):
-        ys, rec, st = run(y0, joined(list(blocks), ts.dtype), c, ts)
+        (ys, rec, *ev), st = run(y0, joined(list(blocks), ts.dtype), c, ts)
         if jumps is None and not keep.all():
             ys = ys[:, np.flatnonzero(keep)]
         stats, result = _adaptive.per_body(st, single, np.flatnonzero(keep))
-        return (jnp.moveaxis(ys, 1, 0), jnp.moveaxis(rec, 1, 0)), (stats, result)
+        out = (jnp.moveaxis(ys, 1, 0), jnp.moveaxis(rec, 1, 0))
+        if event is not None:
+            out = (*out, ev[0][0] if single else ev[0])
+        return out, (stats, result)
 
     return backend
 

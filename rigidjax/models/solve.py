@@ -71,6 +71,7 @@ def _unrolled(hoisted: model_kernel.Hoisted) -> tuple[model_kernel.Hoisted | Non
     args = (scalar, (scalar,) * hoisted.n, (scalar,) * hoisted.p, c)
     maps = [hoisted.components, hoisted.end_components]
     maps += [hoisted.jump_components] if hoisted.jumps else []
+    maps += [hoisted.event_components] if hoisted.events else []
     try:
         for fn in maps:
             if fn is not None:
@@ -151,11 +152,12 @@ def _solve(
     keep: np.ndarray,
     event: Event | None = None,
 ) -> tuple[Array, dict[str, Array], diffrax.RESULTS]:
-    """`solve_model` without raising failures (with an `event`: the per-body kernel or the
-    Diffrax path, whose `solve_saved` differentiates it in every mode): the CPU kernel (each
-    block of parameters its own operand: a shared block is never copied per body), the GPU
-    kernel, or Diffrax (`p`: the blocks joined). With the default adjoint, every backend of a
-    model with a scalar program is differentiable in every mode and order
+    """`solve_model` without raising failures (with an `event`: the per-body kernel, the
+    adaptive GPU kernel, or the Diffrax path, whose `solve_saved` differentiates it in every
+    mode): the CPU kernel (each block of parameters its own operand: a shared block is never
+    copied per body), the GPU kernels, or Diffrax (`p`: the blocks joined). With the default
+    adjoint, every backend of a model with a scalar program is differentiable in every mode
+    and order
     (`_modes.both_modes`): its own reverse mode, forward mode and higher orders through the
     Diffrax path on the same steps."""
     dtype = ts.dtype
@@ -183,7 +185,22 @@ def _solve(
             adaptive_kernel = adaptive.build(*args, fixed=fixed)
         except Unsupported as e:
             hoisted, missing = None, e.primitive
-    if adaptive_kernel is None and event is not None and hoisted is not None and hoisted.events:
+    # on a GPU: the adaptive Pallas kernel (an event's condition in it)
+    on_gpu = (
+        ctl is not None
+        and not fixed
+        and adaptive_kernel is None
+        and hoisted is not None
+        and _unrolled(hoisted)[0] is not None
+        and model_pallas_adaptive.serves(hoisted, model.unit, method_of(options), model.record)
+    )
+    if (
+        adaptive_kernel is None
+        and not on_gpu
+        and event is not None
+        and hoisted is not None
+        and hoisted.events
+    ):
         hoisted, missing = _compile(model, dtype)  # (the Diffrax path's: without the event)
     if backend is None and hoisted is not None:
         hoisted, missing = _unrolled(hoisted)
@@ -200,14 +217,12 @@ def _solve(
     if adaptive_kernel is not None and hoisted is not None:
         assert ctl is not None
         backend = adaptive_backend(adaptive_kernel, ctl, problem, options, event)
+    elif on_gpu:
+        backend = adaptive_gpu_backend(method_of(options), ctl, problem, options, event)
     elif event is not None:
         backend = diffrax_backend(problem, options, event=event)
-    elif ctl is not None and hoisted is not None:
-        method = method_of(options)
-        if model_pallas_adaptive.serves(hoisted, model.unit, method, model.record):
-            backend = adaptive_gpu_backend(method, ctl, problem, options)
     if (
-        (event is None or adaptive_kernel is not None)
+        (event is None or adaptive_kernel is not None or on_gpu)
         and hoisted is not None
         and isinstance(options.adjoint, None | diffrax.RecursiveCheckpointAdjoint)
     ):

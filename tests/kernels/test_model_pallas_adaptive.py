@@ -306,3 +306,106 @@ def test_jump_map_lowers_to_triton_and_restarts_each_interval(triton_modules):
     np.testing.assert_allclose(ys, jnp.stack(want, 1)[:, keep], rtol=0, atol=1e-14)
     np.testing.assert_allclose(rec, jnp.stack(recs, 1), rtol=0, atol=1e-14)
     np.testing.assert_array_equal(st[:, 0], steps)
+
+
+BODY = rj.RigidBody(jnp.array([1.0, 2.0, 3.0]))
+# near the intermediate axis: each flips, at different times
+W_FLIP = jnp.array([[0.05, 1.0, 0.02], [0.1, 1.2, -0.03], [0.02, -0.9, 0.1]])
+TS_FLIP = jnp.linspace(0.0, 12.0, 4)
+
+
+def test_flip_event_in_the_kernel(monkeypatch):
+    """The first flip (`flip_event`, terminating) located in the adaptive kernel by the Illinois
+    method on the step, each body its own: the CPU kernel's event times (measured ≤ 1e-14
+    apart) and held states, and the closed form (`analytic.time_of_first_flip`, 1e-8); not
+    terminating, the motion unchanged and the same times."""
+    tight = dict(rtol=1e-12, atol=1e-12)
+    cpu = rj.simulate(BODY, W_FLIP, ts=TS_FLIP, event=rj.events.flip_event(W_FLIP), **tight)
+    monkeypatch.setattr(adaptive, "build", lambda *args, **kwargs: None)
+    monkeypatch.setattr(pa, "serves", lambda h, u, solver, *_: type(solver) in pa.tableau.ADAPTIVE)
+
+    def run(terminate=True):
+        event = rj.events.flip_event(W_FLIP, terminate=terminate)
+        return rj.simulate(BODY, W_FLIP, ts=TS_FLIP, event=event, **tight)
+
+    assert "pallas_call" in str(jax.make_jaxpr(lambda: run().event_t)())
+    got = run()
+    np.testing.assert_allclose(got.event_t, cpu.event_t, rtol=0, atol=1e-12)
+    exact = rj.analytic.time_of_first_flip(BODY.inertia.diagonal(), W_FLIP)
+    np.testing.assert_allclose(got.event_t, exact, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(got.omega, cpu.omega, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(got.quat, cpu.quat, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(got.stats["num_steps"], cpu.stats["num_steps"])
+    assert np.all(np.asarray(got.event_t) < TS_FLIP[-1])  # held from then on: the CPU's
+    going = run(terminate=False)
+    np.testing.assert_allclose(going.event_t, cpu.event_t, rtol=0, atol=1e-12)
+    plain = rj.simulate(BODY, W_FLIP, ts=TS_FLIP, **tight)
+    np.testing.assert_array_equal(going.omega, plain.omega)
+
+
+@pytest.mark.slow  # ~40 s: the gradients' compiles through Diffrax's events
+def test_event_time_gradient(on_gpu_adaptive):
+    """The gradient of the flip times w.r.t. the initial rates from the adaptive kernel (through
+    the Diffrax path's events) equals the closed form's, `analytic.time_of_first_flip`."""
+    tight = dict(rtol=1e-12, atol=1e-12)
+
+    def flips(w):
+        event = rj.events.flip_event(W_FLIP)
+        return rj.simulate(BODY, w, ts=TS_FLIP, event=event, **tight).event_t
+
+    def exact(w):
+        return rj.analytic.time_of_first_flip(BODY.inertia.diagonal(), w)
+
+    got = jax.grad(lambda w: jnp.sum(flips(w) * jnp.arange(1.0, 4.0)))(W_FLIP)
+    want = jax.grad(lambda w: jnp.sum(exact(w) * jnp.arange(1.0, 4.0)))(W_FLIP)
+    np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-8)
+
+
+def test_event_lowers_to_triton(triton_modules):
+    """The adaptive kernel with an event's condition, lowered for CUDA: one Triton call whose
+    module has the attempts' `while` and, inside it, the location's (`locate`), behind a
+    branch taken only where a body's condition crossed."""
+    model = rigid_body_model(None)
+    hoisted = model_kernel.hoist(
+        model.field, model.size, model.params, jnp.float64, event=lambda t, y, p: y[1] - 0.5
+    )
+    spec = pk.Spec(hoisted, model.unit, diffrax.Tsit5)
+    ctl = adaptive.controls(diffrax.PIDController(**TOL), diffrax.Tsit5(), None, 100, jnp.float64)
+    _, w, q = _bodies(5)
+    y0 = jnp.concatenate([w, q], axis=1)
+    p = moments_params(jnp.ones(3))[:, None]
+    run = functools.partial(pa.run, spec, ctl=ctl)
+    lowered = jax.jit(run).trace(y0, p, TS).lower(lowering_platforms=("cuda",))
+    assert lowered.as_text().count("__gpu$xla.gpu.triton") == 1
+    (module,) = triton_modules
+    assert module.count("scf.while") == 2 and module.count("scf.if") >= 1
+
+
+@pytest.mark.slow  # ~25 s: Pallas' interpreter
+def test_closed_loop_settling_event(monkeypatch):
+    """A closed loop stopped at its settling event (`settling_event` after a per-body time) in
+    the adaptive kernel: the CPU kernel's event times, held attitudes, wheel speeds and
+    commands (no sample acts after the event; measured ≤ 1e-14 apart)."""
+    sat = rj.Gyrostat(
+        np.array([1.0, 1.5, 2.0]), wheel_axes=AXES, wheel_inertia=[0.01] * 4,
+        wheel_torque_max=0.05,
+    )  # fmt: skip
+    law = rj.control.quaternion_pd(0.4, 0.9, Q_T, wheel_axes=AXES)
+    w0 = jnp.asarray([[0.0, 0.0, 0.0], [0.02, -0.01, 0.0], [0.3, 0.03, 0.01]])
+    event = rj.events.settling_event(Q_T, np.radians(20.0), jnp.asarray([2.0, 3.0, 1.0]))
+
+    ts = np.linspace(0.0, 12.0, 13)
+
+    def run():
+        kw = dict(controller=law, control_period=0.25, event=event, **TOL)
+        return rj.simulate(sat, w0, None, ts, **kw)
+
+    cpu = run()
+    monkeypatch.setattr(adaptive, "build", lambda *args, **kwargs: None)
+    monkeypatch.setattr(pa, "serves", lambda h, u, solver, *_: type(solver) in pa.tableau.ADAPTIVE)
+    assert "pallas_call" in str(jax.make_jaxpr(lambda: run().quat)())
+    got = run()
+    np.testing.assert_allclose(got.event_t, cpu.event_t, rtol=0, atol=1e-12)
+    assert np.all((5.0 < np.asarray(got.event_t)) & (np.asarray(got.event_t) < 7.0))
+    for name in ("quat", "omega", "wheel_speed", "command"):
+        np.testing.assert_allclose(getattr(got, name), getattr(cpu, name), rtol=0, atol=1e-12)
