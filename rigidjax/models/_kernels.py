@@ -21,7 +21,7 @@ from .._integrate import (
     fixed_step_count,
 )
 from ..events import Event
-from ..kernels import adaptive, model_pallas, model_pallas_adaptive
+from ..kernels import adaptive, model_pallas, model_pallas_adaptive, model_pallas_back
 from ..kernels import model as model_kernel
 from ..solvers.explicit_rk import ExplicitRK
 from . import _adaptive
@@ -213,7 +213,7 @@ def _gpu(
     """The Pallas kernel's solve (`model_pallas`, in Pallas' interpreter where the backend is
     not a GPU: the tests): the kept states `(S, B, N)` and the records `(J, B, NR)` (a model
     with a jump map: its held commands). Reverse mode runs the kernel's own adjoint
-    (`model_pallas.run_back`, the same steps reversed); where the output times are
+    (`model_pallas_back.run_back`, the same steps reversed); where the output times are
     differentiated, or the model has a jump map, the same steps through Diffrax
     (`ExplicitRK(method)`), whose reverse mode differentiates them."""
     model, hoisted, _, jumps, keep = problem
@@ -251,12 +251,12 @@ def _gpu(
 
     def fwd(y0, p, c, ts):
         args = (y0.value, p.value, c.value, ts.value)
-        if ts.perturbed or sc is not None or not (interpret or model_pallas.serves_back(spec)):
+        if ts.perturbed or sc is not None or not (interpret or model_pallas_back.serves_back(spec)):
             out, pullback = jax.vjp(through_diffrax, *args)
             return out, (pullback, out)
         y0, p, c, ts = args
         (n, h, t0), longest = schedule(ts)
-        if is_concrete(n) and model_pallas.stores_checkpoints(np.asarray(n), longest):
+        if is_concrete(n) and model_pallas_back.stores_checkpoints(np.asarray(n), longest):
             # the states, and the reverse mode's checkpoints (the same steps)
             ys, src = model_pallas.run(
                 spec, y0, _packed(p, c), (n, h, t0), interpret=interpret, longest=longest
@@ -277,7 +277,7 @@ def _gpu(
         (src, p, c, ts), _ = residuals
         stepped, longest = schedule(ts)
         args = (spec, src, g[0], _packed(p, c), stepped)
-        y0b, pb = model_pallas.run_back(*args, longest=longest, interpret=interpret)
+        y0b, pb = model_pallas_back.run_back(*args, longest=longest, interpret=interpret)
         P = p.shape[1]
         pbar = pb[:P].T if p.shape[0] > 1 else jnp.sum(pb[:P], axis=1)[None]
         return y0b, pbar, jnp.sum(pb[P:], axis=1), None

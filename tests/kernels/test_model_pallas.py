@@ -17,6 +17,7 @@ import pytest
 import rigidjax as rj
 from rigidjax.kernels import model as model_kernel
 from rigidjax.kernels import model_pallas as pk
+from rigidjax.kernels import model_pallas_back as pkb
 from rigidjax.kinematics.formulations import lookup
 from rigidjax.mechanics import heavy_top as ht
 from rigidjax.mechanics._rigid_model import moments_params, rigid_body_model
@@ -339,7 +340,7 @@ def test_gpu_kernel_adjoint(on_gpu_kernel):
     )
     np.testing.assert_allclose(got[1], fd, rtol=1e-7)
     traced = jax.jit(lambda I, g, w, ts: grad(I, g, w, rj.RK4(), ts))
-    assert not pk.stores_checkpoints(np.array([1, 1, 100]), 100)  # (uneven: recomputed)
+    assert not pkb.stores_checkpoints(np.array([1, 1, 100]), 100)  # (uneven: recomputed)
     assert str(jax.make_jaxpr(traced)(*args, TS)).count("pallas_call") == 2
     for g, r in zip(traced(*args, TS), want, strict=True):
         np.testing.assert_allclose(g, r, rtol=1e-10, atol=1e-12)
@@ -367,7 +368,7 @@ def test_reverse_kernel_lowers_to_triton(triton_modules):
     ck, g = jnp.ones((B, 2, 2, 7), dtype), jnp.ones((B, 3, 7), dtype)
     p = jnp.concatenate([moments_params(jnp.ones(3, dtype)), hoisted.c.astype(dtype)])[:, None]
     n, h, t0 = jnp.asarray([3, 4], jnp.int32), jnp.asarray([0.1, 0.2], dtype), jnp.zeros(2, dtype)
-    back = functools.partial(pk.run_back, spec, longest=4)
+    back = functools.partial(pkb.run_back, spec, longest=4)
     vback = jax.vmap(back, in_axes=(0, 0, None, None))
     forward = functools.partial(pk.run, spec, longest=4)
     cases = ((back, (ck, g)), (vback, (ck[None], g[None])), (forward, (g[:, 0],)))
@@ -393,7 +394,7 @@ def test_step_end_map_lowers_to_triton(triton_modules):
     ck = jnp.ones((pk.BLOCK, 2, 2, 3))  # (the checkpoints of 2 intervals of at most 4 steps)
     steps = (jnp.asarray([3, 4], jnp.int32), jnp.asarray([0.1, 0.2]), jnp.zeros(2))
     forward = functools.partial(pk.run, spec)
-    back = functools.partial(pk.run_back, spec, longest=4)
+    back = functools.partial(pkb.run_back, spec, longest=4)
     for f, args in ((forward, (ys[:, 0], p, steps)), (back, (ck, ys, p, steps))):
         text = jax.jit(f).trace(*args).lower(lowering_platforms=("cuda",)).as_text()
         assert text.count("__gpu$xla.gpu.triton") == 1
