@@ -29,7 +29,8 @@ path (the caller's custom rule), as the CPU kernel's do for output times and eve
 from __future__ import annotations
 
 import functools
-from typing import cast
+from collections.abc import Callable
+from typing import NamedTuple, cast
 
 import diffrax
 import jax
@@ -171,7 +172,107 @@ def locate(spec: Spec, p, c, y: tuple, t, h, g0, g1, hit) -> tuple[Array, tuple]
     return t + m, tuple(jnp.where(m == 0, a, b) for a, b in zip(y, u, strict=True))
 
 
-def _kernel(spec: Spec, K: int, N: int, P: int, Pc: int):
+class _Controls(NamedTuple):
+    """The controller's values as a kernel reads them (`kernels.adaptive.CONTROLS`)."""
+
+    rtol: Array
+    atol: Array
+    safety: Array
+    fmin: Array
+    fmax: Array
+    dtmax: Array
+    dt0: Array
+    c1: Array
+    c2: Array
+    c3: Array
+    inv_order: Array
+    max_steps: Array
+    direction: Array
+    terminate: Array
+
+    @classmethod
+    def read(cls, ref) -> _Controls:
+        values = [ref[i] for i in range(14)]
+        values[11] = values[11].astype(jnp.int32)
+        values[13] = values[13] != 0
+        return cls(*values)
+
+
+def _attempts(spec: Spec, ctl: _Controls, p, c, b, floor) -> tuple[Callable, Callable]:
+    """`(going, one)` of an output interval ending at `b` (per body; `floor`: 100 ulp below
+    it): whether each body still integrates, and one attempt of every body (masked where not)
+    on the loop state `(y, tprev, tnext, inv1, inv2, attempts, accepted, watch)`, `watch` the
+    event's `(condition, time, stopped)` (`locate`)."""
+    events = spec.hoisted.events
+    G = spec.hoisted.event_components
+
+    def condition(t, y):
+        assert G is not None
+        return G(t, y, p, c)[0]
+
+    def going(s):
+        return (s[1] < b) & (s[5] < ctl.max_steps) & ~s[7][2]
+
+    def one(s):
+        y, tprev, tnext, inv1, inv2, n, taken, watch = s
+        go = going(s)
+        size = tnext - tprev
+        u, eps = attempt(spec, p, c, tprev, size, y, ctl.rtol, ctl.atol)
+        ok = eps < 1
+        inv = 1 / eps
+        f = ctl.safety * _power(inv, ctl.c1) * _power(inv1, ctl.c2) * _power(inv2, ctl.c3)
+        lo, hi = jnp.where(ok, 1, ctl.fmin), jnp.where(ok, ctl.fmax, ctl.safety)
+        dt = jnp.minimum(size * jnp.minimum(jnp.maximum(f, lo), hi), ctl.dtmax)
+        inv = jnp.where((inv == 0) | jnp.isinf(inv), 1, inv)
+        t0 = jnp.where(ok, tnext, tprev)
+        t1 = t0 + dt
+        last = jnp.minimum(t0, b)
+        proposed = jnp.where(t1 > floor, jnp.where(ok, b, last + 0.5 * (b - last)), t1)
+        take = go & ok
+        new = tuple(jnp.where(take, v, x) for v, x in zip(u, y, strict=True))
+        if events:
+            g, when, stopped = watch
+            g1 = condition(tprev + size, u)
+            hit = take & jnp.isinf(when) & _crossed(ctl.direction, g, g1)
+
+            def located():
+                return locate(spec, p, c, y, tprev, size, g, g1, hit)
+
+            def missed():
+                return jnp.full_like(when, jnp.inf), y
+
+            t_hit, v = jax.lax.cond(jnp.max(hit.astype(jnp.int32)) > 0, located, missed)
+            stop = hit & ctl.terminate
+            new = tuple(jnp.where(stop, a, x) for a, x in zip(v, new, strict=True))
+            g = jnp.where(take & ~stop, g1, g)
+            watch = (g, jnp.where(hit, t_hit, when), stopped | stop)
+        return (
+            new,
+            jnp.where(go, last, tprev),
+            jnp.where(go, proposed, tnext),
+            jnp.where(take, inv, inv1),
+            jnp.where(take, inv1, inv2),
+            n + go.astype(jnp.int32),
+            taken + take.astype(jnp.int32),
+            watch,
+        )
+
+    return going, one
+
+
+def _start(ctl: _Controls, y: tuple, a, b, h, watch) -> tuple:
+    """The loop state of an interval from `a` (`_attempts`): the first attempt of size h
+    (at most dtmax, clipped to the end), the error history 1."""
+    zero, none = jnp.zeros_like(y[0]), jnp.zeros(y[0].shape, jnp.int32)
+    first = jnp.minimum(a + jnp.minimum(h, ctl.dtmax), b)
+    return (y, a + zero, first, zero + 1, zero + 1, none, none, watch)
+
+
+def _finite(y: tuple) -> Array:
+    return functools.reduce(jnp.logical_and, [jnp.isfinite(x) for x in y])
+
+
+def _kernel(spec: Spec, K: int, N: int, P: int, Pc: int, adjoint: bool):
     """The kernel of one block over K output intervals: the states at the K + 1 output times,
     and per body its attempts, accepted and rejected steps, output times reached and result
     (0 successful, 1 max_steps reached, 2 non-finite), as the CPU kernel's. A model with a
@@ -179,19 +280,17 @@ def _kernel(spec: Spec, K: int, N: int, P: int, Pc: int):
     kernel: slot 0 of the states and records a dummy) and starts every interval from dt0 or
     the initial-step heuristic, as the CPU kernel. A model with an event's condition watches
     it after each accepted step (`locate`), writes each body's first event time (∞: none)
-    and, where the event terminates, holds the body from the event on (no later jump)."""
+    and, where the event terminates, holds the body from the event on (no later jump). With
+    `adjoint`, also each interval's first step size and attempts per body (`run_back`'s)."""
     R0, NR = spec.record
     jumps, events = spec.hoisted.jumps, spec.hoisted.events
     G = spec.hoisted.event_components
 
     def kernel(ts_ref, floor_ref, ctl_ref, x0_ref, p_ref, *refs):
         names = ("jump", "save", "out", "rec") if jumps else ("out",)
-        ref = dict(zip((*names, "st", "ev")[: len(refs)], refs, strict=True))
-        rtol, atol, safety, fmin, fmax, dtmax, dt0, c1, c2, c3, inv_order = (
-            ctl_ref[i] for i in range(11)
-        )
-        max_steps = ctl_ref[11].astype(jnp.int32)
-        direction, terminate = ctl_ref[12], ctl_ref[13] != 0
+        names += ("st",) + (("ev",) if events else ()) + (("hk", "nk") if adjoint else ())
+        ref = dict(zip(names, refs, strict=True))
+        ctl = _Controls.read(ctl_ref)
         p = tuple(p_ref[j] for j in range(P))
         c = tuple(p_ref[P + j] for j in range(Pc))
         y = tuple(x0_ref[j] for j in range(N))
@@ -203,15 +302,8 @@ def _kernel(spec: Spec, K: int, N: int, P: int, Pc: int):
                 ref["out"][at, j] = y[j]
 
         def first_step(a, y):  # dt0, or the heuristic's (rounded as a step from a)
-            guess = initial_step(spec, p, c, a, y, rtol, atol, inv_order)
-            return jnp.where(jnp.isnan(dt0), (a + jnp.minimum(guess, dtmax)) - a, dt0)
-
-        def finite(y):
-            return functools.reduce(jnp.logical_and, [jnp.isfinite(x) for x in y])
-
-        def condition(t, y):
-            assert G is not None
-            return G(t, y, p, c)[0]
+            guess = initial_step(spec, p, c, a, y, ctl.rtol, ctl.atol, ctl.inv_order)
+            return jnp.where(jnp.isnan(ctl.dt0), (a + jnp.minimum(guess, ctl.dtmax)) - a, ctl.dt0)
 
         def interval(k, carry):
             y, h, attempts, accepted, valid, result, watch = carry
@@ -228,65 +320,23 @@ def _kernel(spec: Spec, K: int, N: int, P: int, Pc: int):
                 for j in range(NR):
                     ref["rec"][slot, j] = y[R0 + j]
                 h = first_step(a, y)
-            alive = finite(y)
+            alive = _finite(y)
             b = jnp.where(alive & ~stopped, ts_ref[k + 1], a)
             if events:
-                watch = (jnp.where(stopped, watch[0], condition(a, y)), *watch[1:])
-
-            def going(tprev, n, stopped):
-                return (tprev < b) & (n < max_steps) & ~stopped
+                assert G is not None
+                now = G(a, y, p, c)[0]
+                watch = (jnp.where(stopped, watch[0], now), *watch[1:])
+            going, one = _attempts(spec, ctl, p, c, b, floor)
 
             def more(s):
-                return jnp.max(going(s[1], s[5], s[7][2]).astype(jnp.int32)) > 0
+                return jnp.max(going(s).astype(jnp.int32)) > 0
 
-            def one(s):
-                y, tprev, tnext, inv1, inv2, n, taken, watch = s
-                go = going(tprev, n, watch[2])
-                size = tnext - tprev
-                u, eps = attempt(spec, p, c, tprev, size, y, rtol, atol)
-                ok = eps < 1
-                inv = 1 / eps
-                f = safety * _power(inv, c1) * _power(inv1, c2) * _power(inv2, c3)
-                lo, hi = jnp.where(ok, 1, fmin), jnp.where(ok, fmax, safety)
-                dt = jnp.minimum(size * jnp.minimum(jnp.maximum(f, lo), hi), dtmax)
-                inv = jnp.where((inv == 0) | jnp.isinf(inv), 1, inv)
-                t0 = jnp.where(ok, tnext, tprev)
-                t1 = t0 + dt
-                last = jnp.minimum(t0, b)
-                proposed = jnp.where(t1 > floor, jnp.where(ok, b, last + 0.5 * (b - last)), t1)
-                take = go & ok
-                new = tuple(jnp.where(take, v, x) for v, x in zip(u, y, strict=True))
-                if events:
-                    g, when, stopped = watch
-                    g1 = condition(tprev + size, u)
-                    hit = take & jnp.isinf(when) & _crossed(direction, g, g1)
-
-                    def located():
-                        return locate(spec, p, c, y, tprev, size, g, g1, hit)
-
-                    def missed():
-                        return jnp.full_like(when, jnp.inf), y
-
-                    t_hit, v = jax.lax.cond(jnp.max(hit.astype(jnp.int32)) > 0, located, missed)
-                    stop = hit & terminate
-                    new = tuple(jnp.where(stop, a, x) for a, x in zip(v, new, strict=True))
-                    g = jnp.where(take & ~stop, g1, g)
-                    watch = (g, jnp.where(hit, t_hit, when), stopped | stop)
-                return (
-                    new,
-                    jnp.where(go, last, tprev),
-                    jnp.where(go, proposed, tnext),
-                    jnp.where(take, inv, inv1),
-                    jnp.where(take, inv1, inv2),
-                    n + go.astype(jnp.int32),
-                    taken + take.astype(jnp.int32),
-                    watch,
-                )
-
-            start = (y, a + zero, jnp.minimum(a + jnp.minimum(h, dtmax), b), zero + 1, zero + 1)
-            s = jax.lax.while_loop(more, one, (*start, none, none, watch))
+            s = jax.lax.while_loop(more, one, _start(ctl, y, a, b, h, watch))
+            if adjoint:
+                ref["hk"][k] = h
+                ref["nk"][k] = s[5]
             y, tprev, n, taken, watch = s[0], s[1], s[5], s[6], s[7]
-            code = jnp.where((tprev < b) & ~watch[2], 1, jnp.where(finite(y), 0, 2))
+            code = jnp.where((tprev < b) & ~watch[2], 1, jnp.where(_finite(y), 0, 2))
             h = jnp.where(alive, (b - a) / jnp.maximum(taken, 1).astype(h.dtype), h)
             result = jnp.where(result == 0, code, result)
             save(k + 1, y)
@@ -314,6 +364,7 @@ def run(
     *,
     interpret: bool = False,
     schedule: Schedule | None = None,
+    adjoint: bool = False,
 ) -> tuple[Array, ...]:
     """The states `(B, S, N)` of B bodies at the output times `ts` under the controller `ctl`
     (`kernels.adaptive.controls`, with the event's direction and termination), the components
@@ -321,21 +372,24 @@ def run(
     `schedule`, `model.Schedule`: the intervals that start with the jump map, the kept times;
     without one every time is kept and R = 0), per body `(B, 5)`: attempts, accepted and
     rejected steps, the leading output times reached and the result (0 successful, 1
-    max_steps reached, 2 non-finite), and, for a model with an event's condition, each body's
-    first event time `(B,)` (∞: none). `p (P + Pc, B or 1)` as `model_pallas.run`;
-    `interpret=True` runs Pallas' interpreter (any backend: the CPU tests). Under `jax.vmap`
-    over the bodies the mapped bodies join one kernel call."""
+    max_steps reached, 2 non-finite), for a model with an event's condition each body's
+    first event time `(B,)` (∞: none), and with `adjoint` (`run_back`'s residuals) each
+    interval's first step size `(B, K)` and attempts `(B, K)`. `p (P + Pc, B or 1)` as
+    `model_pallas.run`; `interpret=True` runs Pallas' interpreter (any backend: the CPU
+    tests). Under `jax.vmap` over the bodies the mapped bodies join one kernel call."""
     T = ts.shape[0]
     sizes = (T, 0) if schedule is None else (schedule.kept.size, schedule.at.size)
-    call = functools.partial(_blocks, spec, sizes, interpret=interpret)
+    call = functools.partial(_blocks, spec, sizes, adjoint, interpret=interpret)
     args = (ts, floors(ts), jnp.asarray(ctl, ts.dtype))
     if schedule is not None:
         args += (schedule.jump, schedule.save)
-    axes = (0,) * (4 if spec.hoisted.events else 3)
-    return cast(tuple, _joining(call, states=1, out_body_axes=axes)(y0, p, *args))
+    outs = 3 + spec.hoisted.events + 2 * adjoint
+    return cast(tuple, _joining(call, states=1, out_body_axes=(0,) * outs)(y0, p, *args))
 
 
-def _blocks(spec: Spec, sizes: tuple[int, int], *arrays: Array, interpret: bool) -> tuple:
+def _blocks(
+    spec: Spec, sizes: tuple[int, int], adjoint: bool, *arrays: Array, interpret: bool
+) -> tuple:
     """`run` of one batch (`arrays`: its `y0, p, ts, floors, ctl` and, with a jump map, `jump,
     save`; `sizes`: the kept times and the records): the `pallas_call` over its blocks."""
     y0, p, ts, fl, ctl, *schedule = arrays
@@ -345,15 +399,17 @@ def _blocks(spec: Spec, sizes: tuple[int, int], *arrays: Array, interpret: bool)
     pp = _parameters(p, B, Bp, dtype)
     jumps, events = bool(schedule), spec.hoisted.events
     shapes: list[tuple[int, ...]] = [(S + 1, N), (R + 1, max(NR, 1))] if jumps else [(S, N)]
-    out_shape = [jax.ShapeDtypeStruct((*s, Bp), dtype) for s in shapes]
-    out_shape.append(jax.ShapeDtypeStruct((5, Bp), jnp.int32))
+    dtypes = [dtype] * len(shapes) + [jnp.int32]
     shapes.append((5,))
     if events:
-        out_shape.append(jax.ShapeDtypeStruct((1, Bp), dtype))
         shapes.append((1,))
+        dtypes.append(dtype)
+    if adjoint:
+        shapes += [(T - 1,), (T - 1,)]
+        dtypes += [dtype, jnp.int32]
     outs = pl.pallas_call(
-        _kernel(spec, T - 1, N, P, p.shape[0] - P),
-        out_shape=out_shape,
+        _kernel(spec, T - 1, N, P, p.shape[0] - P, adjoint),
+        out_shape=[jax.ShapeDtypeStruct((*s, Bp), d) for s, d in zip(shapes, dtypes, strict=True)],
         grid=(Bp // BLOCK,),
         in_specs=[
             pl.BlockSpec((T,), lambda i: (0,)),
@@ -369,12 +425,13 @@ def _blocks(spec: Spec, sizes: tuple[int, int], *arrays: Array, interpret: bool)
     )(ts.astype(dtype), fl.astype(dtype), ctl.astype(dtype), _padded(y0, Bp), pp,
       *(a.astype(jnp.int32) for a in schedule))  # fmt: skip
     if jumps:
-        ys, rec, st, *ev = outs
+        ys, rec, st, *rest = outs
         ys, rec = ys[1:], rec[1:, :NR]
     else:
-        (ys, st, *ev), rec = outs, jnp.zeros((0, 0, Bp), dtype)
+        (ys, st, *rest), rec = outs, jnp.zeros((0, 0, Bp), dtype)
     ys, rec = (jnp.moveaxis(a[..., :B], -1, 0) for a in (ys, rec))
-    return (ys, rec, st[:, :B].T, *(e[0, :B] for e in ev))
+    ev = [rest.pop(0)[0, :B]] if events else []
+    return (ys, rec, st[:, :B].T, *ev, *(a[:, :B].T for a in rest))
 
 
 def serves(

@@ -13,6 +13,7 @@ import diffrax
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.custom_derivatives import SymbolicZero
 from jaxtyping import Array
 
 from .._checks import is_concrete
@@ -21,7 +22,13 @@ from .._integrate import (
     fixed_step_count,
 )
 from ..events import Event
-from ..kernels import adaptive, model_pallas, model_pallas_adaptive, model_pallas_back
+from ..kernels import (
+    adaptive,
+    model_pallas,
+    model_pallas_adaptive,
+    model_pallas_adaptive_back,
+    model_pallas_back,
+)
 from ..kernels import model as model_kernel
 from ..solvers.explicit_rk import ExplicitRK
 from . import _adaptive
@@ -142,8 +149,9 @@ def adaptive_gpu_backend(
     """The adaptive Pallas kernel's solve (`kernels.model_pallas_adaptive`, each body its own
     steps; in Pallas' interpreter where the backend is not a GPU: the tests), with a jump map's
     schedule and records as the CPU kernel's and an `event` located in the kernel (its time
-    after the records); its derivatives those of the same solve on the Diffrax path, whose
-    per-body steps are the kernel's."""
+    after the records). Reverse mode runs the kernel's own adjoint of the accepted steps
+    (`model_pallas_adaptive_back.run_back`); where the output times are differentiated, or
+    the model has a jump map or an event, the same per-body steps through the Diffrax path."""
     model, hoisted, single, jumps, keep = problem
     method = cast(type[diffrax.AbstractERK], type(solver))  # one of ADAPTIVE: `serves` checked
     spec = model_pallas.Spec(hoisted, model.unit, method, model.record)
@@ -151,6 +159,7 @@ def adaptive_gpu_backend(
         problem, options, diffrax.RecursiveCheckpointAdjoint(), values=True, event=event
     )
     interpret = jax.default_backend() != "gpu"
+    own = jumps is None and event is None and keep.all()  # the kernel's adjoint can take it
 
     def forward(y0, p, c, ts):
         K = ts.shape[0] - 1
@@ -164,14 +173,42 @@ def adaptive_gpu_backend(
         ev = [jnp.reshape(e, y0.shape[:1]) for e in ev]  # (one body: a scalar there)
         return (jnp.moveaxis(ys, 0, 1), jnp.moveaxis(rec, 0, 1), *ev)
 
-    def fwd(*args):  # (the pullback made here: values closes over the caller's tracers)
-        return forward(*args), jax.vjp(values, *args)[1]
+    def fwd(y0, p, c, ts):
+        args = (y0.value, p.value, c.value, ts.value)
+        if (
+            ts.perturbed
+            or not own
+            or not (interpret or model_pallas_adaptive_back.serves_back(spec))
+        ):
+            out = forward(
+                *args
+            )  # (the pullback made here: values closes over the caller's tracers)
+            return out, (jax.vjp(values, *args)[1], out[0])
+        y0, p, c, ts = args
+        run_args = (spec, y0, _packed(p, c), ts, ctl)
+        ys, rec, st, hk, nk = model_pallas_adaptive.run(
+            *run_args, interpret=interpret, adjoint=True
+        )
+        return ((ys, rec), st), ((ys, hk, nk, p, c, ts), None)
 
-    def bwd(pullback, g):
-        return pullback(g[0])
+    def bwd(residuals, g):
+        first, out = residuals
+        if out is not None:  # through the Diffrax path
+            dense = tuple(
+                jnp.zeros_like(x) if isinstance(d, SymbolicZero) else d
+                for d, x in zip(g[0], out, strict=True)
+            )
+            return first(dense)
+        ys, hk, nk, p, c, ts = first
+        gy = jnp.zeros_like(ys) if isinstance(g[0][0], SymbolicZero) else g[0][0]
+        args = (spec, ys, hk, nk, gy, _packed(p, c), ts, ctl)
+        y0b, pb = model_pallas_adaptive_back.run_back(*args, interpret=interpret)
+        P = p.shape[1]
+        pbar = pb[:P].T if p.shape[0] > 1 else jnp.sum(pb[:P], axis=1)[None]
+        return y0b, pbar, jnp.sum(pb[P:], axis=1), None
 
     run = jax.custom_vjp(forward)
-    run.defvjp(fwd, bwd)
+    run.defvjp(fwd, bwd, symbolic_zeros=True)
 
     def backend(y0, blocks, c, ts):
         (ys, rec, *ev), st = run(y0, joined(list(blocks), ts.dtype), c, ts)
@@ -269,7 +306,7 @@ def _gpu(
 
     def bwd(residuals, g):
         g = tuple(
-            jnp.zeros_like(x) if isinstance(d, jax.custom_derivatives.SymbolicZero) else d
+            jnp.zeros_like(x) if isinstance(d, SymbolicZero) else d
             for d, x in zip(g, residuals[1], strict=True)
         )
         if callable(residuals[0]):

@@ -19,6 +19,7 @@ from rigidjax.kernels import adaptive
 from rigidjax.kernels import model as model_kernel
 from rigidjax.kernels import model_pallas as pk
 from rigidjax.kernels import model_pallas_adaptive as pa
+from rigidjax.kernels import model_pallas_adaptive_back as pab
 from rigidjax.mechanics._rigid_model import moments_params, rigid_body_model
 from rigidjax.solvers import ExplicitRK
 
@@ -160,6 +161,8 @@ def test_served_only_where_checked(monkeypatch):
     assert not pa.serves(hoisted, model.unit, rj.RK4())
     with pytest.warns(RuntimeWarning, match="Pallas adaptive kernel for Tsit5 in float64"):
         assert not pa._checked.__wrapped__(spec)  # Pallas can't compile for CPU
+    with pytest.warns(RuntimeWarning, match="adaptive kernel with its adjoint's residuals"):
+        assert not pab._checked_back.__wrapped__(spec)
     run = pa.run
 
     def interpreted(*args, interpret=False, shift=0.0, **kw):
@@ -409,3 +412,73 @@ def test_closed_loop_settling_event(monkeypatch):
     assert np.all((5.0 < np.asarray(got.event_t)) & (np.asarray(got.event_t) < 7.0))
     for name in ("quat", "omega", "wheel_speed", "command"):
         np.testing.assert_allclose(getattr(got, name), getattr(cpu, name), rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("window", [pab.WINDOW, 4], ids=["one window", "windows of 4"])
+def test_reverse_kernel_equals_diffrax_gradient(monkeypatch, window):
+    """The adaptive kernel's own reverse mode (`run_back`: each interval's attempts recomputed
+    from its first state, the accepted steps reversed through `jax.vjp` of the step) gives the
+    cotangents of the initial states and moments of the Diffrax path's reverse mode on the
+    same steps (measured 4e-15), also where an interval's attempts take several windows."""
+    monkeypatch.setattr(pab, "WINDOW", window)
+    I, w, q = _bodies(5, seed=4)
+    model = rigid_body_model(None)
+    hoisted = model_kernel.hoist(model.field, model.size, model.params, jnp.float64)
+    spec = pk.Spec(hoisted, model.unit, diffrax.Tsit5)
+    ctl = adaptive.controls(diffrax.PIDController(**TOL), diffrax.Tsit5(), None, 4096, jnp.float64)
+    y0, p = jnp.concatenate([w, q], axis=1), moments_params(I).T
+    ys, _, _, hk, nk = pa.run(spec, y0, p, TS, ctl, interpret=True, adjoint=True)
+    assert window > 4 or int(jnp.max(nk)) > 2 * window  # several windows
+    g = jnp.asarray(np.random.default_rng(5).normal(size=ys.shape))
+    y0b, pb = pab.run_back(spec, ys, hk, nk, g, p, TS, ctl, interpret=True)
+
+    def path(I, w, q):
+        tr = rj.simulate(rj.RigidBody(I), w, q, TS, solver=ExplicitRK(diffrax.Tsit5()), **TOL)
+        return jnp.concatenate([tr.omega, tr.quat], -1)
+
+    gI, gw, gq = jax.vjp(path, I, w, q)[1](g)
+    np.testing.assert_allclose(y0b, jnp.concatenate([gw, gq], -1), rtol=0, atol=1e-12)
+    got_I = jax.vjp(lambda I: moments_params(I).T, I)[1](pb)[0]
+    np.testing.assert_allclose(got_I, gI, rtol=0, atol=1e-12)
+
+
+@pytest.mark.slow  # ~40 s: Pallas' interpreter, the Diffrax path's gradient compile
+def test_simulate_gradient_through_the_reverse_kernel(on_gpu_adaptive):
+    """`jax.grad` through `simulate` at a tolerance with a torque (a traced gain, time-dependent)
+    runs the kernel's own reverse mode (two Pallas calls in the gradient's program, no
+    Diffrax) and equals the Diffrax path's gradient w.r.t. the moments, the gain and the
+    initial rates."""
+    I, w, q = _bodies(4, seed=6)
+
+    def loss(I, g, w, solver=None):
+        tr = rj.simulate(rj.RigidBody(I), w, q, TS, torque=_torque(g), solver=solver, **TOL)
+        return jnp.sum(tr.omega[:, 1:] ** 2) + jnp.sum(tr.quat[:, -1, 1:] * jnp.arange(1.0, 4.0))
+
+    grad = jax.grad(loss, argnums=(0, 1, 2))
+    program = str(jax.make_jaxpr(grad)(I, 0.3, w))
+    assert program.count("pallas_call") == 2  # the forward with its residuals, the reverse
+    want = grad(I, 0.3, w, ExplicitRK(diffrax.Tsit5()))
+    for got, ref in zip(grad(I, 0.3, w), want, strict=True):
+        np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-12)
+
+
+def test_reverse_kernel_lowers_to_triton(triton_modules):
+    """The forward kernel with the adjoint's residuals and the reverse-mode kernel of an
+    attitude torque, lowered for CUDA: a Triton call each; the reverse's module has the
+    intervals' and windows' loops and the recomputed attempts, with the controller's `pow`."""
+    model = rigid_body_model(_torque(0.3))
+    hoisted = model_kernel.hoist(model.field, model.size, model.params, jnp.float64)
+    spec = pk.Spec(hoisted, model.unit, diffrax.Tsit5)
+    ctl = adaptive.controls(diffrax.PIDController(**TOL), diffrax.Tsit5(), None, 100, jnp.float64)
+    _, w, q = _bodies(5)
+    y0 = jnp.concatenate([w, q], axis=1)
+    p = jnp.concatenate([moments_params(jnp.ones(3)), hoisted.c])[:, None]
+    run = functools.partial(pa.run, spec, ctl=ctl, adjoint=True)
+    jax.jit(run).trace(y0, p, TS).lower(lowering_platforms=("cuda",))
+    ys, hk, nk = jnp.zeros((5, 4, 7)), jnp.zeros((5, 3)), jnp.zeros((5, 3), jnp.int32)
+    back = functools.partial(pab.run_back, spec, ctl=ctl)
+    lowered = jax.jit(back).trace(ys, hk, nk, ys, p, TS).lower(lowering_platforms=("cuda",))
+    assert lowered.as_text().count("__gpu$xla.gpu.triton") == 1
+    assert len(triton_modules) == 2
+    symbols = set(re.findall(r'symbol = "(\w*)"', triton_modules[1]))
+    assert "__nv_pow" in symbols and triton_modules[1].count("scf.for") >= 4
