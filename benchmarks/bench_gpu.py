@@ -26,7 +26,9 @@ Parts (one run, on the default JAX backend: a GPU)
               each body its own steps; ``pallas`` records whether it was served) and
               ``jax.vmap(simulate)`` against the Diffrax path (``solver=ExplicitRK(Tsit5())``,
               each body its own steps through XLA): ``speedup_over_diffrax_path`` (≥ 2 wanted
-              at 1e6 bodies) and ``max_diff_vs_diffrax_path`` (the same steps: ~1e-12).
+              at 1e6 bodies) and ``max_diff_vs_diffrax_path`` (the same steps: ~1e-12); and
+              ``jax.grad`` of ``sum |Ω(20)|² + sum |q_vec(20)|²`` w.r.t. (moments, Ω0) over
+              its forward (the Pallas reverse kernel; ≤ 4 wanted) and through the Diffrax path.
 
 Usage
     python benchmarks/bench_gpu.py [--bodies 1000000] [--steps 1000] [--repeats 5]
@@ -36,6 +38,7 @@ Usage
 
 from __future__ import annotations
 
+import functools
 import sys
 import time
 from pathlib import Path
@@ -45,7 +48,15 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _c_reference import CudaReference  # noqa: E402
 from _harness import Log, finish, interleaved, machine_info, measure, parser  # noqa: E402
-from bench_adaptive import MODELS, N_OUT, T_END, TOL, inputs, jax_calls  # noqa: E402
+from bench_adaptive import (  # noqa: E402
+    MODELS,
+    N_OUT,
+    T_END,
+    TOL,
+    attitude_torque,
+    inputs,
+    jax_calls,
+)
 from bench_models import models  # noqa: E402
 
 CUDA_MODELS = ("free_body", "damping", "gravity_gradient", "heavy_top", "sixdof", "satellite",
@@ -216,7 +227,8 @@ def adaptive(B: int, repeats: int, log) -> dict:
     out: dict = dict(bodies=B, rtol=TOL, atol=TOL, output_times=N_OUT, t_end=T_END)
     for model in MODELS:
         batch, vmapped = jax_calls(model, ts)
-        path = jax_calls(model, ts, rj.ExplicitRK(diffrax.Tsit5()))[0]
+        path_solver = rj.ExplicitRK(diffrax.Tsit5())
+        path = jax_calls(model, ts, path_solver)[0]
         served = "pallas_call" in str(jax.make_jaxpr(batch)(*args))
         runs = {"simulate": batch, "vmap_simulate": vmapped, "diffrax_path": path}
         timings = {name: measure(fn, *args, repeats=1) for name, fn in runs.items()}
@@ -235,7 +247,35 @@ def adaptive(B: int, repeats: int, log) -> dict:
                 speedup_over_diffrax_path=base.best / t.best,
                 max_diff_vs_diffrax_path=float(np.max(np.abs(ys - ref))),
             )
-        out[model] = dict(pallas=served, **rows)
+        torque = None if model == "free_body" else attitude_torque()
+
+        def loss(I, w, q, solver=None, torque=torque):
+            tr = rj.simulate(
+                rj.RigidBody(I), w, q, ts, torque=torque, solver=solver, rtol=TOL, atol=TOL
+            )
+            return jnp.sum(tr.omega[:, -1] ** 2) + jnp.sum(tr.quat[:, -1, 1:] ** 2)
+
+        grads = {
+            "forward": measure(jax.jit(loss), *args, repeats=1),
+            "grad": measure(jax.jit(jax.grad(loss, argnums=(0, 1))), *args, repeats=1),
+            "diffrax_grad": measure(
+                jax.jit(jax.grad(functools.partial(loss, solver=path_solver), argnums=(0, 1))),
+                *args,
+                repeats=1,
+            ),
+        }
+        interleaved(grads.values(), repeats - 1)
+        g, g_ref = (
+            np.concatenate([np.ravel(a) for a in grads[k].output]) for k in grads if k != "forward"
+        )
+        gradient = dict(
+            wrt="moments, omega0",
+            forward_s=grads["forward"].best,
+            grad_over_forward=grads["grad"].best / grads["forward"].best,
+            diffrax_grad_over_forward=grads["diffrax_grad"].best / grads["forward"].best,
+            max_rel_difference_diffrax=float(np.max(np.abs(g - g_ref)) / np.max(np.abs(g_ref))),
+        )
+        out[model] = dict(pallas=served, **rows, gradient=gradient)
         log(
             f"adaptive {model} (Pallas served: {served}): "
             + ", ".join(f"{k} {v['seconds']:.3f} s" for k, v in rows.items())
