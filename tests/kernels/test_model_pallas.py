@@ -23,6 +23,7 @@ from rigidjax.mechanics import heavy_top as ht
 from rigidjax.mechanics._rigid_model import moments_params, rigid_body_model
 from rigidjax.solvers import ExplicitRK
 from tests.helpers import rigid_body_dop853
+from tests.kernels.held import closed_loop, held, sample_law
 
 BODY = rj.RigidBody(jnp.array([1.0, 2.0, 3.0]))
 TS = jnp.asarray([0.0, 0.1, 0.12, 0.35])  # 5, 1 and 12 steps of at most 0.02
@@ -236,26 +237,6 @@ def test_served_only_where_checked(monkeypatch):
         assert not pk._checked.__wrapped__(spec)
 
 
-@pytest.fixture
-def triton_modules(monkeypatch):
-    """The list into which the text of each Triton module that Pallas builds goes (a private
-    JAX function wrapped: skipped where this JAX lays it out otherwise)."""
-    try:
-        from jax._src.pallas.triton import lowering
-    except ImportError as e:
-        pytest.skip(f"this JAX has no Pallas Triton lowering where expected: {e}")
-    modules = []
-    lower = lowering.lower_jaxpr_to_triton_module
-
-    def lower_and_keep(*args, **kwargs):
-        result = lower(*args, **kwargs)
-        modules.append(result.module.operation.get_asm())
-        return result
-
-    monkeypatch.setattr(lowering, "lower_jaxpr_to_triton_module", lower_and_keep)
-    return modules
-
-
 @pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
 def test_kernel_lowers_to_triton(triton_modules, dtype):
     """Lowered for CUDA on a machine without a GPU, the kernel of a model with an attitude
@@ -418,10 +399,6 @@ def test_gpu_kernel_forward_mode(on_gpu_kernel):
     np.testing.assert_allclose(forward[..., 0], (f(g + eps) - f(g - eps)) / (2 * eps), atol=1e-8)
 
 
-AXES = np.array([[1.0, 0.0, 0.0, 0.6], [0.0, 1.0, 0.0, 0.6], [0.0, 0.0, 1.0, 0.52915026]])
-Q_T = np.array([np.cos(0.6), np.sin(0.6) * 0.6, np.sin(0.6) * 0.8, 0.0])
-
-
 @pytest.mark.slow  # ~40 s: Pallas' interpreter, the gradients' compiles
 def test_closed_loop_through_gpu_kernel(on_gpu_kernel):
     """A closed loop (a gyrostat with four wheels under a quaternion PD law sampled every 5
@@ -429,11 +406,7 @@ def test_closed_loop_through_gpu_kernel(on_gpu_kernel):
     Diffrax path's attitudes, wheel speeds and held commands (the records), and the gradient
     of a loss of the attitudes and commands w.r.t. the initial rates (through the Diffrax
     path) equal to the Diffrax path's."""
-    sat = rj.Gyrostat(
-        np.array([1.0, 1.5, 2.0]), wheel_axes=AXES, wheel_inertia=[0.01] * 4,
-        wheel_torque_max=0.05,
-    )  # fmt: skip
-    law = rj.control.quaternion_pd(0.4, 0.9, Q_T, wheel_axes=AXES)
+    sat, law = closed_loop()
     ts = jnp.linspace(0.0, 2.0, 5)
     w0 = jnp.asarray([[0.0, 0.0, 0.0], [0.02, -0.01, 0.0], [0.0, 0.03, 0.01]])
 
@@ -455,23 +428,13 @@ def test_closed_loop_through_gpu_kernel(on_gpu_kernel):
     np.testing.assert_allclose(got, jax.grad(loss)(w0, ExplicitRK(rj.RK4())), rtol=1e-10)
 
 
-def _held(t, y, p):
-    """A damped oscillator driven by a held command y[2] (its rate 0)."""
-    return jnp.stack([y[1], -p[0] * y[0] - 0.1 * y[1] + y[2], 0.0 * y[2]])
-
-
-def _sample_law(t, y, p):
-    """The jump map: the command sampled from the state, `u = −2 x − v + sin t`."""
-    return jnp.stack([y[0], y[1], -2.0 * y[0] - y[1] + jnp.sin(t)])
-
-
 def test_jump_map_lowers_to_triton(triton_modules):
     """Lowered for CUDA on a machine without a GPU, the kernel of a model with a jump map (a
     held command, sampled at flagged intervals and recorded) is one Triton call whose module
     has the jump's branch (`scf.if`) inside the intervals' loop; and in the interpreter its
     kept states and records equal a loop that applies the jump map and the kernel's steps
     interval by interval."""
-    hoisted = model_kernel.hoist(_held, 3, 1, jnp.float64, _sample_law)
+    hoisted = model_kernel.hoist(held, 3, 1, jnp.float64, sample_law)
     spec = pk.Spec(hoisted, (), rj.RK4, (2, 1))
     jumps, keep = np.array([True, False, True]), np.array([True, False, True, True])
     schedule = model_kernel.Schedule.of(3, jumps, keep, 1)
@@ -486,12 +449,12 @@ def test_jump_map_lowers_to_triton(triton_modules):
     ys, rec = run(y0, p, steps, interpret=True)
     assert ys.shape == (5, 3, 3) and rec.shape == (5, 2, 1)
     plain = functools.partial(
-        pk.run, pk.Spec(model_kernel.hoist(_held, 3, 1, jnp.float64), (), rj.RK4)
+        pk.run, pk.Spec(model_kernel.hoist(held, 3, 1, jnp.float64), (), rj.RK4)
     )
     y, want, recs = y0, [y0], []
     for k in range(3):
         if jumps[k]:
-            y = jax.vmap(_sample_law, in_axes=(None, 0, None))(TS[k], y, p[0])
+            y = jax.vmap(sample_law, in_axes=(None, 0, None))(TS[k], y, p[0])
             recs.append(y[:, 2:])
         y = plain(y, p, tuple(a[k : k + 1] for a in steps), interpret=True)[:, 1]
         want.append(y)

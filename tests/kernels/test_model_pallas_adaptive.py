@@ -22,6 +22,7 @@ from rigidjax.kernels import model_pallas_adaptive as pa
 from rigidjax.kernels import model_pallas_adaptive_back as pab
 from rigidjax.mechanics._rigid_model import moments_params, rigid_body_model
 from rigidjax.solvers import ExplicitRK
+from tests.kernels.held import Q_T, closed_loop, held, sample_law
 
 TS = jnp.asarray([0.0, 0.5, 0.7, 2.0])
 TOL = dict(rtol=1e-8, atol=1e-8)
@@ -178,26 +179,6 @@ def test_served_only_where_checked(monkeypatch):
         assert not pa._checked.__wrapped__(spec)
 
 
-@pytest.fixture
-def triton_modules(monkeypatch):
-    """The text of each Triton module that Pallas builds (a private JAX function wrapped:
-    skipped where this JAX lays it out otherwise)."""
-    try:
-        from jax._src.pallas.triton import lowering
-    except ImportError as e:
-        pytest.skip(f"this JAX has no Pallas Triton lowering where expected: {e}")
-    modules = []
-    lower = lowering.lower_jaxpr_to_triton_module
-
-    def lower_and_keep(*args, **kwargs):
-        result = lower(*args, **kwargs)
-        modules.append(result.module.operation.get_asm())
-        return result
-
-    monkeypatch.setattr(lowering, "lower_jaxpr_to_triton_module", lower_and_keep)
-    return modules
-
-
 @pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
 def test_kernel_lowers_to_triton(triton_modules, dtype):
     """Lowered for CUDA on a machine without a GPU, the adaptive kernel of an attitude torque
@@ -226,10 +207,6 @@ def test_kernel_lowers_to_triton(triton_modules, dtype):
         assert module.count("scf.for") == 1 and module.count("scf.while") == 1
 
 
-AXES = np.array([[1.0, 0.0, 0.0, 0.6], [0.0, 1.0, 0.0, 0.6], [0.0, 0.0, 1.0, 0.52915026]])
-Q_T = np.array([np.cos(0.6), np.sin(0.6) * 0.6, np.sin(0.6) * 0.8, 0.0])
-
-
 @pytest.mark.slow  # ~90 s: Pallas' interpreter, the gradients' compiles
 def test_closed_loop_at_a_tolerance(on_gpu_adaptive):
     """A closed loop (a gyrostat with four wheels under a quaternion PD law sampled every
@@ -237,11 +214,7 @@ def test_closed_loop_at_a_tolerance(on_gpu_adaptive):
     its jump map, each interval from the initial-step heuristic: the Diffrax path's attitudes,
     wheel speeds, held commands and per-body step counts, and its gradient w.r.t. the initial
     rates (through the Diffrax path)."""
-    sat = rj.Gyrostat(
-        np.array([1.0, 1.5, 2.0]), wheel_axes=AXES, wheel_inertia=[0.01] * 4,
-        wheel_torque_max=0.05,
-    )  # fmt: skip
-    law = rj.control.quaternion_pd(0.4, 0.9, Q_T, wheel_axes=AXES)
+    sat, law = closed_loop()
     ts = jnp.linspace(0.0, 2.0, 5)
     w0 = jnp.asarray([[0.0, 0.0, 0.0], [0.02, -0.01, 0.0], [0.3, 0.03, 0.01]])
 
@@ -264,23 +237,13 @@ def test_closed_loop_at_a_tolerance(on_gpu_adaptive):
     np.testing.assert_allclose(jax.grad(loss)(w0), want, rtol=1e-9, atol=1e-12)
 
 
-def _held(t, y, p):
-    """A damped oscillator driven by a held command y[2] (its rate 0)."""
-    return jnp.stack([y[1], -p[0] * y[0] - 0.1 * y[1] + y[2], 0.0 * y[2]])
-
-
-def _sample_law(t, y, p):
-    """The jump map: the command sampled from the state, `u = −2 x − v + sin t`."""
-    return jnp.stack([y[0], y[1], -2.0 * y[0] - y[1] + jnp.sin(t)])
-
-
 def test_jump_map_lowers_to_triton_and_restarts_each_interval(triton_modules):
     """A model with a jump map (a held command, sampled at flagged intervals and recorded):
     lowered for CUDA, one Triton call with the jump's branch (`scf.if`) and the attempts'
     `while` inside the intervals' loop; in the interpreter, its kept states, records and step
     counts those of a loop that applies the jump map and then the kernel, interval by
     interval (each interval from the initial-step heuristic, as the CPU kernel)."""
-    hoisted = model_kernel.hoist(_held, 3, 1, jnp.float64, _sample_law)
+    hoisted = model_kernel.hoist(held, 3, 1, jnp.float64, sample_law)
     spec = pk.Spec(hoisted, (), diffrax.Tsit5, (2, 1))
     ts = jnp.asarray([0.0, 0.4, 0.5, 1.5])
     jumps, keep = np.array([True, False, True]), np.array([True, False, True, True])
@@ -296,11 +259,11 @@ def test_jump_map_lowers_to_triton_and_restarts_each_interval(triton_modules):
     assert module.count("scf.if") >= 1
     ys, rec, st = run(y0, p, ts, interpret=True)
     assert ys.shape == (5, 3, 3) and rec.shape == (5, 2, 1)
-    plain = pk.Spec(model_kernel.hoist(_held, 3, 1, jnp.float64), (), diffrax.Tsit5)
+    plain = pk.Spec(model_kernel.hoist(held, 3, 1, jnp.float64), (), diffrax.Tsit5)
     y, want, recs, steps = y0, [y0], [], 0
     for k in range(3):
         if jumps[k]:
-            y = jax.vmap(_sample_law, in_axes=(None, 0, None))(ts[k], y, p[0])
+            y = jax.vmap(sample_law, in_axes=(None, 0, None))(ts[k], y, p[0])
             recs.append(y[:, 2:])
         out, _, s = pa.run(plain, y, p, ts[k : k + 2], ctl, interpret=True)
         y, steps = out[:, 1], steps + s[:, 0]
@@ -389,11 +352,7 @@ def test_closed_loop_settling_event(monkeypatch):
     """A closed loop stopped at its settling event (`settling_event` after a per-body time) in
     the adaptive kernel: the CPU kernel's event times, held attitudes, wheel speeds and
     commands (no sample acts after the event; measured ≤ 1e-14 apart)."""
-    sat = rj.Gyrostat(
-        np.array([1.0, 1.5, 2.0]), wheel_axes=AXES, wheel_inertia=[0.01] * 4,
-        wheel_torque_max=0.05,
-    )  # fmt: skip
-    law = rj.control.quaternion_pd(0.4, 0.9, Q_T, wheel_axes=AXES)
+    sat, law = closed_loop()
     w0 = jnp.asarray([[0.0, 0.0, 0.0], [0.02, -0.01, 0.0], [0.3, 0.03, 0.01]])
     event = rj.events.settling_event(Q_T, np.radians(20.0), jnp.asarray([2.0, 3.0, 1.0]))
 
