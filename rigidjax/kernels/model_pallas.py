@@ -50,10 +50,12 @@ Steps = tuple[Int[Array, " K"], Float[Array, " K"], Float[Array, " K"]]
 
 class Spec:
     """What a kernel integrates: a model (`Hoisted`), its unit groups, the method (a type in
-    `tableau.METHODS`) and, for a model with a jump map, the components `(R0, NR)` that each
-    jump records. Equal (and hashed, as the checks' caches key them) by the model's jaxprs'
-    text, sizes, unit groups, element type, method and records: the lowering depends on nothing
-    else (the constants' values are the checks' random ones)."""
+    `tableau.METHODS`), for a model with a jump map the components `(R0, NR)` that each jump
+    records, and for the adaptive kernel (`model_pallas_adaptive`) whether its bodies take
+    fixed steps (`fixed`: an event at fixed steps). Equal (and hashed, as the checks' caches
+    key them) by the model's jaxprs' text, sizes, unit groups, element type, method, records
+    and steps: the lowering depends on nothing else (the constants' values are the checks'
+    random ones)."""
 
     def __init__(
         self,
@@ -61,15 +63,17 @@ class Spec:
         unit: Unit,
         method: type[diffrax.AbstractERK],
         record: tuple[int, int] = (0, 0),
+        fixed: bool = False,
     ):
         self.hoisted, self.unit, self.method, self.record = hoisted, unit, method, record
+        self.fixed = fixed
         self.tab = _stages.tableau_of(method())
         end = str(hoisted.jaxpr(hoisted.end_fn)) if hoisted.ends else None
         jump = str(hoisted.jaxpr(hoisted.jump_fn)) if hoisted.jumps else None
         event = str(hoisted.jaxpr(hoisted.event_fn)) if hoisted.events else None
         self.text = (str(hoisted.forward), end, jump, event, hoisted.n, hoisted.p)
         self.text += (hoisted.c.shape, unit)
-        self.text += (hoisted.dtype.name, method, record)
+        self.text += (hoisted.dtype.name, method, record, fixed)
 
     def __hash__(self) -> int:
         return hash(self.text)

@@ -22,8 +22,11 @@ block costs its slowest body's attempts, and a batch each of its blocks' own:
               max_steps attempts each; a non-finite state is not integrated further
 
 (Söderlind, "Digital filters in adaptive time-stepping", ACM TOMS 29, 2003, in Diffrax's form.)
-The controller's values are `kernels.adaptive.CONTROLS`. Derivatives go through the Diffrax
-path (the caller's custom rule), as the CPU kernel's do for output times and events.
+The controller's values are `kernels.adaptive.CONTROLS`. A jump map (a sampled, held command)
+and an event's condition (`locate`) are written into the kernel as in the CPU kernel. Its
+reverse mode is `model_pallas_adaptive_back.run_back`; the derivatives it does not give (the
+output times', a jump map's or an event's, forward mode) go through the Diffrax path (the
+caller's custom rule), as the CPU kernel's do for output times and events.
 """
 
 from __future__ import annotations
@@ -40,6 +43,7 @@ from jax.experimental import pallas as pl
 from jax.experimental.pallas import triton as pltriton
 from jaxtyping import Array, Float
 
+from .._integrate import fixed_step_count
 from ..solvers import _stages
 from . import adaptive, tableau
 from .model import Hoisted, Schedule
@@ -57,6 +61,7 @@ from .model_pallas import (
     step,
     step_end,
 )
+from .model_pallas_events import watched
 
 
 def floors(ts: Float[Array, " T"]) -> Float[Array, " K"]:
@@ -109,69 +114,6 @@ def _power(x, e):
     return jnp.where(e == 0, 1, jnp.power(x, e))
 
 
-def _sign(x):
-    return (x > 0).astype(jnp.int32) - (x < 0).astype(jnp.int32)
-
-
-def _crossed(direction, g0, g1):
-    """Whether the condition's change from g0 to g1 is an event in `direction` (0 either, 1
-    rising, −1 falling), as Diffrax decides it (`model_adaptive.h`'s `Crossed`)."""
-    s0, s1 = _sign(g0), _sign(g1)
-    rising, falling = (s0 <= 0) & (s1 > 0), (s0 > 0) & (s1 <= 0)
-    return jnp.where(direction == 0, s0 != s1, jnp.where(direction > 0, rising, falling))
-
-
-def locate(spec: Spec, p, c, y: tuple, t, h, g0, g1, hit) -> tuple[Array, tuple]:
-    """The events of the bodies `hit` on their steps of size `h` from `y` at `t` (the
-    condition `g0` there, `g1` at the step's end): the time, located by the Illinois method
-    on τ ↦ G(t + τ, the step of size τ from y) (Dowell & Jarratt, BIT 11, 1971; each value
-    one step of the pair, `model_adaptive.h`'s `Locate`), and the state there; the bodies
-    iterate together, each until its bracket is below 4 ulp of the time, a root, or 200
-    iterations."""
-    G = spec.hoisted.event_components
-    assert G is not None
-    dtype = y[0].dtype
-    tiny = 4 * jnp.finfo(dtype).eps * jnp.maximum(jnp.abs(t) + h, 1)
-    zero = jnp.zeros_like(h)
-
-    def active(s):
-        i, a, b, _, _, _, _, done = s
-        return ~done & (i < 200) & (b - a > tiny)
-
-    def more(s):
-        return jnp.max(active(s).astype(jnp.int32)) > 0
-
-    def one(s):
-        i, a, b, fa, fb, side, m, done = s
-        go = active(s)
-        mid = (a * fb - b * fa) / (fb - fa)
-        mid = jnp.where((mid > a) & (mid < b), mid, 0.5 * (a + b))
-        fm = G(t + mid, step(spec, p, c, t, mid, y), p, c)[0]
-        root = fm == 0
-        same = _sign(fm) == _sign(fb)
-        nb, nfb = jnp.where(same, mid, b), jnp.where(same, fm, fb)
-        nfa = jnp.where(same & (side == -1), 0.5 * fa, fa)
-        na, nfa = jnp.where(same, a, mid), jnp.where(same, nfa, fm)
-        nfb = jnp.where(~same & (side == 1), 0.5 * nfb, nfb)
-        move = go & ~root
-        return (
-            i + 1,
-            jnp.where(move, na, a),
-            jnp.where(move, nb, b),
-            jnp.where(move, nfa, fa),
-            jnp.where(move, nfb, fb),
-            jnp.where(move, jnp.where(same, -1, 1), side),
-            jnp.where(go, jnp.where(root, mid, nb), m),
-            done | (go & root),
-        )
-
-    side = jnp.zeros(h.shape, jnp.int32)
-    start = (jnp.int32(0), zero, h, g0, g1, side, jnp.where(g0 == 0, zero, h), ~hit | (g0 == 0))
-    m = jax.lax.while_loop(more, one, start)[6]
-    u = step(spec, p, c, t, m, y)
-    return t + m, tuple(jnp.where(m == 0, a, b) for a, b in zip(y, u, strict=True))
-
-
 class _Controls(NamedTuple):
     """The controller's values as a kernel reads them (`kernels.adaptive.CONTROLS`)."""
 
@@ -204,11 +146,6 @@ def _attempts(spec: Spec, ctl: _Controls, p, c, b, floor) -> tuple[Callable, Cal
     on the loop state `(y, tprev, tnext, inv1, inv2, attempts, accepted, watch)`, `watch` the
     event's `(condition, time, stopped)` (`locate`)."""
     events = spec.hoisted.events
-    G = spec.hoisted.event_components
-
-    def condition(t, y):
-        assert G is not None
-        return G(t, y, p, c)[0]
 
     def going(s):
         return (s[1] < b) & (s[5] < ctl.max_steps) & ~s[7][2]
@@ -231,21 +168,9 @@ def _attempts(spec: Spec, ctl: _Controls, p, c, b, floor) -> tuple[Callable, Cal
         take = go & ok
         new = tuple(jnp.where(take, v, x) for v, x in zip(u, y, strict=True))
         if events:
-            g, when, stopped = watch
-            g1 = condition(tprev + size, u)
-            hit = take & jnp.isinf(when) & _crossed(ctl.direction, g, g1)
-
-            def located():
-                return locate(spec, p, c, y, tprev, size, g, g1, hit)
-
-            def missed():
-                return jnp.full_like(when, jnp.inf), y
-
-            t_hit, v = jax.lax.cond(jnp.max(hit.astype(jnp.int32)) > 0, located, missed)
-            stop = hit & ctl.terminate
-            new = tuple(jnp.where(stop, a, x) for a, x in zip(v, new, strict=True))
-            g = jnp.where(take & ~stop, g1, g)
-            watch = (g, jnp.where(hit, t_hit, when), stopped | stop)
+            new, watch = watched(
+                spec, ctl.direction, ctl.terminate, p, c, y, tprev, size, u, take, new, watch
+            )
         return (
             new,
             jnp.where(go, last, tprev),
@@ -258,6 +183,35 @@ def _attempts(spec: Spec, ctl: _Controls, p, c, b, floor) -> tuple[Callable, Cal
         )
 
     return going, one
+
+
+def _fixed(spec: Spec, ctl: _Controls, p, c, y: tuple, a, b, watch) -> tuple:
+    """Each body's fixed steps over `[a, b]` (`b` per body; `model_adaptive.h`'s `Fixed`): the
+    fewest equal steps of at most dt0 (`fixed_step_count`, the fixed-step kernel's), step s at
+    `a + s h`, at most max_steps of them, the event watched after each as on adaptive steps;
+    returns the states, the steps taken, `watch` and whether the interval's end was reached
+    (or the body stopped)."""
+    width = b - a
+    steps = fixed_step_count(width, ctl.dt0)
+    h = width / steps
+    count = jnp.where(a < b, jnp.minimum(steps, ctl.max_steps.astype(h.dtype)), 0)
+    count = count.astype(jnp.int32)
+
+    def one(i, s):
+        y, n, watch = s
+        go = (i < count) & ~watch[2]
+        t = a + i.astype(h.dtype) * h
+        u = step(spec, p, c, t, h, y)
+        new = tuple(jnp.where(go, v, x) for v, x in zip(u, y, strict=True))
+        if spec.hoisted.events:
+            new, watch = watched(
+                spec, ctl.direction, ctl.terminate, p, c, y, t, h, u, go, new, watch
+            )
+        return new, n + go.astype(jnp.int32), watch
+
+    start = (y, jnp.zeros(h.shape, jnp.int32), watch)
+    y, n, watch = jax.lax.fori_loop(0, jnp.max(count), one, start)
+    return y, n, watch, ~(a < b) | (steps <= ctl.max_steps) | watch[2]
 
 
 def _start(ctl: _Controls, y: tuple, a, b, h, watch) -> tuple:
@@ -319,31 +273,36 @@ def _kernel(spec: Spec, K: int, N: int, P: int, Pc: int, adjoint: bool):
                 y = jax.lax.cond(slot != 0, jump, lambda y: y, y)
                 for j in range(NR):
                     ref["rec"][slot, j] = y[R0 + j]
-                h = first_step(a, y)
+                h = zero if spec.fixed else first_step(a, y)
             alive = _finite(y)
             b = jnp.where(alive & ~stopped, ts_ref[k + 1], a)
             if events:
                 assert G is not None
                 now = G(a, y, p, c)[0]
                 watch = (jnp.where(stopped, watch[0], now), *watch[1:])
-            going, one = _attempts(spec, ctl, p, c, b, floor)
+            if spec.fixed:
+                y, n, watch, done = _fixed(spec, ctl, p, c, y, a, b, watch)
+                taken = n
+            else:
+                going, one = _attempts(spec, ctl, p, c, b, floor)
 
-            def more(s):
-                return jnp.max(going(s).astype(jnp.int32)) > 0
+                def more(s):
+                    return jnp.max(going(s).astype(jnp.int32)) > 0
 
-            s = jax.lax.while_loop(more, one, _start(ctl, y, a, b, h, watch))
-            if adjoint:
-                ref["hk"][k] = h
-                ref["nk"][k] = s[5]
-            y, tprev, n, taken, watch = s[0], s[1], s[5], s[6], s[7]
-            code = jnp.where((tprev < b) & ~watch[2], 1, jnp.where(_finite(y), 0, 2))
+                s = jax.lax.while_loop(more, one, _start(ctl, y, a, b, h, watch))
+                if adjoint:
+                    ref["hk"][k] = h
+                    ref["nk"][k] = s[5]
+                y, tprev, n, taken, watch = s[0], s[1], s[5], s[6], s[7]
+                done = ~(tprev < b) | watch[2]
+            code = jnp.where(done, jnp.where(_finite(y), 0, 2), 1)
             h = jnp.where(alive, (b - a) / jnp.maximum(taken, 1).astype(h.dtype), h)
             result = jnp.where(result == 0, code, result)
             save(k + 1, y)
             return y, h, attempts + n, accepted + taken, valid + (result == 0), result, watch
 
         save(0, y)
-        h = zero if jumps else first_step(ts_ref[0], y)
+        h = zero if jumps or spec.fixed else first_step(ts_ref[0], y)
         watch = (zero, zero + jnp.inf, none != 0)  # the condition, the event's time, stopped
         carry = (y, h, none, none, none + 1, none, watch)
         *_, attempts, accepted, valid, result, watch = jax.lax.fori_loop(0, K, interval, carry)
@@ -439,18 +398,20 @@ def serves(
     unit: Unit,
     solver: diffrax.AbstractSolver,
     record: tuple[int, int] = (0, 0),
+    fixed: bool = False,
 ) -> bool:
     """Whether the kernel integrates `hoisted` (with a jump map: recording the components
-    `record`) with `solver` (one of `tableau.ADAPTIVE`) on the default backend: a GPU, float32
-    or float64, and the kernel checked there (once per model, pair and element type: a small
-    batch compiled must give the interpreter's states and counts, else one warning and the
-    Diffrax path)."""
+    `record`) with `solver` (one of `tableau.ADAPTIVE`; with `fixed`, each body's fixed steps
+    of one of `tableau.METHODS`: an event at fixed steps) on the default backend: a GPU,
+    float32 or float64, and the kernel checked there (once per model, method and element
+    type: a small batch compiled must give the interpreter's states and counts, else one
+    warning and the Diffrax path)."""
     method = cast(type[diffrax.AbstractERK], type(solver))
     return (
-        type(solver) in tableau.ADAPTIVE
+        type(solver) in (tableau.METHODS if fixed else tableau.ADAPTIVE)
         and jax.default_backend() == "gpu"
         and hoisted.dtype.name in tableau.DTYPES
-        and _checked(Spec(hoisted, unit, method, record))
+        and _checked(Spec(hoisted, unit, method, record, fixed))
     )
 
 
@@ -458,11 +419,16 @@ def serves(
 def _checked(spec: Spec) -> bool:
     """Whether the compiled kernel runs here and agrees with Pallas' interpreter on two blocks
     of bodies (`model_pallas._sample`) over three intervals, one of them empty (a model with a
-    jump map: jumps at the first and last, the second time not kept), at rtol = atol = 1e-6."""
+    jump map: jumps at the first and last, the second time not kept), at rtol = atol = 1e-6
+    (fixed steps: of at most 0.01)."""
     y, p, _ = _sample(spec)
     ts = np.array([0.0, 0.03, 0.03, 0.3], y.dtype)
-    pid = diffrax.PIDController(rtol=1e-6, atol=1e-6)
-    ctl = adaptive.controls(pid, spec.method(), None, 1000, spec.hoisted.dtype)
+    dtype = spec.hoisted.dtype
+    if spec.fixed:
+        ctl = adaptive.fixed_controls(0.01, 1000, dtype)
+    else:
+        pid = diffrax.PIDController(rtol=1e-6, atol=1e-6)
+        ctl = adaptive.controls(pid, spec.method(), None, 1000, dtype)
     fn = functools.partial(run, spec)
     if spec.hoisted.jumps:
         keep = np.array([True, False, True, True])

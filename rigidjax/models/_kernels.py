@@ -144,22 +144,28 @@ def adaptive_backend(
 
 
 def adaptive_gpu_backend(
-    solver: diffrax.AbstractSolver, ctl, problem: tuple, options, event: Event | None = None
+    solver: diffrax.AbstractSolver,
+    ctl,
+    problem: tuple,
+    options,
+    event: Event | None = None,
+    fixed: bool = False,
 ) -> Backend:
     """The adaptive Pallas kernel's solve (`kernels.model_pallas_adaptive`, each body its own
-    steps; in Pallas' interpreter where the backend is not a GPU: the tests), with a jump map's
+    steps, adaptive or, `fixed`, fixed; in Pallas' interpreter where the backend is not a GPU:
+    the tests), with a jump map's
     schedule and records as the CPU kernel's and an `event` located in the kernel (its time
     after the records). Reverse mode runs the kernel's own adjoint of the accepted steps
     (`model_pallas_adaptive_back.run_back`); where the output times are differentiated, or
     the model has a jump map or an event, the same per-body steps through the Diffrax path."""
     model, hoisted, single, jumps, keep = problem
-    method = cast(type[diffrax.AbstractERK], type(solver))  # one of ADAPTIVE: `serves` checked
-    spec = model_pallas.Spec(hoisted, model.unit, method, model.record)
+    method = cast(type[diffrax.AbstractERK], type(solver))  # `serves` checked it
+    spec = model_pallas.Spec(hoisted, model.unit, method, model.record, fixed)
     through_diffrax = diffrax_backend(
         problem, options, diffrax.RecursiveCheckpointAdjoint(), values=True, event=event
     )
     interpret = jax.default_backend() != "gpu"
-    own = jumps is None and event is None and keep.all()  # the kernel's adjoint can take it
+    own = jumps is None and event is None and keep.all() and not fixed  # the kernel's adjoint
 
     def forward(y0, p, c, ts):
         K = ts.shape[0] - 1
@@ -180,9 +186,8 @@ def adaptive_gpu_backend(
             or not own
             or not (interpret or model_pallas_adaptive_back.serves_back(spec))
         ):
-            out = forward(
-                *args
-            )  # (the pullback made here: values closes over the caller's tracers)
+            # (the pullback made here: `values` closes over the caller's tracers)
+            out = forward(*args)
             return out, (jax.vjp(values, *args)[1], out[0])
         y0, p, c, ts = args
         run_args = (spec, y0, _packed(p, c), ts, ctl)

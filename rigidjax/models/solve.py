@@ -187,12 +187,13 @@ def _solve(
             hoisted, missing = None, e.primitive
     # on a GPU: the adaptive Pallas kernel (an event's condition in it)
     on_gpu = (
-        ctl is not None
-        and not fixed
+        ctl is not None  # (at fixed steps: with an event)
         and adaptive_kernel is None
         and hoisted is not None
         and _unrolled(hoisted)[0] is not None
-        and model_pallas_adaptive.serves(hoisted, model.unit, method_of(options), model.record)
+        and model_pallas_adaptive.serves(
+            hoisted, model.unit, method_of(options), model.record, fixed
+        )
     )
     if (
         adaptive_kernel is None
@@ -218,7 +219,7 @@ def _solve(
         assert ctl is not None
         backend = adaptive_backend(adaptive_kernel, ctl, problem, options, event)
     elif on_gpu:
-        backend = adaptive_gpu_backend(method_of(options), ctl, problem, options, event)
+        backend = adaptive_gpu_backend(method_of(options), ctl, problem, options, event, fixed)
     elif event is not None:
         backend = diffrax_backend(problem, options, event=event)
     if (

@@ -327,16 +327,22 @@ def test_event_time_gradient(on_gpu_adaptive):
     np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-8)
 
 
-def test_event_lowers_to_triton(triton_modules):
+@pytest.mark.parametrize("fixed", [False, True], ids=["adaptive", "fixed steps"])
+def test_event_lowers_to_triton(triton_modules, fixed):
     """The adaptive kernel with an event's condition, lowered for CUDA: one Triton call whose
-    module has the attempts' `while` and, inside it, the location's (`locate`), behind a
-    branch taken only where a body's condition crossed."""
+    module has the location's `while` (`locate`) behind a branch taken only where a body's
+    condition crossed, inside the attempts' `while` (at fixed steps: inside the steps' loop)."""
     model = rigid_body_model(None)
     hoisted = model_kernel.hoist(
         model.field, model.size, model.params, jnp.float64, event=lambda t, y, p: y[1] - 0.5
     )
-    spec = pk.Spec(hoisted, model.unit, diffrax.Tsit5)
-    ctl = adaptive.controls(diffrax.PIDController(**TOL), diffrax.Tsit5(), None, 100, jnp.float64)
+    method = rj.RK4 if fixed else diffrax.Tsit5
+    spec = pk.Spec(hoisted, model.unit, method, fixed=fixed)
+    if fixed:
+        ctl = adaptive.fixed_controls(0.01, 100, jnp.float64)
+    else:
+        pid = diffrax.PIDController(**TOL)
+        ctl = adaptive.controls(pid, diffrax.Tsit5(), None, 100, jnp.float64)
     _, w, q = _bodies(5)
     y0 = jnp.concatenate([w, q], axis=1)
     p = moments_params(jnp.ones(3))[:, None]
@@ -344,7 +350,7 @@ def test_event_lowers_to_triton(triton_modules):
     lowered = jax.jit(run).trace(y0, p, TS).lower(lowering_platforms=("cuda",))
     assert lowered.as_text().count("__gpu$xla.gpu.triton") == 1
     (module,) = triton_modules
-    assert module.count("scf.while") == 2 and module.count("scf.if") >= 1
+    assert module.count("scf.while") == (1 if fixed else 2) and module.count("scf.if") >= 1
 
 
 @pytest.mark.slow  # ~25 s: Pallas' interpreter
@@ -441,3 +447,29 @@ def test_reverse_kernel_lowers_to_triton(triton_modules):
     assert len(triton_modules) == 2
     symbols = set(re.findall(r'symbol = "(\w*)"', triton_modules[1]))
     assert "__nv_pow" in symbols and triton_modules[1].count("scf.for") >= 4
+
+
+@pytest.mark.parametrize("method", [rj.RK4, diffrax.Tsit5], ids=lambda m: m.__name__)
+def test_fixed_step_flip_event_in_the_kernel(monkeypatch, method):
+    """An event at fixed steps (each body its own fixed steps, as the CPU's per-body kernel
+    built for fixed steps, which the lockstep kernels cannot stop one body of): the CPU
+    kernel's event times (measured ≤ 1e-15 apart), states and per-body step counts (a stopped
+    body takes no more), and the closed form's flip times."""
+    fixed = dict(stepsize_controller=diffrax.ConstantStepSize(), dt0=0.01, solver=method())
+
+    def run():
+        event = rj.events.flip_event(W_FLIP)
+        return rj.simulate(BODY, W_FLIP, ts=TS_FLIP, event=event, **fixed)
+
+    cpu = run()
+    monkeypatch.setattr(adaptive, "build", lambda *args, **kwargs: None)
+    monkeypatch.setattr(pa, "serves", lambda h, u, solver, *_: type(solver) in pa.tableau.METHODS)
+    assert "pallas_call" in str(jax.make_jaxpr(lambda: run().event_t)())
+    got = run()
+    np.testing.assert_allclose(got.event_t, cpu.event_t, rtol=0, atol=1e-12)
+    exact = rj.analytic.time_of_first_flip(BODY.inertia.diagonal(), W_FLIP)
+    np.testing.assert_allclose(got.event_t, exact, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(got.omega, cpu.omega, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(got.quat, cpu.quat, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(got.stats["num_steps"], cpu.stats["num_steps"])
+    assert np.all(np.asarray(got.stats["num_steps"]) < 1200)  # stopped before t = 12
