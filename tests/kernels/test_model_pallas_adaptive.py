@@ -280,6 +280,17 @@ W_FLIP = jnp.array([[0.05, 1.0, 0.02], [0.1, 1.2, -0.03], [0.02, -0.9, 0.1]])
 TS_FLIP = jnp.linspace(0.0, 12.0, 4)
 
 
+def _same_flips(got: rj.Trajectory, cpu: rj.Trajectory) -> None:
+    """The kernel's flips are the CPU kernel's (times, states, per-body steps) and the closed
+    form's (1e-8)."""
+    np.testing.assert_allclose(got.event_t, cpu.event_t, rtol=0, atol=1e-12)
+    exact = rj.analytic.time_of_first_flip(BODY.inertia.diagonal(), W_FLIP)
+    np.testing.assert_allclose(got.event_t, exact, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(got.omega, cpu.omega, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(got.quat, cpu.quat, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(got.stats["num_steps"], cpu.stats["num_steps"])
+
+
 def test_flip_event_in_the_kernel(monkeypatch):
     """The first flip (`flip_event`, terminating) located in the adaptive kernel by the Illinois
     method on the step, each body its own: the CPU kernel's event times (measured ≤ 1e-14
@@ -296,12 +307,7 @@ def test_flip_event_in_the_kernel(monkeypatch):
 
     assert "pallas_call" in str(jax.make_jaxpr(lambda: run().event_t)())
     got = run()
-    np.testing.assert_allclose(got.event_t, cpu.event_t, rtol=0, atol=1e-12)
-    exact = rj.analytic.time_of_first_flip(BODY.inertia.diagonal(), W_FLIP)
-    np.testing.assert_allclose(got.event_t, exact, rtol=0, atol=1e-8)
-    np.testing.assert_allclose(got.omega, cpu.omega, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(got.quat, cpu.quat, rtol=0, atol=1e-12)
-    np.testing.assert_array_equal(got.stats["num_steps"], cpu.stats["num_steps"])
+    _same_flips(got, cpu)
     assert np.all(np.asarray(got.event_t) < TS_FLIP[-1])  # held from then on: the CPU's
     going = run(terminate=False)
     np.testing.assert_allclose(going.event_t, cpu.event_t, rtol=0, atol=1e-12)
@@ -466,10 +472,5 @@ def test_fixed_step_flip_event_in_the_kernel(monkeypatch, method):
     monkeypatch.setattr(pa, "serves", lambda h, u, solver, *_: type(solver) in pa.tableau.METHODS)
     assert "pallas_call" in str(jax.make_jaxpr(lambda: run().event_t)())
     got = run()
-    np.testing.assert_allclose(got.event_t, cpu.event_t, rtol=0, atol=1e-12)
-    exact = rj.analytic.time_of_first_flip(BODY.inertia.diagonal(), W_FLIP)
-    np.testing.assert_allclose(got.event_t, exact, rtol=0, atol=1e-8)
-    np.testing.assert_allclose(got.omega, cpu.omega, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(got.quat, cpu.quat, rtol=0, atol=1e-12)
-    np.testing.assert_array_equal(got.stats["num_steps"], cpu.stats["num_steps"])
+    _same_flips(got, cpu)
     assert np.all(np.asarray(got.stats["num_steps"]) < 1200)  # stopped before t = 12
