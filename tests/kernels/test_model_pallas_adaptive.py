@@ -385,7 +385,11 @@ def test_closed_loop_settling_event(monkeypatch):
         np.testing.assert_allclose(getattr(got, name), getattr(cpu, name), rtol=0, atol=1e-12)
 
 
-@pytest.mark.parametrize("window", [pab.WINDOW, 4], ids=["one window", "windows of 4"])
+@pytest.mark.parametrize(
+    "window",
+    [pytest.param(pab.WINDOW, marks=pytest.mark.slow), 4],  # ~20 s and ~6 s
+    ids=["one window", "windows of 4"],
+)
 def test_reverse_kernel_equals_diffrax_gradient(monkeypatch, window):
     """The adaptive kernel's own reverse mode (`run_back`: each interval's attempts recomputed
     from its first state, the accepted steps reversed through `jax.vjp` of the step) gives the
@@ -455,7 +459,11 @@ def test_reverse_kernel_lowers_to_triton(triton_modules):
     assert "__nv_pow" in symbols and triton_modules[1].count("scf.for") >= 4
 
 
-@pytest.mark.parametrize("method", [rj.RK4, diffrax.Tsit5], ids=lambda m: m.__name__)
+@pytest.mark.parametrize(
+    "method",
+    [rj.RK4, pytest.param(diffrax.Tsit5, marks=pytest.mark.slow)],  # ~7 s each
+    ids=lambda m: m.__name__,
+)
 def test_fixed_step_flip_event_in_the_kernel(monkeypatch, method):
     """An event at fixed steps (each body its own fixed steps, as the CPU's per-body kernel
     built for fixed steps, which the lockstep kernels cannot stop one body of): the CPU
