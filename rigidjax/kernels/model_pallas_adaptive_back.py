@@ -31,6 +31,7 @@ from .model_pallas import (
     step,
 )
 from .model_pallas_adaptive import _attempts, _Controls, _finite, _start, floors
+from .model_pallas_back import backwards
 
 WINDOW = 32
 """Attempts of an interval whose steps `run_back` reverses at once (kept in a scratch of WINDOW
@@ -164,13 +165,7 @@ def _back_kernel(spec: Spec, K: int, N: int, P: int, Pc: int):
             lam, pbar = jax.lax.fori_loop(0, windows, window, carry)
             return tuple(u + v for u, v in zip(lam, at(g_ref, k), strict=True)), pbar
 
-        zero = jnp.zeros_like(g_ref[0, 0])
-        init = (at(g_ref, K), tuple(zero for _ in range(P)))
-        lam, pbar = jax.lax.fori_loop(0, K, interval, init)
-        for j in range(N):
-            y0b_ref[j] = lam[j]
-        for j in range(P):
-            pb_ref[j] = pbar[j]
+        backwards(interval, g_ref, y0b_ref, pb_ref, K, N, P)
 
     return kernel
 

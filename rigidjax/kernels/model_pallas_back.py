@@ -170,15 +170,22 @@ def _back_kernel(spec: Spec, K: int, N: int, P: int, Pc: int, L: int, stored: bo
             lam, pbar = jax.lax.fori_loop(0, segments, segment, carry)
             return tuple(a + b for a, b in zip(lam, at(g_ref, k), strict=True)), pbar
 
-        zero = jnp.zeros_like(g_ref[0, 0])
-        init = (at(g_ref, K), tuple(zero for _ in range(P)))
-        lam, pbar = jax.lax.fori_loop(0, K, interval, init)
-        for j in range(N):
-            y0b_ref[j] = lam[j]
-        for j in range(P):
-            pb_ref[j] = pbar[j]
+        backwards(interval, g_ref, y0b_ref, pb_ref, K, N, P)
 
     return kernel
+
+
+def backwards(interval, g_ref, y0b_ref, pb_ref, K: int, N: int, P: int) -> None:
+    """A reverse kernel's sweep: `interval(i, (λ, p̄))` for the intervals K − 1, …, 0 from the
+    cotangent of the last state, then the cotangents of the initial state and of the P
+    parameters written (both reverse kernels')."""
+    zero = jnp.zeros_like(g_ref[0, 0])
+    init = (tuple(g_ref[K, j] for j in range(N)), tuple(zero for _ in range(P)))
+    lam, pbar = jax.lax.fori_loop(0, K, interval, init)
+    for j in range(N):
+        y0b_ref[j] = lam[j]
+    for j in range(P):
+        pb_ref[j] = pbar[j]
 
 
 def serves_back(spec: Spec) -> bool:
