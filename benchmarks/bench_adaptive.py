@@ -360,6 +360,20 @@ def full_tensor(x: dict, repeats: int, log) -> dict:
     return out
 
 
+def final_state_loss(ts, torque, **options):
+    """The gradients' loss of (moments, Ω0, q0): Σ |Ω(T)|² + |q(T)'s vector part|² over the
+    bodies, of ``simulate`` with ``options``."""
+    import jax.numpy as jnp
+
+    import rigidjax as rj
+
+    def loss(I, w, q):
+        tr = rj.simulate(rj.RigidBody(I), w, q, ts, torque=torque, **options)
+        return jnp.sum(tr.omega[:, -1] ** 2) + jnp.sum(tr.quat[:, -1, 1:] ** 2)
+
+    return loss
+
+
 def gradient(x: dict, ts_np: np.ndarray, repeats: int, log) -> dict:
     import diffrax
     import jax
@@ -377,11 +391,7 @@ def gradient(x: dict, ts_np: np.ndarray, repeats: int, log) -> dict:
     for model in MODELS:
         torque = None if model == "free_body" else attitude_torque()
         for mode, options in modes.items():
-
-            def loss(I, w, q, options=options, torque=torque):
-                tr = rj.simulate(rj.RigidBody(I), w, q, ts, torque=torque, options=options)
-                return jnp.sum(tr.omega[:, -1] ** 2) + jnp.sum(tr.quat[:, -1, 1:] ** 2)
-
+            loss = final_state_loss(ts, torque, options=options)
             fwd = measure(loss, *args, repeats=1)
             grad = measure(jax.grad(loss, argnums=(0, 1)), *args, repeats=1)
             interleaved([fwd, grad], repeats - 1)

@@ -38,7 +38,6 @@ Usage
 
 from __future__ import annotations
 
-import functools
 import sys
 import time
 from pathlib import Path
@@ -54,6 +53,7 @@ from bench_adaptive import (  # noqa: E402
     T_END,
     TOL,
     attitude_torque,
+    final_state_loss,
     inputs,
     jax_calls,
 )
@@ -249,20 +249,12 @@ def adaptive(B: int, repeats: int, log) -> dict:
             )
         torque = None if model == "free_body" else attitude_torque()
 
-        def loss(I, w, q, solver=None, torque=torque):
-            tr = rj.simulate(
-                rj.RigidBody(I), w, q, ts, torque=torque, solver=solver, rtol=TOL, atol=TOL
-            )
-            return jnp.sum(tr.omega[:, -1] ** 2) + jnp.sum(tr.quat[:, -1, 1:] ** 2)
-
+        loss = final_state_loss(ts, torque, rtol=TOL, atol=TOL)
+        path_loss = final_state_loss(ts, torque, solver=path_solver, rtol=TOL, atol=TOL)
         grads = {
             "forward": measure(jax.jit(loss), *args, repeats=1),
             "grad": measure(jax.jit(jax.grad(loss, argnums=(0, 1))), *args, repeats=1),
-            "diffrax_grad": measure(
-                jax.jit(jax.grad(functools.partial(loss, solver=path_solver), argnums=(0, 1))),
-                *args,
-                repeats=1,
-            ),
+            "diffrax_grad": measure(jax.jit(jax.grad(path_loss, argnums=(0, 1))), *args, repeats=1),
         }
         interleaved(grads.values(), repeats - 1)
         g, g_ref = (
