@@ -386,15 +386,20 @@ def test_closed_loop_settling_event(monkeypatch):
 
 
 @pytest.mark.parametrize(
-    "window",
-    [pytest.param(pab.WINDOW, marks=pytest.mark.slow), 4],  # ~20 s and ~6 s
-    ids=["one window", "windows of 4"],
+    ("window", "solver"),
+    [
+        pytest.param(pab.WINDOW, ExplicitRK(diffrax.Tsit5()), marks=pytest.mark.slow),  # ~30 s
+        (4, None),  # ~10 s: the CPU kernel's reverse compiles in a third of the Diffrax path's
+    ],
+    ids=["one window, Diffrax path", "windows of 4, CPU kernel"],
 )
-def test_reverse_kernel_equals_diffrax_gradient(monkeypatch, window):
+def test_reverse_kernel_equals_diffrax_gradient(monkeypatch, window, solver):
     """The adaptive kernel's own reverse mode (`run_back`: each interval's attempts recomputed
     from its first state, the accepted steps reversed through `jax.vjp` of the step) gives the
     cotangents of the initial states and moments of the Diffrax path's reverse mode on the
-    same steps (measured 4e-15), also where an interval's attempts take several windows."""
+    same steps (measured 4e-15), also where an interval's attempts take several windows
+    (there against the CPU kernel's reverse mode, itself the Diffrax path's in
+    test_adaptive_kernel.py)."""
     monkeypatch.setattr(pab, "WINDOW", window)
     I, w, q = _bodies(5, seed=4)
     model = rigid_body_model(None)
@@ -407,11 +412,11 @@ def test_reverse_kernel_equals_diffrax_gradient(monkeypatch, window):
     g = jnp.asarray(np.random.default_rng(5).normal(size=ys.shape))
     y0b, pb = pab.run_back(spec, ys, hk, nk, g, p, TS, ctl, interpret=True)
 
-    def path(I, w, q):
-        tr = rj.simulate(rj.RigidBody(I), w, q, TS, solver=ExplicitRK(diffrax.Tsit5()), **TOL)
+    def reference(I, w, q):
+        tr = rj.simulate(rj.RigidBody(I), w, q, TS, solver=solver, **TOL)
         return jnp.concatenate([tr.omega, tr.quat], -1)
 
-    gI, gw, gq = jax.vjp(path, I, w, q)[1](g)
+    gI, gw, gq = jax.vjp(reference, I, w, q)[1](g)
     np.testing.assert_allclose(y0b, jnp.concatenate([gw, gq], -1), rtol=0, atol=1e-12)
     got_I = jax.vjp(lambda I: moments_params(I).T, I)[1](pb)[0]
     np.testing.assert_allclose(got_I, gI, rtol=0, atol=1e-12)
