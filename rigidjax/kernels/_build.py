@@ -1,6 +1,6 @@
 """Build a kernel's C++ source on this machine (once: the shared library is kept in the user's
-cache folder, keyed by the source, the compiler and jaxlib, with XLA's FFI header precompiled
-there once) and register its XLA FFI handlers for the CPU."""
+cache folder, keyed by the source, the compiler and jaxlib) and register its XLA FFI handlers
+for the CPU."""
 
 from __future__ import annotations
 
@@ -49,88 +49,46 @@ def _cpu() -> str:
     return "\n".join(dict.fromkeys(keep))
 
 
-def _toolchain(compiler: list[str]) -> str:
-    """What a build's output depends on besides its source: the compiler's version, the flags,
-    jaxlib's FFI headers and this CPU (see `_cpu`)."""
+def _key(source: bytes, headers: Headers, compiler: list[str]) -> str:
     try:
         version = subprocess.run(
             [*compiler, "--version"], capture_output=True, text=True, timeout=30, check=True
         ).stdout
     except (OSError, subprocess.SubprocessError) as e:
         raise KernelUnavailable(f"no C++ compiler ({' '.join(compiler)}: {e})") from e
-    h = hashlib.sha256()
-    for part in (version, " ".join(FLAGS), jax.__version__, jax.ffi.include_dir(), _cpu()):
-        h.update(part.encode())
-    return h.hexdigest()
-
-
-def _key(source: bytes, headers: Headers, toolchain: str) -> str:
     h = hashlib.sha256(source)
     for name, text in headers:
         h.update(f"{name}\n{text}".encode())
-    h.update(toolchain.encode())
+    for part in (version, " ".join(FLAGS), jax.__version__, jax.ffi.include_dir(), _cpu()):
+        h.update(part.encode())
     return h.hexdigest()[:16]
-
-
-def _compile(command: list[str], out: Path) -> subprocess.CompletedProcess:
-    """Run `command`, which writes `out`'s file into a temporary folder beside it, and rename
-    that file into place on success (parallel processes never read half a file)."""
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=out.parent) as tmp:
-        done = subprocess.run(
-            [*command, "-o", str(Path(tmp) / out.name)], capture_output=True, text=True,
-            timeout=600, cwd=tmp,
-        )  # fmt: skip
-        if done.returncode == 0:
-            os.replace(Path(tmp) / out.name, out)
-    return done
-
-
-def _prelude(compiler: list[str], toolchain: str) -> list[str]:
-    """`-include` of XLA's FFI header, precompiled once per toolchain into the cache (90 MB;
-    it takes 0.5–0.9 s off each kernel's 3.5 s build, measured with GCC 12): the flags that
-    make a build read it; none where it cannot be precompiled (the source then parses the
-    header itself, as a compiler does that cannot use the file)."""
-    header = user_cache_dir() / "kernels" / f"ffi-{toolchain[:16]}" / "ffi_prelude.h"
-    if not header.with_suffix(".h.gch").exists():
-        try:
-            header.parent.mkdir(parents=True, exist_ok=True)
-            if not header.exists():
-                with tempfile.NamedTemporaryFile("w", dir=header.parent, delete=False) as f:
-                    f.write('#include "xla/ffi/api/ffi.h"\n')
-                os.replace(f.name, header)
-            command = [*compiler, *FLAGS, "-x", "c++-header", f"-I{jax.ffi.include_dir()}"]
-            if _compile([*command, str(header)], header.with_suffix(".h.gch")).returncode != 0:
-                return []
-        except (OSError, subprocess.SubprocessError):
-            return []
-    return ["-include", str(header)]
 
 
 def build(name: str, headers: Headers = ()) -> Path:
     """The shared library of `rigidjax/kernels/{name}.cc` with the generated `headers` (file
-    name, text) beside it, compiled if not in the cache yet (see `_compile`), with the
-    precompiled FFI header where there is one (`_prelude`)."""
+    name, text) beside it, compiled if not in the cache yet (to a temporary file renamed into
+    place, so that parallel processes never load half a file)."""
     source = resources.files("rigidjax.kernels").joinpath(f"{name}.cc").read_bytes()
     compiler = _compiler()
-    toolchain = _toolchain(compiler)
     folder = user_cache_dir() / "kernels"
-    path = folder / f"{name}-{_key(source, headers, toolchain)}.so"
+    path = folder / f"{name}-{_key(source, headers, compiler)}.so"
     if path.exists():
         return path
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryDirectory(dir=folder) as src:
-            (Path(src) / f"{name}.cc").write_bytes(source)
+        with tempfile.TemporaryDirectory(dir=folder) as tmp:
+            src = Path(tmp) / f"{name}.cc"
+            src.write_bytes(source)
             for header, text in headers:
-                (Path(src) / header).write_text(text)
-            command = [*compiler, *FLAGS, *_prelude(compiler, toolchain)]
-            command += [f"-I{jax.ffi.include_dir()}", str(Path(src) / f"{name}.cc")]
-            done = _compile(command, path)
+                (Path(tmp) / header).write_text(text)
+            out = Path(tmp) / path.name
+            command = [*compiler, *FLAGS, f"-I{jax.ffi.include_dir()}", str(src), "-o", str(out)]
+            done = subprocess.run(command, capture_output=True, text=True, timeout=600)
             if done.returncode != 0:
                 raise KernelUnavailable(
                     f"building {name}.cc failed ({shlex.join(command)}):\n{done.stderr[-2000:]}"
                 )
+            os.replace(out, path)
     except (OSError, subprocess.SubprocessError) as e:
         raise KernelUnavailable(f"building {name}.cc failed: {e}") from e
     return path

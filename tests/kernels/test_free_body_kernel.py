@@ -255,29 +255,6 @@ def test_no_compiler_is_a_clear_failure(monkeypatch, tmp_path):
         _build.build("model")
 
 
-def test_precompiled_ffi_header_is_only_faster(monkeypatch, tmp_path):
-    """XLA's FFI header is precompiled once into the cache (`_prelude`); a kernel built with it
-    is the same library, byte for byte, as one built without it (where it cannot be
-    precompiled, the build parses the header itself)."""
-    from rigidjax.kernels import model as model_kernel
-    from rigidjax.kernels._source import header, headers
-    from rigidjax.mechanics._rigid_model import rigid_body_model
-
-    model = rigid_body_model(None)
-    hoisted = model_kernel.hoist(model.field, model.size, model.params, jnp.float64)
-    text, _ = header(rj.RK4, hoisted.dtype, hoisted.source(model.unit), "forward")
-    libraries = []
-    for cache, precompiled in (("with", True), ("without", False)):
-        monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / cache))
-        if not precompiled:
-            monkeypatch.setattr(_build, "_prelude", lambda compiler, toolchain: [])
-        libraries.append(_build.build("model", headers(text)))
-    gch = list((tmp_path / "with").rglob("ffi_prelude.h.gch"))
-    assert len(gch) == 1 and not list((tmp_path / "without").rglob("*.gch"))
-    assert libraries[0].name == libraries[1].name  # the same key
-    assert libraries[0].read_bytes() == libraries[1].read_bytes()
-
-
 @pytest.mark.parametrize(
     "case", ["batch", "one_body", "vmapped_times", "checkpointed", "dopri8", "bosh3"]
 )
