@@ -1,5 +1,6 @@
 """Adaptive batches per body, and events (`rigidjax.Event`, `simulate(..., event=...)`)."""
 
+import diffrax
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -156,6 +157,34 @@ def _batch_alone_vmap(atol: float, kinematics: str = "quat", solver=None):
     assert batch.stats["num_steps"].shape == (2,)
     assert batch.stats["num_steps"][0] != batch.stats["num_steps"][1]  # their own steps
     assert batch.successful
+
+
+@pytest.mark.slow  # ~50 s and ~70 s: the compiles of jacfwd, jacrev and the differences
+@pytest.mark.parametrize("steps", ["fixed", "adaptive"])
+def test_forward_mode_through_a_per_body_event_and_a_torque_gain(steps):
+    """`jax.jacfwd` of the flip times of a per-body event (each body its own arrays, under the
+    bodies' `jax.vmap`) w.r.t. a gain the torque closes over, on the per-body CPU kernel: the
+    same as `jax.jacrev`, and (fixed steps) central differences. Forward mode used to trace
+    the event's arrays again outside that `jax.vmap` (an UnexpectedTracerError)."""
+    if steps == "fixed":
+        kw = dict(stepsize_controller=diffrax.ConstantStepSize(), dt0=0.01, solver=rj.RK4())
+    else:
+        kw = dict(rtol=1e-10, atol=1e-10)
+    w = W[:2]
+
+    def flips(g):
+        damped = rj.simulate(
+            BODY, w, ts=TS, event=flip_event(w), torque=lambda t, o, q: -g * o, **kw
+        )
+        return damped.event_t
+
+    g0 = jnp.asarray(0.01)
+    fwd, rev = jax.jacfwd(flips)(g0), jax.jacrev(flips)(g0)
+    assert np.all(np.isfinite(np.asarray(fwd))) and np.all(np.abs(np.asarray(fwd)) > 1.0)
+    np.testing.assert_allclose(fwd, rev, rtol=1e-9)
+    if steps == "fixed":
+        f, eps = jax.jit(flips), 1e-5
+        np.testing.assert_allclose(fwd, (f(g0 + eps) - f(g0 - eps)) / (2 * eps), rtol=1e-6)
 
 
 @pytest.mark.slow

@@ -165,7 +165,7 @@ def _solve(
     per_body = event is not None or not kernel_options(options)  # each body its own steps
     ctl = _adaptive.controls(options, BatchMaxRMS(-1), dtype, event) if per_body else None
     hoisted, missing = _compile(model, dtype, event if ctl is not None else None)
-    backend: Backend | None = None
+    kernel_backend: Backend | None = None  # (fixed steps, no event: the lockstep kernels)
     if hoisted is not None and kernel_options(options) and event is None:
         method = method_of(options)
         try:
@@ -174,9 +174,9 @@ def _solve(
         except Unsupported as e:
             kernel, gpu, hoisted, missing = None, False, None, e.primitive
         if kernel is not None:
-            backend = cpu_backend(kernel, model, options, jumps, keep)
+            kernel_backend = cpu_backend(kernel, model, options, jumps, keep)
         elif gpu and hoisted is not None:
-            backend = gpu_backend((model, hoisted, single, jumps, keep), options)
+            kernel_backend = gpu_backend((model, hoisted, single, jumps, keep), options)
     adaptive_kernel = None
     if ctl is not None and hoisted is not None:
         try:
@@ -203,7 +203,7 @@ def _solve(
         and hoisted.events
     ):
         hoisted, missing = _compile(model, dtype)  # (the Diffrax path's: without the event)
-    if backend is None and hoisted is not None:
+    if kernel_backend is None and hoisted is not None:
         hoisted, missing = _unrolled(hoisted)
     if missing is not None and (kernel_options(options) or ctl is not None):
         warnings.warn(
@@ -215,32 +215,52 @@ def _solve(
         )
     c = jnp.zeros((0,), dtype) if hoisted is None else hoisted.c.astype(dtype)
     problem = (model, hoisted, single, jumps, keep)
+    # the event's arrays an argument of the backends, not a closure: `both_modes`' rules trace
+    # them again, outside the trace those arrays may belong to (a per-body event under the
+    # bodies' `jax.vmap`, a condition closing over a traced value)
+    if event is not None:
+        y_one = jnp.zeros(y0.shape[1:], dtype)
+        condition = eqx.filter_closure_convert(event.condition, ts[0], y_one)
+        event = eqx.tree_at(lambda e: e.condition, event, condition)
+    arrays, rest = eqx.partition(event, eqx.is_array)
+
+    def on_event(make: Callable[[Event | None], Callable]) -> Callable:
+        def backend(y0, blocks, c, ts, arrays):
+            return make(eqx.combine(arrays, rest))(y0, blocks, c, ts)
+
+        return backend
+
+    backend = None if kernel_backend is None else on_event(lambda ev: kernel_backend)
     if adaptive_kernel is not None and hoisted is not None:
         assert ctl is not None
-        backend = adaptive_backend(adaptive_kernel, ctl, problem, options, event)
+        backend = on_event(lambda ev: adaptive_backend(adaptive_kernel, ctl, problem, options, ev))
     elif on_gpu:
-        backend = adaptive_gpu_backend(method_of(options), ctl, problem, options, event, fixed)
+        method = method_of(options)
+        backend = on_event(
+            lambda ev: adaptive_gpu_backend(method, ctl, problem, options, ev, fixed)
+        )
     elif event is not None:
-        backend = diffrax_backend(problem, options, event=event)
+        backend = on_event(lambda ev: diffrax_backend(problem, options, event=ev))
     if (
         (event is None or adaptive_kernel is not None or on_gpu)
         and hoisted is not None
         and isinstance(options.adjoint, None | diffrax.RecursiveCheckpointAdjoint)
     ):
-        # the scalar program: every input explicit (`c`), so one rule differentiates it all
-        # (the model's own field: `solve_saved`'s rule, its closure converted); an event's
-        # time is one of the values (the Diffrax path with an event differentiates itself)
+        # the scalar program: every input explicit (`c`, the event's arrays), so one rule
+        # differentiates it all (the model's own field: `solve_saved`'s rule, its closure
+        # converted); an event's time is one of the values (the Diffrax path with an event
+        # differentiates itself)
         if backend is None:
             checkpointed = diffrax.RecursiveCheckpointAdjoint()
-            backend = diffrax_backend(problem, options, checkpointed)
-        modes = (diffrax.ForwardMode(), diffrax.DirectAdjoint())
+            backend = on_event(lambda ev: diffrax_backend(problem, options, checkpointed))
         forward, second = (
-            diffrax_backend(problem, options, a, values=True, event=event) for a in modes
+            on_event(lambda ev, a=a: diffrax_backend(problem, options, a, values=True, event=ev))
+            for a in (diffrax.ForwardMode(), diffrax.DirectAdjoint())
         )
         backend = both_modes(backend, forward, second)
     if backend is None:
-        backend = diffrax_backend(problem, options)
-    (ys, recorded, *event_t), (stats, result) = backend(y0, tuple(blocks), c, ts)
+        backend = on_event(lambda ev: diffrax_backend(problem, options))
+    (ys, recorded, *event_t), (stats, result) = backend(y0, tuple(blocks), c, ts, arrays)
     if model.record[1]:
         stats["recorded"] = recorded
     if event_t:
