@@ -169,7 +169,8 @@ def gyro(
         bias0=b0.shape[:-1],
         **({} if gain is None else {"scale_factor/misalignment": gain.shape[:-2]}),
     )
-    dtype = jnp.result_type(mean, dt, arw, rrw, b0)
+    # (the default zero bias takes the others' dtype: float32 inputs give float32 under x64)
+    dtype = jnp.result_type(mean, dt, arw, rrw, *(() if bias0 is None else (b0,)))
     T1 = mean.shape[-2]
     z = normals(key, batch, (T1, 3, 3), dtype)
     sdt = jnp.sqrt(dt)[..., None]

@@ -248,3 +248,25 @@ def test_errors_name_the_argument(change, needle):
     kw.update(change)
     with pytest.raises(ValueError, match=needle):
         mekf(**kw)
+
+
+def test_float32_in_float32_out_with_the_defaults():
+    """float32 data with the defaults (`bias0`, `P0`) stay float32 under x64 (a default zero
+    bias used to promote the gyro and the filter to float64), and the filter's attitude
+    follows the float64 filter's on the same data."""
+    f32 = jnp.float32
+    ts = jnp.arange(11, dtype=f32) * f32(DT)
+    w = jnp.array([0.01, -0.02, 0.03], f32)
+    q = quat.from_rotvec(ts[:, None] * w)
+    k_gyro, k_st = jax.random.split(jax.random.PRNGKey(5))
+    rate, bias = sensors.gyro(k_gyro, ts, jnp.broadcast_to(w, (11, 3)), arw=ARW, rrw=RRW)
+    qm = sensors.star_tracker(k_st, q, SIGMA)
+    assert (rate.dtype, bias.dtype, qm.dtype) == (f32, f32, f32)
+    args = dict(arw=ARW, rrw=RRW, sigma=SIGMA)
+    single = mekf(ts, rate, qm, q0=qm[0], **args)
+    assert {x.dtype for x in (single.quat, single.bias, single.cov, single.log_likelihood)} == {
+        np.dtype(f32)
+    }
+    double = mekf(*(x.astype(jnp.float64) for x in (ts, rate, qm)), q0=qm[0], **args)
+    err = quat.to_rotvec(quat.mul(quat.inv(double.quat), single.quat.astype(jnp.float64)))
+    assert np.max(np.linalg.norm(err, axis=-1)) < 1e-5  # rad, float32's rounding of ~1e-7
