@@ -156,13 +156,13 @@ def gyro(
     gain = None
     if scale_factor is not None:
         s = check_finite(vector(scale_factor, 3, "scale_factor"), "scale_factor")
-        gain = jnp.eye(3) + s[..., :, None] * jnp.eye(3)
+        gain = jnp.eye(3, dtype=s.dtype) + s[..., :, None] * jnp.eye(3, dtype=s.dtype)
     if misalignment is not None:
         m = as_float(misalignment, "misalignment")
         if m.shape[-2:] != (3, 3):
             raise ValueError(f"misalignment must have shape (..., 3, 3), got {tuple(m.shape)}")
         m = check_finite(m, "misalignment")
-        gain = (jnp.eye(3) if gain is None else gain) + m
+        gain = (jnp.eye(3, dtype=m.dtype) if gain is None else gain) + m
     batch = broadcast_batch(
         ts=ts.shape[:-1],
         omega=mean.shape[:-2],

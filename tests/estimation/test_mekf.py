@@ -262,6 +262,9 @@ def test_float32_in_float32_out_with_the_defaults():
     rate, bias = sensors.gyro(k_gyro, ts, jnp.broadcast_to(w, (11, 3)), arw=ARW, rrw=RRW)
     qm = sensors.star_tracker(k_st, q, SIGMA)
     assert (rate.dtype, bias.dtype, qm.dtype) == (f32, f32, f32)
+    errors = dict(scale_factor=jnp.full(3, 1e-4, f32), misalignment=jnp.full((3, 3), 1e-4, f32))
+    imperfect = sensors.gyro(k_gyro, ts, jnp.broadcast_to(w, (11, 3)), arw=ARW, rrw=RRW, **errors)
+    assert {x.dtype for x in imperfect} == {np.dtype(f32)}
     args = dict(arw=ARW, rrw=RRW, sigma=SIGMA)
     single = mekf(ts, rate, qm, q0=qm[0], **args)
     assert {x.dtype for x in (single.quat, single.bias, single.cov, single.log_likelihood)} == {
