@@ -187,6 +187,42 @@ def test_forward_mode_through_a_per_body_event_and_a_torque_gain(steps):
         np.testing.assert_allclose(fwd, (f(g0 + eps) - f(g0 - eps)) / (2 * eps), rtol=1e-6)
 
 
+@pytest.mark.slow  # ~15-25 s each: the compiles of jax.grad and jax.jacfwd
+@pytest.mark.parametrize("backend", ["adaptive", "fixed", "pallas"])
+def test_derivatives_wrt_a_value_the_condition_closes_over(backend, monkeypatch):
+    """`event_t` differentiated w.r.t. a threshold `c` the condition closes over: a spin about
+    e_z at 1 rad/s from the identity, `sin t + c` falling through zero at `t* = π + asin c`,
+    so `dt*/dc = 1/√(1 − c²)` (a closed form), by `jax.grad` and `jax.jacfwd` on the CPU
+    kernels (adaptive, and fixed steps per body) and the adaptive Pallas kernel (interpreted).
+    The kernels' rules closed over the condition's arrays (an UnexpectedTracerError)."""
+    if backend == "pallas":
+        import rigidjax.kernels.model_pallas_adaptive as pa
+        from rigidjax.kernels import adaptive
+
+        monkeypatch.setattr(adaptive, "build", lambda *args, **kwargs: None)
+        monkeypatch.setattr(
+            pa, "serves", lambda h, u, solver, *_: type(solver) in pa.tableau.ADAPTIVE
+        )
+    if backend == "fixed":
+        kw = dict(stepsize_controller=diffrax.ConstantStepSize(), dt0=0.01, solver=rj.RK4())
+    else:
+        kw = dict(options=TIGHT)
+    w0, ts = jnp.array([0.0, 0.0, 1.0]), jnp.linspace(0.0, 5.0, 3)
+
+    def crossing(c):
+        def condition(t, w, q):
+            return rj.quat.rotate(q, jnp.array([1.0, 0.0, 0.0]))[1] + c
+
+        return rj.simulate(BODY, w0, ts=ts, event=rj.Event(condition, direction=-1), **kw).event_t
+
+    c = jnp.asarray(0.5)
+    np.testing.assert_allclose(crossing(c), np.pi + np.arcsin(0.5), atol=1e-9)
+    exact = 1.0 / np.sqrt(1.0 - 0.5**2)
+    rev, fwd = jax.grad(crossing)(c), jax.jacfwd(crossing)(c)
+    np.testing.assert_allclose(rev, exact, rtol=1e-8)
+    np.testing.assert_allclose(fwd, rev, rtol=1e-10)
+
+
 @pytest.mark.slow
 def test_adaptive_batch_is_each_body_alone_quaternion():
     _batch_alone_vmap(1e-12, solver=rj.ExplicitRK())

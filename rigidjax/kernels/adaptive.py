@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from typing import NamedTuple, cast
+from typing import Any, NamedTuple, cast
 
 import diffrax
 import jax
@@ -147,9 +147,10 @@ def build(
     return AdaptiveKernel(name, back, hoisted.n, size, record, hoisted.events)
 
 
-Through = Callable[[Array, tuple, Array], tuple[Array, Array, Array]]
-"""`(y0, blocks, ts) -> (ys (B, S, N), recorded (B, R, NR), event times (B,))`: the same solve
-through Diffrax, whose reverse mode differentiates the output times and the events."""
+Through = Callable[[Array, tuple, Array, Any], tuple[Array, Array, Array]]
+"""`(y0, blocks, ts, extra) -> (ys (B, S, N), recorded (B, R, NR), event times (B,))`: the same
+solve through Diffrax, whose reverse mode differentiates the output times and the events
+(`extra`: `run`'s, e.g. the event's arrays)."""
 
 
 def run(
@@ -161,6 +162,7 @@ def run(
     through: Through,
     jump: np.ndarray | None = None,
     keep: np.ndarray | None = None,
+    extra: Any = (),
 ) -> tuple[Float[Array, "B S N"], Float[Array, "B R NR"], Int[Array, "B 5"], Float[Array, " B"]]:
     """The states `(B, S, N)` at the times `keep (T,)` selects (all by default), the components
     `kernel.record` after each jump `(B, R, NR)` (the intervals `jump (T − 1,)` flags start with
@@ -169,7 +171,9 @@ def run(
     the first event's time `(B,)` (∞ where none; a kernel with an event).
     The parameters and lifted constants come in `blocks`, each `(B or 1, Pj)`; the controller
     in `ctl` (`controls`). Reverse mode by the kernel's adjoint of the accepted steps; where the
-    output times are differentiated, or there is an event, by `through`'s."""
+    output times are differentiated, or there is an event, by `through`'s, which alone reads
+    `extra` (a PyTree of arrays, an operand: e.g. the event condition's arrays, which a
+    closure would leak out of this rule's trace)."""
     K, B, dtype = ts.shape[0] - 1, y0.shape[0], y0.dtype
     sc = Schedule.of(K, jump, keep, kernel.record[1])
     kept, every_kept = sc.kept, sc.kept.size == K + 1
@@ -184,17 +188,17 @@ def run(
         ]
         return call(kernel.forward, shapes, y0, ts, sc.jump, save, ctl, *blocks)
 
-    def forward(y0, blocks, ts, ctl):
+    def forward(y0, blocks, ts, ctl, extra):
         y, rec, _, st, ev = run_call(y0, blocks, ts, ctl, sc.save, kept.size)
         return y, rec, st, ev
 
-    def run_fwd(y0, blocks, ts, ctl):
+    def run_fwd(y0, blocks, ts, ctl, extra):
         differentiated = ts.perturbed or kernel.event
         y0, ts, ctl = y0.value, ts.value, ctl.value
-        blocks = tuple(b.value for b in blocks)
+        blocks, extra = (jax.tree.map(lambda x: x.value, x) for x in (blocks, extra))
         if differentiated:
-            out = forward(y0, blocks, ts, ctl)
-            _, pullback = jax.vjp(through, y0, blocks, ts)
+            out = forward(y0, blocks, ts, ctl, extra)
+            _, pullback = jax.vjp(through, y0, blocks, ts, extra)
             return out, (pullback,)
         y, rec, hk, st, ev = run_call(y0, blocks, ts, ctl, sc.every, K + 1)
         return (y if every_kept else y[:, kept], rec, st, ev), (y, blocks, ts, ctl, hk)
@@ -206,14 +210,14 @@ def run(
                 jnp.zeros(shape, dtype) if isinstance(x, SymbolicZero) else x
                 for x, shape in zip((g[0], g[1], g[3]), shapes, strict=True)
             )
-            y0b, gb, tb = residuals[0](dense)
-            return y0b, gb, tb, None
+            y0b, gb, tb, eb = residuals[0](dense)
+            return y0b, gb, tb, None, eb
         y, blocks, ts, ctl, hk = residuals
         gy = sc.cotangent(y, g[:2], kernel.n, kernel.record)
         out = [jax.ShapeDtypeStruct((B, m), dtype) for m in (kernel.n, kernel.p)]
         y0b, pb = call(kernel.backward(), out, y, ts, sc.jump, sc.every, ctl, hk, gy, *blocks)
-        return y0b, block_cotangents(pb, blocks), None, None
+        return y0b, block_cotangents(pb, blocks), None, None, None
 
     solve = jax.custom_vjp(forward)
     solve.defvjp(run_fwd, run_bwd, symbolic_zeros=True)
-    return solve(y0, tuple(blocks), ts, ctl)
+    return solve(y0, tuple(blocks), ts, ctl, extra)

@@ -10,6 +10,7 @@ from collections.abc import Callable
 from typing import cast
 
 import diffrax
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -117,15 +118,17 @@ def adaptive_backend(
     events differentiated through the Diffrax path."""
     model, _, single, jumps, keep = problem
     checkpointed = diffrax.RecursiveCheckpointAdjoint()
-    through_diffrax = diffrax_backend(problem, options, checkpointed, values=True, event=event)
+    arrays, rest = eqx.partition(event, eqx.is_array)
 
     def backend(y0, blocks, c, ts):
         dtype, n = ts.dtype, len(blocks)
         pk = [b.astype(dtype) for b in blocks] + ([c[None]] if c.shape[0] else [])
 
-        def through(y0, pk, ts):
+        def through(y0, pk, ts, arrays):  # (the event's arrays: an operand of the kernel's rule)
             cc = pk[n][0] if len(pk) > n else jnp.zeros((0,), dtype)
-            ys, rec, *event_t = through_diffrax(y0, tuple(pk[:n]), cc, ts)
+            ev = eqx.combine(arrays, rest)
+            solve = diffrax_backend(problem, options, checkpointed, values=True, event=ev)
+            ys, rec, *event_t = solve(y0, tuple(pk[:n]), cc, ts)
             when = (
                 jnp.reshape(event_t[0], y0.shape[:1])
                 if event_t
@@ -133,7 +136,7 @@ def adaptive_backend(
             )
             return jnp.moveaxis(ys, 0, 1), jnp.moveaxis(rec, 0, 1), when
 
-        ys, rec, st, ev = adaptive.run(kernel, y0, pk, ts, ctl, through, jumps, keep)
+        ys, rec, st, ev = adaptive.run(kernel, y0, pk, ts, ctl, through, jumps, keep, arrays)
         stats, result = _adaptive.per_body(st, single, np.flatnonzero(keep))
         out = (jnp.moveaxis(ys, 1, 0), jnp.moveaxis(rec, 1, 0))
         if event is not None:
@@ -161,35 +164,36 @@ def adaptive_gpu_backend(
     model, hoisted, single, jumps, keep = problem
     method = cast(type[diffrax.AbstractERK], type(solver))  # `serves` checked it
     spec = model_pallas.Spec(hoisted, model.unit, method, model.record, fixed)
-    through_diffrax = diffrax_backend(
-        problem, options, diffrax.RecursiveCheckpointAdjoint(), values=True, event=event
-    )
+    checkpointed = diffrax.RecursiveCheckpointAdjoint()
+    arrays, rest = eqx.partition(event, eqx.is_array)
     interpret = jax.default_backend() != "gpu"
     own = jumps is None and event is None and keep.all() and not fixed  # the kernel's adjoint
 
-    def forward(y0, p, c, ts):
+    def forward(y0, p, c, ts, arrays):
         K = ts.shape[0] - 1
         sc = None if jumps is None else model_kernel.Schedule.of(K, jumps, keep, model.record[1])
         args = (spec, y0, _packed(p, c), ts, ctl)
         ys, rec, st, *ev = model_pallas_adaptive.run(*args, interpret=interpret, schedule=sc)
         return (ys, rec, *ev), st
 
-    def values(y0, p, c, ts):  # (B, S, N), (B, R, NR) and the event times, as the kernel's
-        ys, rec, *ev = through_diffrax(y0, (p,), c, ts)
+    def values(y0, p, c, ts, arrays):  # (B, S, N), (B, R, NR), the event times: the kernel's
+        event = eqx.combine(arrays, rest)  # (its arrays: an operand of this rule)
+        solve = diffrax_backend(problem, options, checkpointed, values=True, event=event)
+        ys, rec, *ev = solve(y0, (p,), c, ts)
         ev = [jnp.reshape(e, y0.shape[:1]) for e in ev]  # (one body: a scalar there)
         return (jnp.moveaxis(ys, 0, 1), jnp.moveaxis(rec, 0, 1), *ev)
 
-    def fwd(y0, p, c, ts):
-        args = (y0.value, p.value, c.value, ts.value)
+    def fwd(y0, p, c, ts, arrays):
+        args = (y0.value, p.value, c.value, ts.value, jax.tree.map(lambda x: x.value, arrays))
         if (
             ts.perturbed
             or not own
             or not (interpret or model_pallas_adaptive_back.serves_back(spec))
         ):
-            # (the pullback made here: `values` closes over the caller's tracers)
+            # (the pullback made here, of every operand: a closure would leak this trace)
             out = forward(*args)
             return out, (jax.vjp(values, *args)[1], out[0])
-        y0, p, c, ts = args
+        y0, p, c, ts, _ = args
         run_args = (spec, y0, _packed(p, c), ts, ctl)
         ys, rec, st, hk, nk = model_pallas_adaptive.run(
             *run_args, interpret=interpret, adjoint=True
@@ -210,13 +214,13 @@ def adaptive_gpu_backend(
         y0b, pb = model_pallas_adaptive_back.run_back(*args, interpret=interpret)
         P = p.shape[1]
         pbar = pb[:P].T if p.shape[0] > 1 else jnp.sum(pb[:P], axis=1)[None]
-        return y0b, pbar, jnp.sum(pb[P:], axis=1), None
+        return y0b, pbar, jnp.sum(pb[P:], axis=1), None, None
 
     run = jax.custom_vjp(forward)
     run.defvjp(fwd, bwd, symbolic_zeros=True)
 
     def backend(y0, blocks, c, ts):
-        (ys, rec, *ev), st = run(y0, joined(list(blocks), ts.dtype), c, ts)
+        (ys, rec, *ev), st = run(y0, joined(list(blocks), ts.dtype), c, ts, arrays)
         if jumps is None and not keep.all():
             ys = ys[:, np.flatnonzero(keep)]
         stats, result = _adaptive.per_body(st, single, np.flatnonzero(keep))
@@ -291,8 +295,8 @@ def _gpu(
         longest = int(np.max(np.asarray(n), initial=1)) if is_concrete(n) else options.max_steps
         return (n, h, t0), longest
 
-    def fwd(y0, p, c, ts):
-        args = (y0.value, p.value, c.value, ts.value)
+    def fwd(y0, p, c, ts, arrays):
+        args = (y0.value, p.value, c.value, ts.value, jax.tree.map(lambda x: x.value, arrays))
         if ts.perturbed or sc is not None or not (interpret or model_pallas_back.serves_back(spec)):
             out, pullback = jax.vjp(through_diffrax, *args)
             return out, (pullback, out)
@@ -322,7 +326,7 @@ def _gpu(
         y0b, pb = model_pallas_back.run_back(*args, longest=longest, interpret=interpret)
         P = p.shape[1]
         pbar = pb[:P].T if p.shape[0] > 1 else jnp.sum(pb[:P], axis=1)[None]
-        return y0b, pbar, jnp.sum(pb[P:], axis=1), None
+        return y0b, pbar, jnp.sum(pb[P:], axis=1), None, None
 
     run = jax.custom_vjp(forward)
     run.defvjp(fwd, bwd, symbolic_zeros=True)
