@@ -295,8 +295,8 @@ def _gpu(
         longest = int(np.max(np.asarray(n), initial=1)) if is_concrete(n) else options.max_steps
         return (n, h, t0), longest
 
-    def fwd(y0, p, c, ts, arrays):
-        args = (y0.value, p.value, c.value, ts.value, jax.tree.map(lambda x: x.value, arrays))
+    def fwd(y0, p, c, ts):
+        args = (y0.value, p.value, c.value, ts.value)
         if ts.perturbed or sc is not None or not (interpret or model_pallas_back.serves_back(spec)):
             out, pullback = jax.vjp(through_diffrax, *args)
             return out, (pullback, out)
@@ -326,7 +326,7 @@ def _gpu(
         y0b, pb = model_pallas_back.run_back(*args, longest=longest, interpret=interpret)
         P = p.shape[1]
         pbar = pb[:P].T if p.shape[0] > 1 else jnp.sum(pb[:P], axis=1)[None]
-        return y0b, pbar, jnp.sum(pb[P:], axis=1), None, None
+        return y0b, pbar, jnp.sum(pb[P:], axis=1), None
 
     run = jax.custom_vjp(forward)
     run.defvjp(fwd, bwd, symbolic_zeros=True)
