@@ -108,17 +108,22 @@ def raise_failure(
     ys: PyTree,
     max_steps: int,
     probe: Callable[[int], str | None] | None = None,
+    body: Callable[[int], str | None] | None = None,
 ) -> PyTree:
     """Raise `IntegrationError` for a failed solve, naming the output interval (concrete
     results), or attach the same check with `equinox.error_if` (traced results); returns `ys`.
-    `probe(k)` may name a cause found in the failed interval `k` (`nonfinite_field`)."""
+    `probe(k)` may name a cause found in the failed interval `k` (`nonfinite_field`), `body(k)`
+    the body of a batch that failed (`_batch.failed_body`)."""
     if is_concrete(num_valid):
         if result == diffrax.RESULTS.successful:
             return ys
         k = int(num_valid)
         cause = (probe(k) if probe else None) or _cause(result, max_steps)
+        where = body(k) if body else None
+        which = "" if where is None else f" for {where}"
         raise IntegrationError(
-            f"integration failed between t = {float(ts[k - 1]):.6g} and t = {float(ts[k]):.6g}"
+            f"integration failed{which} between t = {float(ts[k - 1]):.6g} and "
+            f"t = {float(ts[k]):.6g}"
             f" (output times {k - 1} and {k}): {cause}. With throw=False the"
             f" trajectory comes back with its result; its states are valid up to ts[{k - 1}]."
         )

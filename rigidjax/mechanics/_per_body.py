@@ -10,10 +10,11 @@ import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array
+from jaxtyping import Array, PyTree
 
+from .._batch import failed_body
 from .._checks import is_concrete
-from .._integrate import nonfinite_field, raise_failure
+from .._integrate import IntegrationError, nonfinite_field, raise_failure
 from ..events import Event
 from ..kinematics.formulations import AbstractKinematics
 from ..rotations import quat
@@ -33,12 +34,12 @@ def checked(event: Any, flow_solver: Any, batch: tuple[int, ...]) -> Event:
     return event.flat(batch)
 
 
-def first(event: Event) -> Event:
-    """The event of the only body of a batch of one."""
+def of_body(event: Event, b: int = 0) -> Event:
+    """The event of body `b` of a flattened batch (`Event.flat`)."""
     if not event.per_body:
         return event
     dynamic, static = eqx.partition(event, eqx.is_array)
-    return eqx.combine(jax.tree.map(lambda a: a[0], dynamic), static).shared()
+    return eqx.combine(jax.tree.map(lambda a: a[b], dynamic), static).shared()
 
 
 def per_body(stats: dict[str, Array], batch: tuple[int, ...]) -> dict[str, Array]:
@@ -51,25 +52,36 @@ def per_body(stats: dict[str, Array], batch: tuple[int, ...]) -> dict[str, Array
     return {k: v if k == "num_valid" else shaped(v) for k, v in stats.items()}
 
 
-def raise_batch(result, stats, ts, ys, max_steps: int, torque: Callable | None) -> Array:
-    """`raise_failure` for per-body solves: `IntegrationError` naming the interval (concrete),
-    or a runtime check (traced); a torque that returned a non-finite value is named (probed on
-    the body that failed first); returns `ys[0]`."""
+def raise_batch(
+    result,
+    stats,
+    ts,
+    ys,
+    max_steps: int,
+    torque: Callable | None,
+    batch: tuple[int, ...],
+    first: Array | None = None,
+) -> Array:
+    """`raise_failure` for a batch (`batch`, flattened in `ys`' second axis): `IntegrationError`
+    naming the interval and the body (concrete; `first`, the body that failed first of per-body
+    solves, `first_failure`'s `failed_body`, else the first non-finite one), or a runtime check
+    (traced); a torque that returned a non-finite value is named (probed on that body);
+    returns `ys[0]`."""
     omega, q = ys
-    if not is_concrete(stats["num_valid"]) or result == diffrax.RESULTS.successful:
-        return raise_failure(result, stats["num_valid"], ts, omega, max_steps)
-    k = int(stats["num_valid"])
-    body = int(jnp.argmax(~jnp.all(jnp.isfinite(omega[k]), axis=-1)))  # non-finite first
+
+    def body(k: int) -> str | None:
+        return failed_body(batch, first, omega[k])
 
     if torque is None:
-        return raise_failure(result, stats["num_valid"], ts, omega, max_steps)
+        return raise_failure(result, stats["num_valid"], ts, omega, max_steps, None, body)
     field: Callable = torque
 
     def probe(k: int) -> str | None:
-        ys_b = (omega[:, body], q[:, body])
+        b = first if first is not None else jnp.argmax(~jnp.all(jnp.isfinite(omega[k]), -1))
+        ys_b = (omega[:, b], q[:, b])
         return nonfinite_field(lambda t, y: field(t, *y), ts, ys_b, k, True)
 
-    return raise_failure(result, stats["num_valid"], ts, omega, max_steps, probe)
+    return raise_failure(result, stats["num_valid"], ts, omega, max_steps, probe, body)
 
 
 def split_components(y: Array) -> tuple[Array, Array]:
@@ -87,3 +99,28 @@ class OneBodyState(eqx.Module):
         if self.kin is None:
             return y[1][0], quat.from_matrix(y[0][0], assume_valid=True)
         return y[1][:, 0], self.kin.to_quat(y[0][:, 0])
+
+
+def raise_rerun(
+    result,
+    num_valid: Array,
+    first: Array,
+    ts: Array,
+    ys: PyTree,
+    max_steps: int,
+    batch: tuple[int, ...],
+    rerun: Callable[[int], Any],
+) -> PyTree:
+    """`raise_failure` for per-body solves whose causes are found by the one-body solve itself
+    (a torque's, a controller's non-finite value: the gyrostat's): concrete, the failed body
+    `first` is solved again alone, raising, and its error names the body; traced, a runtime
+    check. Returns `ys`."""
+    if is_concrete(num_valid) and result != diffrax.RESULTS.successful:
+        where = failed_body(batch, first)
+        try:
+            rerun(int(first))
+        except IntegrationError as e:  # (the same failure: the bodies' solves are independent)
+            named = str(e).replace("integration failed", f"integration failed for {where}", 1)
+            raise IntegrationError(named) from None
+        return raise_failure(result, num_valid, ts, ys, max_steps, None, lambda k: where)
+    return raise_failure(result, num_valid, ts, ys, max_steps)

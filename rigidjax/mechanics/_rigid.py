@@ -108,7 +108,7 @@ def solve_rigid(call: RigidCall, options: SolveOptions) -> Trajectory:
         return solve_flat(problem, quiet, a, w, q, False, ev)
 
     if B == 1:
-        ev = None if event is None else _pb.first(event)
+        ev = None if event is None else _pb.of_body(event)
         firsts = (tuple(x[0] for x in call.args), call.omega0[0], call.q0[0])
         omega, q, stats, result, event_t = one(*firsts, ev)
     else:
@@ -117,9 +117,10 @@ def solve_rigid(call: RigidCall, options: SolveOptions) -> Trajectory:
         omega, q = (jnp.moveaxis(x[:, :, 0], 0, 1) for x in out[:2])  # (B, T, 1, .) -> (T, B, .)
         stats, results, event_t = out[2], out[3], out[4]
         stats, result = first_failure(stats, results)
+    first = stats.pop("failed_body", None)
     if options.throw:
-        ys = (omega, q)
-        omega = _pb.raise_batch(result, stats, ts, ys, options.max_steps, problem.torque)
+        ys, args = (omega, q), (options.max_steps, problem.torque, batch, first)
+        omega = _pb.raise_batch(result, stats, ts, ys, *args)
     traj = _trajectory(ts, batch, omega, q, _pb.per_body(stats, batch), result)
     if event_t is not None:
         traj = dataclasses.replace(traj, event_t=jnp.reshape(event_t, batch))

@@ -27,13 +27,13 @@ import dataclasses
 from collections.abc import Callable
 from typing import Any, Unpack
 
-import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._batch import first_failure
 from .._checks import (
     broadcast_batch,
     check_finite,
@@ -228,7 +228,7 @@ def simulate_gyrostat(
     else:
         params = (I, g.body.operator()[1]) + (() if h_rate is not None else (g.h,))
 
-    def one_body(ev, w0, qq0, x0, key=None):
+    def one_body(ev, w0, qq0, x0, key=None, *, options=options):
         y0 = (w0, qq0) + ((x0,) if n else (g.h,) if h_rate is not None else ())
         cmd0 = jnp.zeros(m, dtype)
         if controller is None:
@@ -277,17 +277,26 @@ def simulate_gyrostat(
     ]
     if keys is not None:
         flat.append(keys.reshape(B))
-    if batch:
+    if batch:  # each body its own solve; a failure raised once, naming the body
+        quiet = dataclasses.replace(options, throw=False)
         axes = (None if event is None else event.in_axes(), *(0,) * len(flat))
-        ys, stats, result, cts, cmds, event_t = eqx.filter_vmap(one_body, in_axes=axes)(
-            event, *flat
-        )
+        ys, stats, results, cts, cmds, event_t = eqx.filter_vmap(
+            lambda *a: one_body(*a, options=quiet), in_axes=axes
+        )(event, *flat)
         cts = None if cts is None else cts[0]  # the same sample times for every body
-        stats = {k: jnp.min(v) if k == "num_valid" else jnp.max(v) for k, v in stats.items()}
-        first = jnp.argmax(result != diffrax.RESULTS.successful)  # the first body that failed
-        result = jax.tree_util.tree_map(lambda v: v[first], result)
+        stats, result = first_failure(stats, results)
+        first = stats.pop("failed_body")
+        if options.throw:
+
+            def alone(b: int):
+                ev = None if event is None else _pb.of_body(event, b)
+                return one_body(ev, *(a[b] for a in flat))
+
+            args = (options.max_steps, batch, alone)
+            ys = _pb.raise_rerun(result, stats["num_valid"], first, ts, ys, *args)
+        stats = _pb.per_body(stats, batch)  # each body's own step counts
     else:
-        ev = None if event is None else _pb.first(event)
+        ev = None if event is None else _pb.of_body(event)
         ys, stats, result, cts, cmds, event_t = one_body(ev, *(a[0] for a in flat))
         ys = jax.tree_util.tree_map(lambda a: a[None], ys)
         cmds = None if cmds is None else cmds[None]

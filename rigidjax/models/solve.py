@@ -18,6 +18,7 @@ import jax.tree_util as jtu
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._batch import failed_body
 from .._integrate import (
     SolveOptions,
     nonfinite_field,
@@ -125,6 +126,7 @@ def solve_model(
     blocks = [p] if isinstance(p, jax.Array | np.ndarray) else list(p)
     p = joined(blocks, ts.dtype)
     ys, stats, result = _solve(model, ts, y0, blocks, p, quiet, single, jumps, keep, event)
+    first = stats.pop("failed_body", None)  # (per-body solves: the body that failed first)
     ts = ts[np.flatnonzero(keep)]
     if options.throw:
 
@@ -136,7 +138,10 @@ def solve_model(
 
             return nonfinite_field(vf, ts, ys, k, model.name == "torque")
 
-        ys = raise_failure(result, stats["num_valid"], ts, ys, options.max_steps, probe)
+        def body(k: int) -> str | None:
+            return None if single else failed_body((y0.shape[0],), first, ys[k])
+
+        ys = raise_failure(result, stats["num_valid"], ts, ys, options.max_steps, probe, body)
     return ys, stats, result
 
 

@@ -1,6 +1,8 @@
 """Failures during integration are clear errors naming the interval, the cause and the remedy
 (never a NaN trajectory); throw=False keeps the result; reduced precision and forward mode."""
 
+import re
+
 import diffrax
 import jax
 import jax.numpy as jnp
@@ -71,3 +73,34 @@ def test_forward_mode_with_forward_adjoint_matches_reverse_mode():
         [(_final_quat(W0 + h * e) - _final_quat(W0 - h * e)) / (2 * h) for e in np.eye(3)], -1
     )
     np.testing.assert_allclose(fwd, fd, atol=1e-6)
+
+
+def _nan_from_the_fast_body(t, w, q):
+    """A torque that turns NaN after t = 1 for the body spinning faster than 1 rad/s about e1."""
+    return jnp.where((w[0] > 1.0) & (t > 1.0), jnp.nan, 0.0) * w
+
+
+@pytest.mark.slow  # (half a minute of compiling)
+def test_a_batch_failure_names_the_body():
+    """A failed body of a batch is named, by its index in the batch's shape (each body its own
+    steps), or in the flattened batch (a batch stepped as one); a batch of gyrostats raises
+    the same error as one gyrostat (not a runtime error from inside the mapped solve), and
+    with throw=False its stats are each body's (as the body alone)."""
+    w = jnp.tile(W0, (2, 3, 1)).at[1, 2, 0].set(3.0)  # body (1, 2), flat index 5
+    torque = _nan_from_the_fast_body
+    cases = {
+        "body (1, 2) of the batch of shape (2, 3)": dict(kinematics="rotvec"),
+        "body 5 of 6": dict(stepsize_controller=diffrax.ConstantStepSize(), dt0=0.05),
+    }
+    for name, kw in cases.items():
+        with pytest.raises(rj.IntegrationError, match=rf"for {re.escape(name)} between t = 1 "):
+            rj.simulate(BODY, w, None, TS, torque=torque, **kw)
+    g = rj.Gyrostat(BODY.inertia, h=jnp.array([0.1, 0.0, 0.0]))
+    w2 = w[1, 1:]  # the fast body second
+    with pytest.raises(rj.IntegrationError, match=r"for body 1 of 2 between t = 1 .*non-finite"):
+        rj.simulate(g, w2, None, TS, torque=torque)
+    quiet = rj.simulate(g, w2, None, TS, torque=torque, throw=False)
+    assert quiet.result != diffrax.RESULTS.successful and int(quiet.stats["num_valid"]) == 3
+    alone = rj.simulate(g, w2[0], None, TS, torque=torque)
+    np.testing.assert_array_equal(quiet.omega[0], alone.omega)
+    np.testing.assert_array_equal(quiet.stats["num_steps"][0], alone.stats["num_steps"])
