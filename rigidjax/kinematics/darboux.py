@@ -38,11 +38,13 @@ def _source(omega: OmegaLike) -> Callable[[Array], Array] | diffrax.AbstractPath
         return omega
     if isinstance(omega, tuple):
         if len(omega) != 2:
-            raise ValueError("sampled omega must be a pair (t_samples (N,), omega_samples (N, 3))")
+            raise ValueError(
+                "sampled omega_fn must be a pair (t_samples (N,), omega_samples (N, 3))"
+            )
         t_s, w_s = as_float(omega[0], "omega t_samples"), as_float(omega[1], "omega samples")
         if t_s.ndim != 1 or w_s.shape != (t_s.shape[0], 3) or t_s.shape[0] < 2:
             raise ValueError(
-                f"sampled omega must be (t (N,), omega (N, 3)) with N ≥ 2, got shapes "
+                f"sampled omega_fn must be (t (N,), omega (N, 3)) with N ≥ 2, got shapes "
                 f"{tuple(t_s.shape)} and {tuple(w_s.shape)}"
             )
         t_s = check_times(t_s, "omega t_samples")
@@ -52,7 +54,7 @@ def _source(omega: OmegaLike) -> Callable[[Array], Array] | diffrax.AbstractPath
     if callable(omega):
         return omega
     raise TypeError(
-        f"omega must be a callable t -> (3,), a diffrax path or (t, omega), got {omega!r}"
+        f"omega_fn must be a callable t -> (3,), a diffrax path or (t, omega), got {omega!r}"
     )
 
 
@@ -106,7 +108,7 @@ class _LieField(eqx.Module):
 
 
 def darboux(
-    omega: OmegaLike,
+    omega_fn: OmegaLike,
     ts: RealLike,
     P0: RealLike | None = None,
     frame: Frame = "space",
@@ -120,8 +122,8 @@ def darboux(
     """Solve `Ṗ = ω(t) × P` (`frame="space"`) or `Ṗ = P (Ω(t) × E)` (`frame="body"`) with
     `P(ts[0]) = P0` and return P at `ts` (Zhilin 3.12; the solution is unique and a rotation).
 
-    `omega`: a callable `t -> (3,)`, a Diffrax path, or samples `(t_k, ω_k)` (gyro data; see
-    `omega_path`). `method`: `"rotvec"` (θ̇ = Z(θ) ω with shadow switching, Zhilin 3.14),
+    `omega_fn`: a callable `t -> (3,)`, a Diffrax path, or samples `(t_k, ω_k)` (gyro data;
+    see `omega_path`). `method`: `"rotvec"` (θ̇ = Z(θ) ω with shadow switching, Zhilin 3.14),
     `"quat"`, `"matrix"` (Poisson equation, drifts off SO(3)), `"euler"` (sequence `seq`, with a
     partner chart it switches to near gimbal lock: `EulerAngles`), `"cayley_klein"`,
     `"geometric"` (RKMK Lie-group solver, exactly on SO(3)), or an
@@ -129,7 +131,7 @@ def darboux(
     RKMK-Dopri5 for `"geometric"`) with a PID controller at `rtol = atol = 1e-10` (1e-6 in
     float32). Steps end at every output time and the values at `ts` are step-end states
     (`solve_saved`). `return_state=True` also returns the native states at `ts` (normalised
-    quaternions, shadowed rotation vectors, ...). With a callable `omega`, `"rotvec"`, `"quat"`
+    quaternions, shadowed rotation vectors, ...). With a callable `omega_fn`, `"rotvec"`, `"quat"`
     and `"matrix"` are a model (`rigidjax.models`): at fixed steps of an explicit Runge–Kutta
     method they run on the CPU kernel written from the field, ω(t) and the shadow switch
     included (`"euler"` and `"cayley_klein"` use indexed updates, host checks and complex
@@ -141,7 +143,7 @@ def darboux(
     if P0.shape != (3, 3):
         raise ValueError(f"P0 must have shape (3, 3) (vmap for batches), got {tuple(P0.shape)}")
     P0 = so3.check_rotation(P0.astype(ts.dtype), norm_tolerance(ts.dtype), "P0")
-    source = _source(omega)
+    source = _source(omega_fn)
     if isinstance(source, diffrax.AbstractPath):
         ts = _check_span(ts, source)
         w = source.evaluate

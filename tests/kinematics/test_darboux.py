@@ -223,7 +223,7 @@ def test_bad_input():
     with pytest.raises(ValueError, match=r"P0 is not a rotation matrix: ‖PᵀP − E‖ = 0\.1"):
         darboux(SPACE, TS, P0=1.05 * jnp.eye(3))
     with pytest.raises(ValueError, match="method must be one of"):
-        darboux(SPACE, TS, method="bogus")
+        darboux(omega_fn=SPACE, ts=TS, method="bogus")  # (API.md's argument names)
     with pytest.raises(Exception, match="non-finite"):
         darboux(lambda t: jnp.array([jnp.nan, 0.0, 0.0]) * t, TS)
     with pytest.raises(Exception, match="maximum number of solver steps"):
