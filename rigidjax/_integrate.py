@@ -93,7 +93,7 @@ def nonfinite_field(
     return (
         f"the vector field returned a non-finite value (NaN or inf) at t = {t:.6g} for the "
         f"finite state reached at ts[{k - 1}]: a function of time or state that you passed "
-        "(e.g. omega(t), a potential) is not finite there"
+        "(a torque, h_rate, omega(t), a potential, ...) is not finite there"
     )
 
 

@@ -124,6 +124,7 @@ class _Plan(NamedTuple):
 
     I: Array  # moments (a dummy for trivial cases)
     w: Array  # Ω0 (a dummy for trivial cases)
+    I_orig: Array  # the moments as given
     w_orig: Array  # Ω0 as given
     trivial: Array  # sphere or Ω = 0: Ω is constant
     sep: Array
@@ -170,7 +171,7 @@ def _plan(I: Array, w: Array) -> _Plan:
     zero = ~(jnp.sum((I * w) ** 2) > 0)
     sphere = ~(jnp.max(I) > jnp.min(I))
     trivial = zero | sphere
-    w_orig = w
+    I_orig, w_orig = I, w
     I = jnp.where(trivial, dI, I)
     w = jnp.where(trivial, jnp.asarray((0.5, 0.5, 1.0), dtype), w)
 
@@ -215,7 +216,7 @@ def _plan(I: Array, w: Array) -> _Plan:
     sg = jnp.stack([_sign(v1), jnp.ones_like(v1), _sign(v3)])
     lam_s = s * sg[0] * sg[2] * jnp.abs(J3 - J1) * safe_sqrt(bs * P3s / (J1 * J2 * J3))
     return _Plan(
-        *(I, w, w_orig, trivial, sep, regime, M, two_e),
+        *(I, w, I_orig, w_orig, trivial, sep, regime, M, two_e),
         *(pp, Ip, wp, a, b, P3, m, m1, lam_p, K),
         *(ps, Is, A, sg, u0, lam_s, P1s, P3s, bs),
     )
@@ -247,13 +248,32 @@ def _unpermute(x: Array, perm: Array) -> Array:
     return jnp.take(x, jnp.argsort(perm), axis=-1)
 
 
+def _euler_rate(I: Array, w: Array) -> Array:
+    """Euler's equations `Ω̇ = I⁻¹ (IΩ × Ω)` for principal moments `I (3,)` (THEORY §6), written
+    with `(I − I1)Ω × Ω` (the same: Ω × Ω = 0), so that a sphere's rate is exactly zero while its
+    derivatives in the moments are not."""
+    return jnp.cross((I - I[0]) * w, w) / I
+
+
+def _omega_trivial(p: _Plan, t: Array) -> Array:
+    """Ω at times `t` (any shape) of a sphere (or Ω0 = 0), where it is constant:
+    `Ω0 + t f + t²/2 f′f` (f = `_euler_rate`, zero there, as are its derivatives in Ω), the Taylor
+    series of the motion in t cut where it stops mattering: the value Ω0, and the first and
+    second derivatives in the moments and Ω0 those of the motion (the terms of order tᵏ are
+    products of k factors that all vanish at a sphere)."""
+    f = _euler_rate(p.I_orig, p.w_orig)
+    ff = jax.jvp(lambda v: _euler_rate(p.I_orig, v), (p.w_orig,), (f,))[1]
+    t = t[..., None]
+    return p.w_orig + t * f + t * t / 2 * ff
+
+
 def _omega(p: _Plan, t: Array, per: Array | None = None) -> Array:
     """Body angular velocity at times `t` (any shape; Ω(0) = Ω0) → (*t.shape, 3); `per`: the
     periodic branch `_omega_periodic(p, t)` if already computed."""
     per = _unpermute(_omega_periodic(p, t) if per is None else per, p.pp)
     sep = _unpermute(_omega_sep(p, t), p.ps)
     out = jnp.where(p.sep, sep, per)
-    return jnp.where(p.trivial, jnp.broadcast_to(p.w_orig, out.shape), out)
+    return jnp.where(p.trivial, _omega_trivial(p, t), out)
 
 
 def check_moments(I: Array, name: str = "inertia", check: bool = True) -> Array:
@@ -345,7 +365,9 @@ def free_rigid_body(
     the addition theorems of sn, cn, dn (A&S 16.17), so no incomplete integral is needed and the
     formula is differentiable everywhere off the separatrix. Equal moments (symmetric top) give
     k = 0 and the symmetric-top solution `Ω1 + iΩ2 ∝ e^{iωt}`; a spherical top or Ω = 0 gives a
-    constant. Derivation notes are in the module source.
+    constant, whose first and second derivatives in the moments are those of the motion (Euler's
+    equations to second order in the moments' spread). Derivation notes are in the module
+    source.
     """
     inertia, omega0, ts = _body_inputs(inertia, omega0, ts, check)
     t0 = check_finite(as_float(t0, "t0").astype(ts.dtype), "t0")

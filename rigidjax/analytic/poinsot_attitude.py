@@ -13,9 +13,11 @@ from jaxtyping import Array, Float
 from .._checks import as_float, check_finite, vector
 from .._custom_types import Quat, QuatLike, RealScalarLike, TimesLike, Vec3Like
 from ..rotations import quat
+from ..rotations._series import one_minus_cos_over, theta_minus_sin_over
 from .elliptic import _ellipf, _ellipj, _ellippi_diff
 from .euler_poinsot import (
     _body_inputs,
+    _euler_rate,
     _omega,
     _omega_periodic,
     _omega_sep,
@@ -121,8 +123,22 @@ def _flow(p: _Plan, q0: Array, t: Array) -> tuple[Array, Array]:
     qe0 = _euler_zxz_quat(jnp.zeros((), t.dtype), n0, phi0)
     left = quat.mul(quat.mul(q0, qc), quat.conj(qe0))
     q = quat.mul(quat.mul(left, qe), quat.conj(qc))
-    q_triv = quat.mul(q0, quat.from_rotvec(t[:, None] * p.w_orig))
-    return _omega(p, t, om_p), jnp.where(p.trivial, q_triv, q)
+    return _omega(p, t, om_p), jnp.where(p.trivial, _attitude_trivial(p, q0, t), q)
+
+
+def _attitude_trivial(p: _Plan, q0: Array, t: Array) -> Array:
+    """q at times `t (T,)` of a sphere (or Ω0 = 0): `q0 ∘ exp(tΩ0) ∘ exp(ξ(t))` with ξ the
+    first-order effect of the drift `Ω = Ω0 + t f` (`_omega_trivial`; f ⟂ Ω0 to first order):
+    `ξ̇ = t f − Ω0 × ξ`, `ξ = t² B(x) f − t³ C(x) Ω0 × f` (x = t|Ω0|; B, C the rotation
+    coefficients (1 − cos x)/x², (x − sin x)/x³). The value is `q0 ∘ exp(tΩ0)` (ξ = 0), the
+    first derivatives in the moments and Ω0 those of the motion."""
+    f = _euler_rate(p.I_orig, p.w_orig)
+    x2 = t**2 * jnp.sum(p.w_orig**2)
+    b = (t**2 * one_minus_cos_over(x2))[:, None]
+    c = (t**3 * theta_minus_sin_over(x2))[:, None]
+    xi = b * f - c * jnp.cross(p.w_orig, f)
+    spin = quat.mul(q0, quat.from_rotvec(t[:, None] * p.w_orig))
+    return quat.mul(spin, quat.from_rotvec(xi))
 
 
 def free_body_flow(inertia: Array, omega0: Array, q0: Array, h: Array) -> tuple[Array, Array]:

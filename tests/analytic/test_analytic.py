@@ -502,7 +502,8 @@ def test_gradients_match_finite_differences():
         fd = _fd(lambda y, flip=flip: float(vg(jnp.asarray(y), flip)[0]), x)
         np.testing.assert_allclose(g, fd, rtol=1e-6, atol=1e-6)
     # finite (though not the transverse derivative) at degenerate points: separatrix, unstable
-    # and stable steady rotations, sphere, Ω = 0, equatorial rotation of a symmetric top
+    # and stable steady rotations, Ω = 0, equatorial rotation of a symmetric top (and at a
+    # sphere, exact: test_derivatives_at_a_sphere)
     for x in [
         (3.0, 4.0, 6.0, 2.0, 0.5, 1.0),
         (2.0, 3.0, 4.0, 0.0, 1.0, 0.0),
@@ -513,6 +514,38 @@ def test_gradients_match_finite_differences():
     ]:
         g = np.asarray(vg(jnp.asarray(x), 1.0)[1])
         assert np.all(np.isfinite(g)), (x, g)
+
+
+def test_derivatives_at_a_sphere():
+    """At a sphere Ω is constant, but not its derivatives in the moments: moving them by εa
+    (A = diag a) gives Ω = Ω0 + ε t b + ε² Ω2, b = AΩ0 × Ω0 / c, Ω2 = t²/(2c) (Ab × Ω0 +
+    AΩ0 × b) − t/c Ab (Euler's equations at first and second order); the attitude's derivative
+    is that of DOP853's motion (central differences at I ± h a)."""
+    c, t, h = 2.0, 3.0, 1e-4
+    I, w0, q0 = jnp.full(3, c), jnp.array([0.3, 1.0, -0.4]), jnp.array([1.0, 0.0, 0.0, 0.0])
+    a = jnp.array([0.3, -0.7, 0.5])
+    b = jnp.cross(a * w0, w0) / c
+    om2 = t**2 / (2 * c) * (jnp.cross(a * b, w0) + jnp.cross(a * w0, b)) - t / c * a * b
+
+    def omega(e, w=w0):
+        return analytic.free_rigid_body(I + e * a, w, jnp.array([0.0, t]), check=False)[-1]
+
+    def quat(e):
+        return analytic.free_body_flow(I + e * a, w0, q0, jnp.asarray(t))[1]
+
+    @jax.jit  # (one compilation: eagerly, op by op, this takes half a minute)
+    def derivatives(e):
+        second = jax.jacfwd(jax.jacfwd(omega))(e)
+        by_w = jax.jacfwd(lambda w: omega(e, w))(w0)
+        return jax.jacfwd(omega)(e), jax.jacrev(omega)(e), second, by_w, jax.jacfwd(quat)(e)
+
+    d1, d1_rev, d2, by_w, dq = derivatives(0.0)
+    np.testing.assert_allclose(d1, t * b, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(d1_rev, d1, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(d2, 2 * om2, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(by_w, np.eye(3), rtol=0, atol=1e-14)
+    qp, qm = (ivp(np.asarray(I + s * h * a), w0, [0.0, t])[1][-1] for s in (1, -1))
+    np.testing.assert_allclose(dq, (qp - qm) / (2 * h), rtol=0, atol=1e-7)
 
 
 @pytest.mark.slow  # compile-heavy: runs with the slow tests
