@@ -100,7 +100,6 @@ def library(Ixx: float, wy: float, tilt: float):
     )
 
 
-@pytest.mark.slow  # (half a minute or more of compiling)
 def test_store_equals_the_library(tmp_path):
     config = tmp_path / "slew.toml"
     config.write_text(CONFIG)

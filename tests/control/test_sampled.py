@@ -80,7 +80,6 @@ def test_sample_grid():
     assert len(grid) == 11 and sample[:-1].all() and not sample[-1]
 
 
-@pytest.mark.slow  # (half a minute or more of compiling)
 def test_pd_loop_vs_scipy_and_fast_path():
     """The quaternion PD law on a gyrostat (body torque) and on four wheels with a saturated
     motor-torque bound, held over T_c = 0.1: SciPy integrated sample by sample within RK4's

@@ -105,7 +105,6 @@ def test_gyrostat_fast_path_and_scipy(case):
         np.testing.assert_allclose(fast.h, sol.y[7:].T, atol=1e-10)
 
 
-@pytest.mark.slow  # (half a minute or more of compiling)
 def test_zero_h_gyrostat_is_simulate():
     """`Gyrostat(I, h=0)` through its own field equals `simulate(RigidBody(I))` with the same
     torque and steps (principal moments and a tensor), to 1e-13; another formulation

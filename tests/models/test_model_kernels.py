@@ -61,7 +61,6 @@ def test_heavy_top_fast_path(inertia):
     np.testing.assert_allclose(fast.gamma, ref.y[3:].T, atol=1e-7)
 
 
-@pytest.mark.slow  # (half a minute or more of compiling)
 def test_heavy_top_vmap_and_gradient():
     """`jax.vmap` over tops (the mapped tops join one kernel call) equals a loop; the gradient
     of the final energy w.r.t. the centre of mass equals the Diffrax path's and central
@@ -90,7 +89,6 @@ def test_heavy_top_vmap_and_gradient():
     np.testing.assert_allclose(g, fd, rtol=1e-6, atol=1e-9)
 
 
-@pytest.mark.slow  # (half a minute or more of compiling)
 def test_sixdof_and_satellite_fast_path():
     """A 6-DOF body with an off-centre force and the satellite (orbit + gravity gradient) on the
     kernel: equal to their Diffrax paths to 1e-12 (positions of order 1e4 for the satellite)."""
