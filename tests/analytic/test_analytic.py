@@ -18,7 +18,7 @@ from scipy.spatial.transform import Rotation
 import rigidjax as rj
 from rigidjax import analytic
 from tests.helpers import DOP853_TIGHT as RTOL_IVP
-from tests.helpers import rigid_body_dop853, scalar_first
+from tests.helpers import fd_jacobian, rigid_body_dop853, scalar_first
 from tests.helpers import rigid_body_rhs as _rhs
 
 # ---------------------------------------------------------------------------------------------
@@ -546,6 +546,49 @@ def test_derivatives_at_a_sphere():
     np.testing.assert_allclose(by_w, np.eye(3), rtol=0, atol=1e-14)
     qp, qm = (ivp(np.asarray(I + s * h * a), w0, [0.0, t])[1][-1] for s in (1, -1))
     np.testing.assert_allclose(dq, (qp - qm) / (2 * h), rtol=0, atol=1e-7)
+
+
+def test_derivatives_at_steady_rotations():
+    """A steady rotation on the separatrix (about the middle axis; in a symmetric top's plane of
+    equal moments) is a rest point of Euler's equations: Ω stays Ω0 and q = q0 ∘ exp(tΩ0), but
+    the derivatives in Ω0 and the moments grow (like cosh λt about the middle axis). In reverse
+    mode (forward mode: `test_derivatives_at_a_sphere`) they match central differences of
+    DOP853's motion; far out (λt ~ 7000) they stay finite."""
+    cases = [  # (moments, Ω0): the middle axis, an oblate and a prolate top's equator
+        ([1.0, 2.0, 2.5], [0.0, 1.5, 0.0]),
+        ([1.0, 1.0, 2.0], [1.0, 0.7, 0.0]),
+        ([2.0, 1.0, 1.0], [0.0, 1.0, 0.5]),
+    ]
+    I, w0 = (jnp.array(x) for x in zip(*cases, strict=True))
+    q0, ts, h = jnp.array([0.6, 0.0, 0.8, 0.0]), jnp.array([1.3, 1e4]), 1e-6
+
+    def flow(i, w, t):
+        return jnp.concatenate(analytic.free_body_flow(i, w, q0, t))
+
+    def at_times(f):
+        return jax.vmap(jax.vmap(f, (None, None, 0)), (0, 0, None))  # cases × times
+
+    @jax.jit  # one compilation for the three cases and two times
+    def derivatives(I, w0):
+        return at_times(jax.jacrev(flow, argnums=(0, 1)))(I, w0, ts), at_times(flow)(I, w0, ts)
+
+    (d_i, d_w), val = derivatives(I, w0)
+    t = float(ts[0])
+    spin = rj.quat.mul(q0, rj.quat.from_rotvec(t * w0))
+    spin_np = np.asarray(spin)
+    np.testing.assert_array_equal(val[..., :3], np.broadcast_to(w0[:, None], (3, 2, 3)))
+    np.testing.assert_allclose(val[:, 0, 3:], spin, rtol=0, atol=1e-15)
+    assert np.all(np.isfinite(d_i)) and np.all(np.isfinite(d_w))
+    for k, (i, w) in enumerate(cases):
+
+        def motion(x, near=spin_np[k]):
+            om, q = ivp(np.asarray(x[:3]), x[3:], [0.0, t], q0=q0)
+            return np.concatenate([om[-1], q[-1] * np.sign(q[-1] @ near)])
+
+        ref = fd_jacobian(motion, np.concatenate([i, w]), h)
+        np.testing.assert_allclose(d_i[k, 0], ref[:, :3], rtol=0, atol=1e-8, err_msg=str(k))
+        np.testing.assert_allclose(d_w[k, 0], ref[:, 3:], rtol=0, atol=1e-8, err_msg=str(k))
+    assert d_w[0, 0, 0, 0] > 1.4  # the middle axis: cosh λt = 1.405, not 1
 
 
 @pytest.mark.slow  # compile-heavy: runs with the slow tests
