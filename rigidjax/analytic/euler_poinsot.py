@@ -422,7 +422,8 @@ def free_rigid_body(
     equations and the signs of the components that never change sign; the phase u0 enters through
     the addition theorems of sn, cn, dn (A&S 16.17), so no incomplete integral is needed and the
     formula is differentiable everywhere off the separatrix (on it, at a point that is not a rest
-    point, only the derivatives along it are the motion's). Equal moments (symmetric top) give
+    point, only the derivatives along it are the motion's; within ~1e-9 of it, relative, they
+    lose accuracy: `free_rigid_body_attitude`). Equal moments (symmetric top) give
     k = 0 and the symmetric-top solution `Ω1 + iΩ2 ∝ e^{iωt}`; a spherical top, Ω = 0 and a
     steady rotation on the separatrix (about the middle axis, in a symmetric top's plane of equal
     moments) give a constant, whose first derivatives are those of the motion (its

@@ -202,8 +202,8 @@ def free_rigid_body_attitude(
     Derivatives are the motion's, with two limits: on the separatrix itself, away from a rest
     point, only those along it; and close to it ψ's derivatives lose accuracy (measured against
     central differences from 1.5 rad/s about the middle axis: relative errors 3e-9 at 1e-4 rad/s
-    off it, 1e-5 at 1e-6, of order 1 at 1e-8), as `u0` and `am(u0 + λt)` grow sensitive in
-    opposite ways.
+    off it, 1e-5 at 1e-6, of order 1 at 1e-8; Ω's hold to 1e-8 and fail at 1e-9), as `u0` and
+    `am(u0 + λt)` grow sensitive in opposite ways.
     """
     inertia, omega0, ts = _body_inputs(inertia, omega0, ts, check)
     dtype = ts.dtype
