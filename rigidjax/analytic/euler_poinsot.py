@@ -36,8 +36,8 @@ from .._checks import (
     vector,
 )
 from .._custom_types import RealScalarLike, Scalar, TimesLike, Vec3, Vec3Like
-from .._numerics import guarded, poly, safe_sqrt
-from ..rotations._series import one_minus_cos_over, theta_minus_sin_over
+from .._numerics import safe_sqrt
+from ._rest_point import euler_rate, omega_at_rest
 from .elliptic import _ellipf, _ellipj, _ellipk, _sech
 
 # ----------------------------------------------------------------------------------------------
@@ -186,7 +186,7 @@ def _plan(I: Array, w: Array) -> _Plan:
     zero = ~(jnp.sum((I * w) ** 2) > 0)
     sphere = ~(jnp.max(I) > jnp.min(I))
     trivial = zero | sphere
-    rest = trivial | (jnp.all(_euler_rate(I, w) == 0) & _separatrix(I, w)[1])
+    rest = trivial | (jnp.all(euler_rate(I, w) == 0) & _separatrix(I, w)[1])
     I_orig, w_orig = I, w
     I = jnp.where(trivial, dI, I)
     w = jnp.where(trivial, jnp.asarray((0.5, 0.5, 1.0), dtype), w)
@@ -258,80 +258,13 @@ def _unpermute(x: Array, perm: Array) -> Array:
     return jnp.take(x, jnp.argsort(perm), axis=-1)
 
 
-def _euler_rate(I: Array, w: Array) -> Array:
-    """Euler's equations `Ω̇ = I⁻¹ (IΩ × Ω)` for principal moments `I (3,)` (THEORY §6), written
-    with `(I − I1)Ω × Ω` (the same: Ω × Ω = 0), so that a sphere's rate is exactly zero while its
-    derivatives in the moments are not."""
-    return jnp.cross((I - I[0]) * w, w) / I
-
-
-def _rest_matrix(p: _Plan) -> Array:
-    """`F = ∂f/∂Ω` at Ω0 (f = `_euler_rate`) where Ω0 is a rest point (`p.rest`), zero elsewhere
-    (so that the unused branch stays finite)."""
-    F = jax.jacfwd(_euler_rate, argnums=1)(p.I_orig, p.w_orig)
-    return jnp.where(p.rest, F, jnp.zeros_like(F))
-
-
-def _rest_time(F: Array, t: Array) -> Array:
-    """The times `t` of the linearisation at a rest point (`F`: `_rest_matrix`), capped where
-    cosh(√s t), s = tr(F²)/2, would come within a factor e^{0.1 √s|t|} of overflowing
-    (√s|t| = 639 in float64, 80 in float32): the derivatives there are those at the cap."""
-    s = 0.5 * jnp.trace(F @ F)
-    cap = 0.9 * math.log(float(jnp.finfo(t.dtype).max))
-    big = s * t * t > cap**2
-    return jnp.where(big, _sign(t) * cap / jnp.sqrt(jnp.where(big, s, jnp.ones_like(s))), t)
-
-
-def _cosh_series(x: Array) -> tuple[Array, Array]:
-    """`c(x) = Σ xᵏ/(2k + 2)!` and `d(x) = Σ xᵏ/(2k + 3)!`: `(cosh √x − 1)/x` and
-    `(sinh √x − √x)/x^{3/2}` for x > 0, their trigonometric continuations `(1 − cos y)/y²` and
-    `(y − sin y)/y³`, y² = −x, for x ≤ 0; finite with finite derivatives at 0."""
-    pos = x > 0
-    xp = jnp.where(pos, x, jnp.zeros_like(x))
-    xn = jnp.where(pos, jnp.zeros_like(x), -x)
-    c = guarded(
-        xp,
-        lambda v: 2 * jnp.sinh(jnp.sqrt(v) / 2) ** 2 / v,
-        lambda v: poly(v, [1 / 2, 1 / 24, 1 / 720, 1 / 40320, 1 / 3628800]),
-    )
-    d = guarded(
-        xp,
-        lambda v: (jnp.sinh(jnp.sqrt(v)) - jnp.sqrt(v)) / (v * jnp.sqrt(v)),
-        lambda v: poly(v, [1 / 6, 1 / 120, 1 / 5040, 1 / 362880, 1 / 39916800]),
-    )
-    return (
-        jnp.where(pos, c, one_minus_cos_over(xn)),
-        jnp.where(pos, d, theta_minus_sin_over(xn)),
-    )
-
-
-def _omega_rest(p: _Plan, t: Array) -> Array:
-    """Ω at times `t` (any shape) from a rest point Ω0 of Euler's equations (`p.rest`: a sphere,
-    Ω0 = 0, a steady rotation on the separatrix), where it is constant: `Ω0 + Φ(t) f` with
-    f = `_euler_rate` (zero there, not its derivatives) and `Φ(t) = ∫₀ᵗ exp(Fτ) dτ
-    = t E + t² c(st²) F + t³ d(st²) F²` (`_cosh_series`), F = ∂f/∂Ω at Ω0, s = tr(F²)/2: at every
-    rest point tr F = 0 and det F = 0 (it is a multiple of Ω1Ω2Ω3 times the three differences of
-    the moments), so F³ = sF (Cayley–Hamilton). The value is Ω0; the first derivatives in the
-    moments and Ω0 are those of the motion (its linearisation `δΩ̇ = F δΩ + δf`), growing like
-    cosh(√s t) about the middle axis (capped before they overflow: `_rest_time`); at a sphere
-    (F = 0) also the second derivatives (the terms of order tᵏ are products of k factors that
-    vanish there)."""
-    f = _euler_rate(p.I_orig, p.w_orig)
-    F = _rest_matrix(p)
-    t = _rest_time(F, t)
-    c, d = _cosh_series(0.5 * jnp.trace(F @ F) * t * t)
-    ff = F @ f
-    t, c, d = t[..., None], c[..., None], d[..., None]
-    return p.w_orig + t * f + t * t * c * ff + t**3 * d * (F @ ff)
-
-
 def _omega(p: _Plan, t: Array, per: Array | None = None) -> Array:
     """Body angular velocity at times `t` (any shape; Ω(0) = Ω0) → (*t.shape, 3); `per`: the
     periodic branch `_omega_periodic(p, t)` if already computed."""
     per = _unpermute(_omega_periodic(p, t) if per is None else per, p.pp)
     sep = _unpermute(_omega_sep(p, t), p.ps)
     out = jnp.where(p.sep, sep, per)
-    return jnp.where(p.rest, _omega_rest(p, t), out)
+    return jnp.where(p.rest, omega_at_rest(p.I_orig, p.w_orig, p.rest, t), out)
 
 
 def check_moments(I: Array, name: str = "inertia", check: bool = True) -> Array:
@@ -427,8 +360,8 @@ def free_rigid_body(
     k = 0 and the symmetric-top solution `Ω1 + iΩ2 ∝ e^{iωt}`; a spherical top, Ω = 0 and a
     steady rotation on the separatrix (about the middle axis, in a symmetric top's plane of equal
     moments) give a constant, whose first derivatives are those of the motion (its
-    linearisation; at a sphere also the second: `_omega_rest`). Derivation notes are in the
-    module source.
+    linearisation; at a sphere also the second: `_rest_point.omega_at_rest`). Derivation notes
+    are in the module source.
     """
     inertia, omega0, ts = _body_inputs(inertia, omega0, ts, check)
     t0 = check_finite(as_float(t0, "t0").astype(ts.dtype), "t0")

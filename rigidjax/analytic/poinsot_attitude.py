@@ -13,17 +13,15 @@ from jaxtyping import Array, Float
 from .._checks import as_float, check_finite, vector
 from .._custom_types import Quat, QuatLike, RealScalarLike, TimesLike, Vec3Like
 from ..rotations import quat
+from ._rest_point import attitude_at_rest
 from .elliptic import _ellipf, _ellipj, _ellippi_diff
 from .euler_poinsot import (
     _body_inputs,
-    _euler_rate,
     _omega,
     _omega_periodic,
     _omega_sep,
     _Plan,
     _plan,
-    _rest_matrix,
-    _rest_time,
     _sign,
     _unpermute,
 )
@@ -124,41 +122,9 @@ def _flow(p: _Plan, q0: Array, t: Array) -> tuple[Array, Array]:
     qe0 = _euler_zxz_quat(jnp.zeros((), t.dtype), n0, phi0)
     left = quat.mul(quat.mul(q0, qc), quat.conj(qe0))
     q = quat.mul(quat.mul(left, qe), quat.conj(qc))
-    return _omega(p, t, om_p), jnp.where(p.rest, _attitude_rest(p, q0, t), q)
-
-
-def _attitude_rest(p: _Plan, q0: Array, t: Array) -> Array:
-    """q at times `t (T,)` from a rest point Ω0 of Euler's equations (`p.rest`; Ω in
-    `_omega_rest`): `q0 ∘ exp(tΩ0) ∘ exp(ξ(t))`, ξ the rotation that the drift `δΩ = Ω − Ω0`
-    adds, `ξ̇ = δΩ − Ω0 × ξ` to first order (`_drift`). The value is `q0 ∘ exp(tΩ0)` (ξ = 0), the
-    first derivatives in the moments and Ω0 those of the motion (capped as `_rest_time`)."""
-    F = _rest_matrix(p)
-    w = jnp.where(p.rest, p.w_orig, jnp.zeros_like(p.w_orig))
-    xi = _drift(F, w, _euler_rate(p.I_orig, p.w_orig), _rest_time(F, t))
-    spin = quat.mul(q0, quat._from_rotvec(t[:, None] * p.w_orig))
-    return quat.mul(spin, quat._from_rotvec(xi))
-
-
-@jax.custom_jvp
-def _drift(F: Array, w: Array, f: Array, t: Array) -> Array:
-    """The rotation vectors `ξ(t) (T, 3)` that the drift of Ω away from a rest point w adds to
-    the attitude, to first order in `f = f(w) = 0`: `ż = A z + (f, 0)`, z = (δΩ, ξ), z(0) = 0,
-    `A = [[F, 0], [E, −[w×]]]` (`δΩ̇ = F δΩ + f`, `ξ̇ = δΩ − w × ξ`), so `ξ(t) = G(t) f` with
-    G the (ξ, f) block of `exp([[A, (E, 0)], [0, 0]] t)` (9 × 9, Van Loan). Its value is 0 (the
-    exponential is taken only for derivatives: `dξ = G df`), written as 0 times the inputs so
-    that it carries their batch axes under `vmap` (a constant does not, and the linearisation
-    of the rule then fails where the inputs are batched along different axes)."""
-    return 0 * (t[:, None] * (f + w + F[0]))
-
-
-@_drift.defjvp
-def _drift_jvp(primals, tangents):
-    F, w, f, t = primals
-    eye, zero = jnp.eye(3, dtype=f.dtype), jnp.zeros((3, 3), f.dtype)
-    wx = jnp.cross(w, -eye)  # columns w × e_j: the matrix of w × (·)
-    a = jnp.block([[F, zero, eye], [eye, -wx, zero], [zero, zero, zero]])
-    g = jax.scipy.linalg.expm(t[:, None, None] * a)[:, 3:6, 6:9]
-    return _drift(F, w, f, t), g @ tangents[2]
+    return _omega(p, t, om_p), jnp.where(
+        p.rest, attitude_at_rest(p.I_orig, p.w_orig, p.rest, q0, t), q
+    )
 
 
 def free_body_flow(inertia: Array, omega0: Array, q0: Array, h: Array) -> tuple[Array, Array]:
