@@ -65,9 +65,9 @@ def _cosh_series(x: Array) -> tuple[Array, Array]:
     )
 
 
-def omega_at_rest(I: Array, w: Array, rest: Array, t: Array) -> Array:
-    """Ω at times `t` (any shape) from a rest point `w` of Euler's equations (moments `I`; used
-    where `rest`), where it is constant: `w + Φ(t) f` with f = `euler_rate` (zero there, not its
+def omega_at_rest(w: Array, f: Array, F: Array, t: Array) -> Array:
+    """Ω at times `t` (any shape) from a rest point `w` of Euler's equations (f = `euler_rate`
+    there, F = `rest_matrix`), where it is constant: `w + Φ(t) f` (f is zero there, not its
     derivatives) and `Φ(t) = ∫₀ᵗ exp(Fτ) dτ = t E + t² c(st²) F + t³ d(st²) F²`
     (`_cosh_series`), F = ∂f/∂Ω at w, s = tr(F²)/2: at every rest point tr F = 0 and det F = 0
     (it is a multiple of Ω1Ω2Ω3 times the three differences of the moments), so F³ = sF
@@ -75,8 +75,6 @@ def omega_at_rest(I: Array, w: Array, rest: Array, t: Array) -> Array:
     the motion (its linearisation `δΩ̇ = F δΩ + δf`), growing like cosh(√s t) about the middle
     axis (capped before they overflow: `rest_time`); at a sphere (F = 0) also the second
     derivatives (the terms of order tᵏ are products of k factors that vanish there)."""
-    f = euler_rate(I, w)
-    F = rest_matrix(I, w, rest)
     t = rest_time(F, t)
     c, d = _cosh_series(0.5 * jnp.trace(F @ F) * t * t)
     ff = F @ f
@@ -84,13 +82,13 @@ def omega_at_rest(I: Array, w: Array, rest: Array, t: Array) -> Array:
     return w + t * f + t * t * c * ff + t**3 * d * (F @ ff)
 
 
-def attitude_at_rest(I: Array, w: Array, rest: Array, q0: Array, t: Array) -> Array:
-    """q at times `t (T,)` from a rest point `w` of Euler's equations (used where `rest`; Ω in
-    `omega_at_rest`): `q0 ∘ exp(tw) ∘ exp(ξ(t))`, ξ the rotation that the drift `δΩ = Ω − w`
-    adds, `ξ̇ = δΩ − w × ξ` to first order (`_drift`). The value is `q0 ∘ exp(tw)` (ξ = 0), the
-    first derivatives in the moments and w those of the motion (capped as `rest_time`)."""
-    F = rest_matrix(I, w, rest)
-    xi = _drift(F, jnp.where(rest, w, jnp.zeros_like(w)), euler_rate(I, w), rest_time(F, t))
+def attitude_at_rest(w: Array, f: Array, F: Array, rest: Array, q0: Array, t: Array) -> Array:
+    """q at times `t (T,)` from a rest point `w` of Euler's equations (used where `rest`; f, F
+    and Ω as in `omega_at_rest`): `q0 ∘ exp(tw) ∘ exp(ξ(t))`, ξ the rotation that the drift
+    `δΩ = Ω − w` adds, `ξ̇ = δΩ − w × ξ` to first order (`_drift`). The value is `q0 ∘ exp(tw)`
+    (ξ = 0), the first derivatives in the moments and w those of the motion (capped as
+    `rest_time`)."""
+    xi = _drift(F, jnp.where(rest, w, jnp.zeros_like(w)), f, rest_time(F, t))
     spin = quat.mul(q0, quat._from_rotvec(t[:, None] * w))
     return quat.mul(spin, quat._from_rotvec(xi))
 
@@ -100,10 +98,11 @@ def _drift(F: Array, w: Array, f: Array, t: Array) -> Array:
     """The rotation vectors `ξ(t) (T, 3)` that the drift of Ω away from a rest point w adds to
     the attitude, to first order in `f = f(w) = 0`: `ż = A z + (f, 0)`, z = (δΩ, ξ), z(0) = 0,
     `A = [[F, 0], [E, −[w×]]]` (`δΩ̇ = F δΩ + f`, `ξ̇ = δΩ − w × ξ`), so `ξ(t) = G(t) f` with
-    G the (ξ, f) block of `exp([[A, (E, 0)], [0, 0]] t)` (9 × 9, Van Loan). Its value is 0 (the
-    exponential is taken only for derivatives: `dξ = G df`), written as 0 times the inputs so
-    that it carries their batch axes under `vmap` (a constant does not, and the linearisation
-    of the rule then fails where the inputs are batched along different axes)."""
+    G the (ξ, f) block of `exp([[A, (E, 0)], [0, 0]] t)` (9 × 9; Van Loan 1978, IEEE Trans.
+    Automat. Control 23(3), "Computing integrals involving the matrix exponential"). Its value
+    is 0 (the exponential is taken only for derivatives: `dξ = G df`), written as 0 times the
+    inputs so that it carries their batch axes under `vmap` (a constant does not, and the
+    linearisation of the rule then fails where the inputs are batched along different axes)."""
     return 0 * (t[:, None] * (f + w + F[0]))
 
 

@@ -37,7 +37,7 @@ from .._checks import (
 )
 from .._custom_types import RealScalarLike, Scalar, TimesLike, Vec3, Vec3Like
 from .._numerics import safe_sqrt
-from ._rest_point import euler_rate, omega_at_rest
+from ._rest_point import euler_rate, omega_at_rest, rest_matrix
 from .elliptic import _ellipf, _ellipj, _ellipk, _sech
 
 # ----------------------------------------------------------------------------------------------
@@ -125,11 +125,12 @@ class _Plan(NamedTuple):
 
     I: Array  # moments (a dummy for trivial cases)
     w: Array  # Ω0 (a dummy for trivial cases)
-    I_orig: Array  # the moments as given
     w_orig: Array  # Ω0 as given
     trivial: Array  # sphere or Ω = 0: Ω is constant
     rest: Array  # Ω0 a rest point of Euler's equations where no branch below holds: `trivial`,
     # or a steady rotation on the separatrix (about the middle axis, in a symmetric top's plane)
+    f: Array  # Euler's rate at Ω0 (`_rest_point.euler_rate`; zero where `rest`)
+    F: Array  # its derivative in Ω where `rest`, else 0 (`_rest_point.rest_matrix`)
     sep: Array
     regime: Array
     M: Array
@@ -186,12 +187,15 @@ def _plan(I: Array, w: Array) -> _Plan:
     zero = ~(jnp.sum((I * w) ** 2) > 0)
     sphere = ~(jnp.max(I) > jnp.min(I))
     trivial = zero | sphere
-    rest = trivial | (jnp.all(euler_rate(I, w) == 0) & _separatrix(I, w)[1])
+    f = euler_rate(I, w)
     I_orig, w_orig = I, w
     I = jnp.where(trivial, dI, I)
     w = jnp.where(trivial, jnp.asarray((0.5, 0.5, 1.0), dtype), w)
 
     o, sep, case_hi = _separatrix(I, w)
+    # (I, w are the given ones wherever not `trivial`)
+    rest = trivial | (jnp.all(f == 0) & sep)
+    F = rest_matrix(I_orig, w_orig, rest)
     s = ((o[1] - o[0]) * (o[2] - o[0]) * (o[2] - o[1]) // 2).astype(dtype)  # parity ±1
     Ilo, Imid, Ihi = I[o[0]], I[o[1]], I[o[2]]
     regime = jnp.where(sep, 0, jnp.where(case_hi, 1, -1))
@@ -226,7 +230,7 @@ def _plan(I: Array, w: Array) -> _Plan:
     sg = jnp.stack([_sign(v1), jnp.ones_like(v1), _sign(v3)])
     lam_s = s * sg[0] * sg[2] * jnp.abs(J3 - J1) * safe_sqrt(bs * P3s / (J1 * J2 * J3))
     return _Plan(
-        *(I, w, I_orig, w_orig, trivial, rest, sep, regime, M, two_e),
+        *(I, w, w_orig, trivial, rest, f, F, sep, regime, M, two_e),
         *(pp, Ip, wp, a, b, P3, m, m1, lam_p, K),
         *(ps, Is, A, sg, u0, lam_s, P1s, P3s, bs),
     )
@@ -264,7 +268,7 @@ def _omega(p: _Plan, t: Array, per: Array | None = None) -> Array:
     per = _unpermute(_omega_periodic(p, t) if per is None else per, p.pp)
     sep = _unpermute(_omega_sep(p, t), p.ps)
     out = jnp.where(p.sep, sep, per)
-    return jnp.where(p.rest, omega_at_rest(p.I_orig, p.w_orig, p.rest, t), out)
+    return jnp.where(p.rest, omega_at_rest(p.w_orig, p.f, p.F, t), out)
 
 
 def check_moments(I: Array, name: str = "inertia", check: bool = True) -> Array:

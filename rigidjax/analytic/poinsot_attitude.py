@@ -123,7 +123,7 @@ def _flow(p: _Plan, q0: Array, t: Array) -> tuple[Array, Array]:
     left = quat.mul(quat.mul(q0, qc), quat.conj(qe0))
     q = quat.mul(quat.mul(left, qe), quat.conj(qc))
     return _omega(p, t, om_p), jnp.where(
-        p.rest, attitude_at_rest(p.I_orig, p.w_orig, p.rest, q0, t), q
+        p.rest, attitude_at_rest(p.w_orig, p.f, p.F, p.rest, q0, t), q
     )
 
 
