@@ -4,6 +4,7 @@ for the CPU."""
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import functools
 import hashlib
@@ -64,10 +65,29 @@ def _key(source: bytes, headers: Headers, compiler: list[str]) -> str:
     return h.hexdigest()[:16]
 
 
+@contextlib.contextmanager
+def _exclusive(lock: Path):
+    """Hold an exclusive lock on the file `lock` (POSIX `flock`; released when the process
+    ends, however it ends), so that processes needing the same kernel compile it once: the
+    others wait and load it. Without `fcntl` (Windows) no lock: each may compile it."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX
+        yield
+        return
+    with open(lock, "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
 def build(name: str, headers: Headers = ()) -> Path:
     """The shared library of `rigidjax/kernels/{name}.cc` with the generated `headers` (file
-    name, text) beside it, compiled if not in the cache yet (to a temporary file renamed into
-    place, so that parallel processes never load half a file)."""
+    name, text) beside it, compiled if not in the cache yet: by one process at a time
+    (`_exclusive`; the others find it built), to a temporary file renamed into place, so that no
+    process loads half a file."""
     source = resources.files("rigidjax.kernels").joinpath(f"{name}.cc").read_bytes()
     compiler = _compiler()
     folder = user_cache_dir() / "kernels"
@@ -76,22 +96,29 @@ def build(name: str, headers: Headers = ()) -> Path:
         return path
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryDirectory(dir=folder) as tmp:
-            src = Path(tmp) / f"{name}.cc"
-            src.write_bytes(source)
-            for header, text in headers:
-                (Path(tmp) / header).write_text(text)
-            out = Path(tmp) / path.name
-            command = [*compiler, *FLAGS, f"-I{jax.ffi.include_dir()}", str(src), "-o", str(out)]
-            done = subprocess.run(command, capture_output=True, text=True, timeout=600)
-            if done.returncode != 0:
-                raise KernelUnavailable(
-                    f"building {name}.cc failed ({shlex.join(command)}):\n{done.stderr[-2000:]}"
-                )
-            os.replace(out, path)
+        with _exclusive(path.with_suffix(".lock")):
+            if not path.exists():  # built by another process while this one waited
+                _compile(name, source, headers, compiler, path)
     except (OSError, subprocess.SubprocessError) as e:
         raise KernelUnavailable(f"building {name}.cc failed: {e}") from e
     return path
+
+
+def _compile(name: str, source: bytes, headers: Headers, compiler: list[str], path: Path) -> None:
+    """Compile `source` (kernel `name`) with `headers` into the library `path`."""
+    with tempfile.TemporaryDirectory(dir=path.parent) as tmp:
+        src = Path(tmp) / f"{name}.cc"
+        src.write_bytes(source)
+        for header, text in headers:
+            (Path(tmp) / header).write_text(text)
+        out = Path(tmp) / path.name
+        command = [*compiler, *FLAGS, f"-I{jax.ffi.include_dir()}", str(src), "-o", str(out)]
+        done = subprocess.run(command, capture_output=True, text=True, timeout=600)
+        if done.returncode != 0:
+            raise KernelUnavailable(
+                f"building {name}.cc failed ({shlex.join(command)}):\n{done.stderr[-2000:]}"
+            )
+        os.replace(out, path)
 
 
 @functools.cache

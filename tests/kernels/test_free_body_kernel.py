@@ -2,6 +2,7 @@
 path on the same steps (`ExplicitRK(method)`, which never takes a kernel), against SciPy and
 against central differences."""
 
+import concurrent.futures
 import shutil
 
 import diffrax
@@ -253,6 +254,27 @@ def test_no_compiler_is_a_clear_failure(monkeypatch, tmp_path):
     monkeypatch.setenv("CXX", str(tmp_path / "no-such-compiler"))
     with pytest.raises(_build.KernelUnavailable, match="no C\\+\\+ compiler"):
         _build.build("model")
+
+
+def test_processes_needing_one_kernel_compile_it_once(monkeypatch, tmp_path):
+    """Two builds of the same new kernel at once (threads here; each holds its own lock file
+    descriptor, as separate processes do): one compiles it, the other waits and finds it."""
+    calls = tmp_path / "calls"
+    fake = tmp_path / "fake-c++"
+    fake.write_text(
+        "#!/bin/sh\n"
+        'if [ "$1" = --version ]; then echo fake 1; exit 0; fi\n'
+        f"echo compile >> {calls}; sleep 1\n"
+        'while [ $# -gt 1 ]; do if [ "$1" = -o ]; then touch "$2"; fi; shift; done\n'
+    )
+    fake.chmod(0o755)
+    monkeypatch.setenv("CXX", str(fake))
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    headers = (("model.h", "// one kernel"),)
+    with concurrent.futures.ThreadPoolExecutor(2) as pool:
+        paths = list(pool.map(lambda _: _build.build("model", headers), range(2)))
+    assert paths[0] == paths[1] and paths[0].exists()
+    assert calls.read_text().split() == ["compile"]
 
 
 @pytest.mark.parametrize(
