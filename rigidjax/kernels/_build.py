@@ -14,6 +14,7 @@ import shlex
 import subprocess
 import tempfile
 import warnings
+from collections.abc import Iterator
 from importlib import resources
 from pathlib import Path
 
@@ -66,7 +67,7 @@ def _key(source: bytes, headers: Headers, compiler: list[str]) -> str:
 
 
 @contextlib.contextmanager
-def _exclusive(lock: Path):
+def _exclusive(lock: Path) -> Iterator[None]:
     """Hold an exclusive lock on the file `lock` (POSIX `flock`; released when the process
     ends, however it ends), so that processes needing the same kernel compile it once: the
     others wait and load it. Without `fcntl` (Windows) no lock: each may compile it."""
