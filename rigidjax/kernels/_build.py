@@ -70,14 +70,19 @@ def _key(source: bytes, headers: Headers, compiler: list[str]) -> str:
 def _exclusive(lock: Path) -> Iterator[None]:
     """Hold an exclusive lock on the file `lock` (POSIX `flock`; released when the process
     ends, however it ends), so that processes needing the same kernel compile it once: the
-    others wait and load it. Without `fcntl` (Windows) no lock: each may compile it."""
+    others wait and load it. Without `fcntl` (Windows), or on a file system that refuses the
+    lock (some network file systems), none: each process may compile it, as before."""
     try:
         import fcntl
     except ImportError:  # pragma: no cover - not POSIX
         yield
         return
     with open(lock, "a") as f:
-        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX)
+        except OSError:
+            yield
+            return
         try:
             yield
         finally:

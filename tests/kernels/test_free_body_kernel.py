@@ -3,7 +3,10 @@ path on the same steps (`ExplicitRK(method)`, which never takes a kernel), again
 against central differences."""
 
 import concurrent.futures
+import errno
+import fcntl
 import shutil
+from pathlib import Path
 
 import diffrax
 import jax
@@ -256,9 +259,9 @@ def test_no_compiler_is_a_clear_failure(monkeypatch, tmp_path):
         _build.build("model")
 
 
-def test_processes_needing_one_kernel_compile_it_once(monkeypatch, tmp_path):
-    """Two builds of the same new kernel at once (threads here; each holds its own lock file
-    descriptor, as separate processes do): one compiles it, the other waits and finds it."""
+def _fake_compiler(monkeypatch, tmp_path) -> Path:
+    """$CXX a script that records each compilation in the returned file, takes 1 s, and writes
+    an empty library; the user's cache in tmp_path."""
     calls = tmp_path / "calls"
     fake = tmp_path / "fake-c++"
     fake.write_text(
@@ -270,10 +273,28 @@ def test_processes_needing_one_kernel_compile_it_once(monkeypatch, tmp_path):
     fake.chmod(0o755)
     monkeypatch.setenv("CXX", str(fake))
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    return calls
+
+
+def test_processes_needing_one_kernel_compile_it_once(monkeypatch, tmp_path):
+    """Two builds of the same new kernel at once (threads here; each holds its own lock file
+    descriptor, as separate processes do): one compiles it, the other waits and finds it."""
+    calls = _fake_compiler(monkeypatch, tmp_path)
     headers = (("model.h", "// one kernel"),)
     with concurrent.futures.ThreadPoolExecutor(2) as pool:
         paths = list(pool.map(lambda _: _build.build("model", headers), range(2)))
     assert paths[0] == paths[1] and paths[0].exists()
+    assert calls.read_text().split() == ["compile"]
+
+
+def test_a_file_system_without_locks_still_builds(monkeypatch, tmp_path):
+    calls = _fake_compiler(monkeypatch, tmp_path)
+
+    def refuse(fd, operation):
+        raise OSError(errno.ENOLCK, "No locks available")
+
+    monkeypatch.setattr(fcntl, "flock", refuse)
+    assert _build.build("model", (("model.h", "// no lock"),)).exists()
     assert calls.read_text().split() == ["compile"]
 
 
