@@ -77,16 +77,10 @@ def _exclusive(lock: Path) -> Iterator[None]:
     except ImportError:  # pragma: no cover - not POSIX
         yield
         return
-    with open(lock, "a") as f:
-        try:
+    with open(lock, "a") as f:  # closing it releases the lock
+        with contextlib.suppress(OSError):
             fcntl.flock(f, fcntl.LOCK_EX)
-        except OSError:
-            yield
-            return
-        try:
-            yield
-        finally:
-            fcntl.flock(f, fcntl.LOCK_UN)
+        yield
 
 
 def build(name: str, headers: Headers = ()) -> Path:
