@@ -14,11 +14,12 @@ from jaxtyping import Array
 from ._checks import is_concrete
 
 
+@jax.jit
 def first_failure(stats: dict[str, Array], results) -> tuple[dict[str, Array], Any]:
     """Per-body solves' `stats` (`(B,)` each) with `num_valid` the batch's (the fewest valid
     output times) and `failed_body` the index of the body that failed first in time (for the
     error message: popped before the stats reach a trajectory), and the batch's result: that
-    body's failure (`results (B,)`; successful if none failed)."""
+    body's failure (`results (B,)`; successful if none failed). One compiled program."""
     valid = stats["num_valid"]
     failed = results != diffrax.RESULTS.successful
     i = jnp.argmin(jnp.where(failed, valid, jnp.iinfo(valid.dtype).max))

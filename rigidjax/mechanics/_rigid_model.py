@@ -8,6 +8,7 @@ from __future__ import annotations
 import functools
 from collections.abc import Callable
 
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
@@ -19,8 +20,9 @@ from .body import euler_rhs
 Torque = Callable[[Array, Array, Array], Array]
 
 
+@jax.jit
 def moments_params(I: Array) -> Array:
-    """`p (..., 6)` of the model from principal moments `I (..., 3)`."""
+    """`p (..., 6)` of the model from principal moments `I (..., 3)` (one compiled program)."""
     I1, I2, I3 = (I[..., i] for i in range(3))
     return jnp.stack([(I2 - I3) / I1, (I3 - I1) / I2, (I1 - I2) / I3, 1 / I1, 1 / I2, 1 / I3], -1)
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 from typing import Annotated, Any
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool
@@ -61,8 +62,10 @@ __all__ = [
 ]
 
 
+@jax.jit
 def _diag(a: Scalar, b: Scalar, c: Scalar) -> Mat33:
-    """Diagonal tensor diag(a, b, c) with the broadcast batch shape of a, b, c."""
+    """Diagonal tensor diag(a, b, c) with the broadcast batch shape of a, b, c (one compiled
+    program)."""
     a, b, c = jnp.broadcast_arrays(a, b, c)
     z = jnp.zeros_like(a)
     return jnp.stack(

@@ -3,6 +3,7 @@ and its per-body results folded into `solve_saved`'s."""
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import Any, cast
 
@@ -74,10 +75,13 @@ def controls(
     return values
 
 
-def per_body(st: Array, single: bool, kept: np.ndarray) -> tuple[dict[str, Array], Any]:
+@functools.partial(jax.jit, static_argnums=(1, 2))
+def per_body(st: Array, single: bool, kept: tuple[int, ...]) -> tuple[dict[str, Array], Any]:
     """`(stats, result)` from the kernel's per-body counts `st (B, 5)`: the steps of each body
     (`(B,)`; scalars for one body, `single`) and the batch's first failure (`num_valid`: the
-    leading kept output times every body reached; `result`: that of a body that failed first)."""
+    leading kept output times every body reached, `kept` the indices of those kept; `result`:
+    that of a body that failed first). One compiled program: eagerly, op by op, a first call
+    compiled some twenty."""
     counts = st[0] if single else st.T
     stats = {
         "num_steps": counts[0],

@@ -5,6 +5,7 @@ body its own adaptive steps, jump maps interval by interval, events."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, cast
@@ -208,8 +209,10 @@ def each_body(
     return jnp.moveaxis(ys, 0, 1), stats, result
 
 
+@functools.partial(jax.jit, static_argnums=1)
 def joined(blocks: list[Array], dtype) -> Array:
-    """The parameters `(Bp, P)` from their blocks of columns `(Bp or 1, Pj)`."""
+    """The parameters `(Bp, P)` from their blocks of columns `(Bp or 1, Pj)` (one compiled
+    program)."""
     rows = max((b.shape[0] for b in blocks), default=1)
     parts = [jnp.broadcast_to(b, (rows, b.shape[1])).astype(dtype) for b in blocks]
     return jnp.concatenate([*parts, jnp.zeros((rows, 0), dtype)], axis=1)

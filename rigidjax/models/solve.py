@@ -124,16 +124,17 @@ def solve_model(
     quiet = dataclasses.replace(options, throw=False)
     keep = np.ones(ts.shape[0], bool) if keep is None else np.asarray(keep, bool)
     blocks = [p] if isinstance(p, jax.Array | np.ndarray) else list(p)
-    p = joined(blocks, ts.dtype)
-    ys, stats, result = _solve(model, ts, y0, blocks, p, quiet, single, jumps, keep, event)
+    params: Array = joined(blocks, ts.dtype)
+    ys, stats, result = _solve(model, ts, y0, blocks, params, quiet, single, jumps, keep, event)
     first = stats.pop("failed_body", None)  # (per-body solves: the body that failed first)
-    ts = ts[np.flatnonzero(keep)]
+    if not keep.all():  # (a gather: some ten small programs to compile on a first call)
+        ts = ts[np.flatnonzero(keep)]
     if options.throw:
 
         def probe(k: int) -> str | None:
             def vf(t, y):
                 return jax.vmap(model.field, in_axes=(None, 0, 0))(
-                    t, y, jnp.broadcast_to(p, (y.shape[0], p.shape[1]))
+                    t, y, jnp.broadcast_to(params, (y.shape[0], params.shape[1]))
                 )
 
             return nonfinite_field(vf, ts, ys, k, model.name == "torque")

@@ -48,9 +48,11 @@ def _unit(q: Quat, name: str) -> Quat:
 
 
 def identity(shape: tuple[int, ...] = (), dtype: DTypeLike | None = None) -> Quat:
-    """The identity rotation `(1, 0, 0, 0)` with leading shape `shape`."""
-    dtype = jnp.result_type(float) if dtype is None else dtype
-    return jnp.zeros((*shape, 4), dtype).at[..., 0].set(1)
+    """The identity rotation `(1, 0, 0, 0)` with leading shape `shape` (a constant: nothing to
+    compile)."""
+    q = np.zeros((*shape, 4), jnp.result_type(float) if dtype is None else dtype)
+    q[..., 0] = 1
+    return jnp.asarray(q)
 
 
 def mul(a: QuatLike, b: QuatLike) -> Quat:
