@@ -75,8 +75,8 @@ def controls(
     return values
 
 
-@functools.partial(jax.jit, static_argnums=(1, 2))
-def per_body(st: Array, single: bool, kept: tuple[int, ...]) -> tuple[dict[str, Array], Any]:
+@functools.partial(jax.jit, static_argnums=1)
+def per_body(st: Array, single: bool, kept: Array | np.ndarray) -> tuple[dict[str, Array], Any]:
     """`(stats, result)` from the kernel's per-body counts `st (B, 5)`: the steps of each body
     (`(B,)`; scalars for one body, `single`) and the batch's first failure (`num_valid`: the
     leading kept output times every body reached, `kept` the indices of those kept; `result`:
@@ -91,7 +91,7 @@ def per_body(st: Array, single: bool, kept: tuple[int, ...]) -> tuple[dict[str, 
     results = jax.vmap(_result)(st[:, 4])
     stats, result = first_failure({**stats, "num_valid": st[:, 3]}, results)
     # (the leading kept output times every body reached)
-    stats["num_valid"] = jnp.sum(jnp.asarray(kept) < stats["num_valid"])
+    stats["num_valid"] = jnp.sum(kept < stats["num_valid"])
     return stats, result
 
 

@@ -137,7 +137,7 @@ def adaptive_backend(
             return jnp.moveaxis(ys, 0, 1), jnp.moveaxis(rec, 0, 1), when
 
         ys, rec, st, ev = adaptive.run(kernel, y0, pk, ts, ctl, through, jumps, keep, arrays)
-        stats, result = _adaptive.per_body(st, single, tuple(np.flatnonzero(keep).tolist()))
+        stats, result = _adaptive.per_body(st, single, np.flatnonzero(keep))
         out = (jnp.moveaxis(ys, 1, 0), jnp.moveaxis(rec, 1, 0))
         if event is not None:
             out = (*out, ev[0] if single else ev)
@@ -223,7 +223,7 @@ def adaptive_gpu_backend(
         (ys, rec, *ev), st = run(y0, joined(list(blocks), ts.dtype), c, ts, arrays)
         if jumps is None and not keep.all():
             ys = ys[:, np.flatnonzero(keep)]
-        stats, result = _adaptive.per_body(st, single, tuple(np.flatnonzero(keep).tolist()))
+        stats, result = _adaptive.per_body(st, single, np.flatnonzero(keep))
         out = (jnp.moveaxis(ys, 1, 0), jnp.moveaxis(rec, 1, 0))
         if event is not None:
             out = (*out, ev[0][0] if single else ev[0])
