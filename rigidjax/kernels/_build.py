@@ -1,6 +1,7 @@
 """Build a kernel's C++ source on this machine (once: the shared library is kept in the user's
 cache folder, keyed by the source, the compiler and jaxlib) and register its XLA FFI handlers
-for the CPU."""
+for the CPU. The translation units that every kernel links (model_ffi.cc: the handlers'
+decoding of XLA's operands) are compiled once into object files of the same cache."""
 
 from __future__ import annotations
 
@@ -23,13 +24,17 @@ import jax.ffi
 
 from .._cache import user_cache_dir
 
-FLAGS = ("-std=c++17", "-O3", "-march=native", "-fno-math-errno", "-fopenmp", "-shared", "-fPIC")
+FLAGS = ("-std=c++17", "-O3", "-march=native", "-fno-math-errno", "-fopenmp", "-fPIC")
 """`-fno-math-errno` keeps IEEE results and only lets `sqrt` vectorise; `-march=native`: the
 library is built for the machine it runs on."""
 
 
 Headers = tuple[tuple[str, str], ...]
 """Generated header files of a kernel: (file name, text) pairs."""
+
+Units = tuple[tuple[str, Headers], ...]
+"""Translation units that a kernel links: (the name of `rigidjax/kernels/{name}.cc`, its
+headers) pairs, each compiled once into an object file shared by every kernel."""
 
 
 class KernelUnavailable(RuntimeError):
@@ -51,7 +56,7 @@ def _cpu() -> str:
     return "\n".join(dict.fromkeys(keep))
 
 
-def _key(source: bytes, headers: Headers, compiler: list[str]) -> str:
+def _key(source: bytes, headers: Headers, compiler: list[str], objects: tuple[Path, ...]) -> str:
     try:
         version = subprocess.run(
             [*compiler, "--version"], capture_output=True, text=True, timeout=30, check=True
@@ -63,6 +68,8 @@ def _key(source: bytes, headers: Headers, compiler: list[str]) -> str:
         h.update(f"{name}\n{text}".encode())
     for part in (version, " ".join(FLAGS), jax.__version__, jax.ffi.include_dir(), _cpu()):
         h.update(part.encode())
+    for obj in objects:  # (their names hold their own keys)
+        h.update(obj.name.encode())
     return h.hexdigest()[:16]
 
 
@@ -83,36 +90,52 @@ def _exclusive(lock: Path) -> Iterator[None]:
         yield
 
 
-def build(name: str, headers: Headers = ()) -> Path:
+def build(name: str, headers: Headers = (), link: Units = ()) -> Path:
     """The shared library of `rigidjax/kernels/{name}.cc` with the generated `headers` (file
-    name, text) beside it, compiled if not in the cache yet: by one process at a time
-    (`_exclusive`; the others find it built), to a temporary file renamed into place, so that no
-    process loads half a file."""
+    name, text) beside it, linked with the object files of the units `link`, each compiled if
+    not in the cache yet: by one process at a time (`_exclusive`; the others find it built),
+    to a temporary file renamed into place, so that no process loads half a file."""
+    objects = tuple(_cached(unit, unit_headers, ".o") for unit, unit_headers in link)
+    return _cached(name, headers, ".so", objects)
+
+
+def _cached(name: str, headers: Headers, suffix: str, objects: tuple[Path, ...] = ()) -> Path:
+    """`rigidjax/kernels/{name}.cc` compiled with `headers`: a library linking `objects`
+    (`suffix` ".so") or an object file (".o"), from the cache or built into it."""
     source = resources.files("rigidjax.kernels").joinpath(f"{name}.cc").read_bytes()
     compiler = _compiler()
     folder = user_cache_dir() / "kernels"
-    path = folder / f"{name}-{_key(source, headers, compiler)}.so"
+    path = folder / f"{name}-{_key(source, headers, compiler, objects)}{suffix}"
     if path.exists():
         return path
     try:
         folder.mkdir(parents=True, exist_ok=True)
         with _exclusive(path.with_suffix(".lock")):
             if not path.exists():  # built by another process while this one waited
-                _compile(name, source, headers, compiler, path)
+                _compile(name, source, headers, compiler, path, objects)
     except (OSError, subprocess.SubprocessError) as e:
         raise KernelUnavailable(f"building {name}.cc failed: {e}") from e
     return path
 
 
-def _compile(name: str, source: bytes, headers: Headers, compiler: list[str], path: Path) -> None:
-    """Compile `source` (kernel `name`) with `headers` into the library `path`."""
+def _compile(
+    name: str,
+    source: bytes,
+    headers: Headers,
+    compiler: list[str],
+    path: Path,
+    objects: tuple[Path, ...],
+) -> None:
+    """Compile `source` (`name`.cc) with `headers` into the object file or, linking `objects`,
+    the library `path` (by its suffix)."""
     with tempfile.TemporaryDirectory(dir=path.parent) as tmp:
         src = Path(tmp) / f"{name}.cc"
         src.write_bytes(source)
         for header, text in headers:
             (Path(tmp) / header).write_text(text)
         out = Path(tmp) / path.name
-        command = [*compiler, *FLAGS, f"-I{jax.ffi.include_dir()}", str(src), "-o", str(out)]
+        kind = ["-c"] if path.suffix == ".o" else ["-shared", *map(str, objects)]
+        command = [*compiler, *FLAGS, f"-I{jax.ffi.include_dir()}", str(src), *kind, "-o", str(out)]
         done = subprocess.run(command, capture_output=True, text=True, timeout=600)
         if done.returncode != 0:
             raise KernelUnavailable(
@@ -122,12 +145,14 @@ def _compile(name: str, source: bytes, headers: Headers, compiler: list[str], pa
 
 
 @functools.cache
-def load(name: str, targets: tuple[str, ...], headers: Headers = ()) -> str | None:
-    """Build `name` (with `headers`, see `build`) and register its handler symbols `targets` as
-    XLA FFI targets of the same names on the CPU; returns None, after one warning, where that
-    is not possible."""
+def load(
+    name: str, targets: tuple[str, ...], headers: Headers = (), link: Units = ()
+) -> str | None:
+    """Build `name` (with `headers` and `link`, see `build`) and register its handler symbols
+    `targets` as XLA FFI targets of the same names on the CPU; returns None, after one warning,
+    where that is not possible."""
     try:
-        library = ctypes.CDLL(str(build(name, headers)))
+        library = ctypes.CDLL(str(build(name, headers, link)))
         for target in targets:
             handler = jax.ffi.pycapsule(getattr(library, target))
             jax.ffi.register_ffi_target(target, handler, platform="cpu")

@@ -161,6 +161,12 @@ def headers(model_h: str, adaptive: bool = False) -> tuple[tuple[str, str], ...]
     return (("model.h", model_h), ("model_layout.h", _text("model_layout.h")), *extra)
 
 
+def linked() -> tuple[tuple[str, tuple[tuple[str, str], ...]], ...]:
+    """The translation unit that every `model.cc` build links (`_build.build`'s `link`):
+    `model_ffi.cc`, the XLA FFI handlers, with the batch layout; compiled once for all models."""
+    return (("model_ffi", (("model_layout.h", _text("model_layout.h")),)),)
+
+
 @functools.cache
 def _text(name: str) -> str:
     """A header of `rigidjax/kernels`, read once."""

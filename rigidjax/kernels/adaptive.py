@@ -23,7 +23,7 @@ from jaxtyping import Array, Float, Int
 
 from . import tableau
 from ._build import load
-from ._source import header, headers
+from ._source import header, headers, linked
 from .model import _NAME, Hoisted, Schedule, block_cotangents, call, forward_part
 
 __all__ = ["AdaptiveKernel", "build", "controls", "run"]
@@ -53,7 +53,7 @@ class AdaptiveKernel(NamedTuple):
     def backward(self) -> str:
         """The reverse mode's handler, built and registered on the first call."""
         text, name = self.backward_header
-        if load(_NAME, (name,), headers(text, adaptive=True)) is None:
+        if load(_NAME, (name,), headers(text, adaptive=True), linked()) is None:
             raise RuntimeError(
                 "the reverse mode of rigidjax's adaptive model kernel could not be built (see "
                 "the warning); pass solver=rigidjax.ExplicitRK(method) to differentiate "

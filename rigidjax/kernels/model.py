@@ -32,7 +32,7 @@ from . import tableau
 from ._build import load
 from ._components import Components
 from ._scalar import Unsupported, _is_const, scalars, unroll
-from ._source import consts, header, headers, model_source
+from ._source import consts, header, headers, linked, model_source
 
 Field = Callable[[Array, Array, Array], Array]
 """`f(t, y (N,), p (P,)) -> ẏ (N,)` of one body."""
@@ -265,7 +265,7 @@ class Kernel(NamedTuple):
         """The handler's name of the reverse mode (with the cotangents of the steps' sizes and
         start times where `times`), built and registered on the first call."""
         text, name = self.backward_headers[times]
-        if load(_NAME, (name,), headers(text)) is None:
+        if load(_NAME, (name,), headers(text), linked()) is None:
             raise RuntimeError(
                 "the reverse mode of rigidjax's model kernel could not be built (see the "
                 "warning); pass solver=rigidjax.ExplicitRK(method) to differentiate through "
@@ -296,7 +296,7 @@ def forward_part(
     method = cast(type[diffrax.AbstractERK], type(solver))
     source = hoisted.source(unit, record)
     text, name = header(method, dtype, source, "forward", adaptive=adaptive, fixed=fixed)
-    if load(_NAME, (name,), headers(text, adaptive=adaptive)) is None:
+    if load(_NAME, (name,), headers(text, adaptive=adaptive), linked()) is None:
         return None
     return method, source, name
 

@@ -37,8 +37,6 @@
 // `stop_gradient` of the controller makes them), recomputed interval by interval.
 #pragma once
 
-constexpr int kControls = 14;
-
 template <typename T>
 struct Ctl {
   T rtol, atol, safety, fmin, fmax, dtmax, dt0, c1, c2, c3, inv_order;
@@ -381,24 +379,6 @@ struct Where {
   int64_t l, b;
 };
 
-// The checks and strides both handlers share: Shapes (model_layout.h) with jump standing for
-// the fixed steps' n, h and t0, and the strides of ts and ctl.
-template <ffi::DataType DT>
-ffi::Error AdaptiveShapes(ffi::Span<const int64_t> lead, size_t base, ffi::Span<const int64_t> x0,
-                          size_t xbase, ffi::Buffer<DT>& ts, ffi::Buffer<ffi::S32>& jump,
-                          ffi::Buffer<ffi::S32>& save, ffi::Buffer<DT>& ctl,
-                          const ffi::RemainingArgs& blocks, Layout* at, Lead* tl, Lead* cl,
-                          Param<ffi::NativeType<DT>>* prm) {
-  const auto jd = jump.dimensions();
-  ffi::Error e = Shapes<DT>(lead, base, x0, xbase, jd, jd, jd, jd, save.dimensions(), blocks, at, prm);
-  if (e.failure()) return e;
-  if (!Strides(at->rows, ts.dimensions(), 1, tl) || ts.dimensions().back() != at->K + 1 ||
-      !Strides(at->rows, ctl.dimensions(), 1, cl) || ctl.dimensions().back() != kControls) {
-    return ffi::Error::InvalidArgument("adaptive model kernel: inconsistent shapes of ts, ctl");
-  }
-  return ffi::Error::Success();
-}
-
 // f(i, where) for every body of the call, in blocks whose parameters are filled into C; the
 // blocks are handed out dynamically (bodies take different numbers of steps).
 template <typename T, class F>
@@ -420,46 +400,21 @@ void EachBody(const Layout& at, const Param<T>* prm, F f) {
   }
 }
 
-template <ffi::DataType DT>
-ffi::Error AdaptiveSteps(ffi::Buffer<DT> y0, ffi::Buffer<DT> ts, ffi::Buffer<ffi::S32> jump,
-                         ffi::Buffer<ffi::S32> save, ffi::Buffer<DT> ctl,
-                         ffi::RemainingArgs blocks, ffi::ResultBuffer<DT> y,
-                         ffi::ResultBuffer<DT> rec, ffi::ResultBuffer<DT> hk,
-                         ffi::ResultBuffer<ffi::S32> st, ffi::ResultBuffer<DT> ev) {
-  using T = ffi::NativeType<DT>;
-  Layout at;
-  Lead tl, cl;
-  Param<T> prm[kBlocks];
-  ffi::Error e = AdaptiveShapes<DT>(y->dimensions(), 3, y0.dimensions(), 2, ts, jump, save, ctl,
-                                    blocks, &at, &tl, &cl, prm);
-  if (e.failure()) return e;
-  const auto yd = y->dimensions(), rd = rec->dimensions();
-  const int nd = at.rows.nd;
-  at.S = yd[nd + 1];
-  at.R = rd.size() == yd.size() ? rd[nd + 1] : -1;
-  const size_t bodies = static_cast<size_t>(at.rows.count() * at.B);
-  if (yd[nd + 2] != N || at.R < 0 || rd[nd] != at.B || rd[nd + 2] != Model::NR ||
-      hk->element_count() != bodies * at.K || st->element_count() != bodies * 5 ||
-      ev->element_count() != bodies) {
-    return ffi::Error::InvalidArgument("adaptive model kernel: inconsistent output shapes");
-  }
-  const T *x0 = y0.typed_data(), *tt = ts.typed_data(), *cc = ctl.typed_data();
-  const int32_t *jj = jump.typed_data(), *ss = save.typed_data();
-  T *yy = y->typed_data(), *rr = rec->typed_data(), *hh = hk->typed_data();
-  int32_t* so = st->typed_data();
-  T* eo = ev->typed_data();
+// Every body's adaptive steps (model_layout.h's Adaptive: the operands checked by
+// model_ffi.cc).
+template <typename T>
+void AdaptiveRun RJ_ADAPTIVE_ARGS(T) {
   EachBody<T>(at, prm, [&](const T* p, Where w) {
     T x[N];
     RJ_UNROLL
-    for (int j = 0; j < N; ++j) x[j] = x0[at.x0(w.l, w.b, j)];
-    const Ctl<T> c(cc + cl.at(at.rows, w.l));
+    for (int j = 0; j < N; ++j) x[j] = y0[at.x0(w.l, w.b, j)];
+    const Ctl<T> c(ctl + cl.at(at.rows, w.l));
     const int64_t body = w.l * at.B + w.b;
-    Body<T>(c, x, p, tt + tl.at(at.rows, w.l), jj + at.jump.at(at.rows, w.l),
-            ss + at.save.at(at.rows, w.l), at.K, yy + at.out(w.l, w.b, 0, 0),
-            rr + (at.R > 0 ? at.rec(w.l, w.b, 0, 0) : 0), hh + body * at.K, so + body * 5,
-            eo + body);
+    Body<T>(c, x, p, ts + tl.at(at.rows, w.l), jump + at.jump.at(at.rows, w.l),
+            save + at.save.at(at.rows, w.l), at.K, y + at.out(w.l, w.b, 0, 0),
+            rec + (at.R > 0 ? at.rec(w.l, w.b, 0, 0) : 0), hk + body * at.K, st + body * 5,
+            ev + body);
   });
-  return ffi::Error::Success();
 }
 
 // The reverse sweep of one body (lam: the cotangent of its last state on entry, of its first
@@ -508,31 +463,9 @@ void BodyBack(const Ctl<T>& c, const Layout& at, Where w, const T* p, const T* y
   for (int j = 0; j < Model::P; ++j) pbar[j] += pb[j][0];
 }
 
-template <ffi::DataType DT>
-ffi::Error AdaptiveStepsBack(ffi::Buffer<DT> y, ffi::Buffer<DT> ts, ffi::Buffer<ffi::S32> jump,
-                             ffi::Buffer<ffi::S32> save, ffi::Buffer<DT> ctl,
-                             ffi::Buffer<DT> hk, ffi::Buffer<DT> gy, ffi::RemainingArgs blocks,
-                             ffi::ResultBuffer<DT> y0b, ffi::ResultBuffer<DT> pb) {
-  using T = ffi::NativeType<DT>;
-  Layout at;
-  Lead tl, cl, hl;
-  Param<T> prm[kBlocks];
-  ffi::Error e = AdaptiveShapes<DT>(y0b->dimensions(), 2, y.dimensions(), 3, ts, jump, save, ctl,
-                                    blocks, &at, &tl, &cl, prm);
-  if (e.failure()) return e;
-  at.S = at.K + 1;
-  at.R = 0;
-  const size_t rows = static_cast<size_t>(at.rows.count() * at.B);
-  if (y.dimensions()[at.rows.nd + 1] != at.K + 1 || !Strides(at.rows, gy.dimensions(), 3, &at.gy) ||
-      !std::equal(y.dimensions().begin() + at.rows.nd, y.dimensions().end(),
-                  gy.dimensions().begin() + at.rows.nd, gy.dimensions().end()) ||
-      !Strides(at.rows, hk.dimensions(), 2, &hl) || pb->element_count() != rows * Model::P) {
-    return ffi::Error::InvalidArgument("adaptive model kernel (reverse): inconsistent shapes");
-  }
-  const T *yy = y.typed_data(), *tt = ts.typed_data(), *cc = ctl.typed_data();
-  const T *hh = hk.typed_data(), *gg = gy.typed_data();
-  const int32_t* jj = jump.typed_data();
-  T *yb = y0b->typed_data(), *po = pb->typed_data();
+// Their reverse mode (model_layout.h's AdaptiveBack).
+template <typename T>
+void AdaptiveRunBack RJ_ADAPTIVE_BACK_ARGS(T) {
 #pragma omp parallel
   {
     Taken<T> tk;
@@ -548,44 +481,14 @@ ffi::Error AdaptiveStepsBack(ffi::Buffer<DT> y, ffi::Buffer<DT> ts, ffi::Buffer<
       RJ_UNROLL
       for (int j = 0; j < P; ++j) p[j] = C[j][0], pbar[j] = T(0);
       RJ_UNROLL
-      for (int j = 0; j < N; ++j) lam[j] = gg[at.cot(w.l, w.b, at.K, j)];
-      const Ctl<T> c(cc + cl.at(at.rows, w.l));
-      BodyBack<T>(c, at, w, p, yy, tt + tl.at(at.rows, w.l), jj + at.jump.at(at.rows, w.l),
-                  hh + hl.at(at.rows, w.l) + w.b * at.K, gg, lam, pbar, tk);
+      for (int j = 0; j < N; ++j) lam[j] = gy[at.cot(w.l, w.b, at.K, j)];
+      const Ctl<T> c(ctl + cl.at(at.rows, w.l));
+      BodyBack<T>(c, at, w, p, y, ts + tl.at(at.rows, w.l), jump + at.jump.at(at.rows, w.l),
+                  hk + hl.at(at.rows, w.l) + w.b * at.K, gy, lam, pbar, tk);
       RJ_UNROLL
-      for (int j = 0; j < N; ++j) yb[i * N + j] = lam[j];
+      for (int j = 0; j < N; ++j) y0b[i * N + j] = lam[j];
       RJ_UNROLL
-      for (int j = 0; j < Model::P; ++j) po[i * Model::P + j] = pbar[j];
+      for (int j = 0; j < Model::P; ++j) pb[i * Model::P + j] = pbar[j];
     }
   }
-  return ffi::Error::Success();
 }
-
-// Both handlers' leading operands: y0 (forward) or y (reverse mode), ts, jump, save, ctl.
-template <ffi::DataType DT>
-auto BindAdaptive() {
-  return ffi::Ffi::Bind()
-      .template Arg<ffi::Buffer<DT>>()
-      .template Arg<ffi::Buffer<DT>>()
-      .template Arg<ffi::Buffer<ffi::S32>>()
-      .template Arg<ffi::Buffer<ffi::S32>>()
-      .template Arg<ffi::Buffer<DT>>();
-}
-
-#define RJ_ADAPTIVE_FORWARD(NAME, DT)                                                    \
-  XLA_FFI_DEFINE_HANDLER_SYMBOL(NAME, (AdaptiveSteps<ffi::DT>),                         \
-                                BindAdaptive<ffi::DT>()                                  \
-                                    .RemainingArgs()                                     \
-                                    .Ret<ffi::Buffer<ffi::DT>>()                         \
-                                    .Ret<ffi::Buffer<ffi::DT>>()                         \
-                                    .Ret<ffi::Buffer<ffi::DT>>()                         \
-                                    .Ret<ffi::Buffer<ffi::S32>>()                        \
-                                    .Ret<ffi::Buffer<ffi::DT>>());
-#define RJ_ADAPTIVE_BACKWARD(NAME, DT)                                                   \
-  XLA_FFI_DEFINE_HANDLER_SYMBOL(NAME, (AdaptiveStepsBack<ffi::DT>),                     \
-                                BindAdaptive<ffi::DT>()                                  \
-                                    .Arg<ffi::Buffer<ffi::DT>>()                         \
-                                    .Arg<ffi::Buffer<ffi::DT>>()                         \
-                                    .RemainingArgs()                                     \
-                                    .Ret<ffi::Buffer<ffi::DT>>()                         \
-                                    .Ret<ffi::Buffer<ffi::DT>>());
