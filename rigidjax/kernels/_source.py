@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import re
 from collections.abc import Sequence
 from importlib import resources
 from typing import TYPE_CHECKING
@@ -161,10 +162,15 @@ def headers(model_h: str, adaptive: bool = False) -> tuple[tuple[str, str], ...]
     return (("model.h", model_h), ("model_layout.h", _text("model_layout.h")), *extra)
 
 
-def linked() -> tuple[tuple[str, tuple[tuple[str, str], ...]], ...]:
-    """The translation unit that every `model.cc` build links (`_build.build`'s `link`):
-    `model_ffi.cc`, the XLA FFI handlers, with the batch layout; compiled once for all models."""
-    return (("model_ffi", (("model_layout.h", _text("model_layout.h")),)),)
+def linked(model_h: str) -> tuple[tuple[str, tuple[tuple[str, str], ...]], ...]:
+    """The translation unit that the `model.cc` build of `model_h` links (`_build.build`'s
+    `link`): `model_ffi.cc`, the XLA FFI handler of its kernel and dtype (`model_ffi.h`: its
+    `RJ_KERNEL` without the name), with the batch layout; compiled once for all models."""
+    match = re.search(r"^#define RJ_KERNEL (\w+)\(\w+, (\w+)\)$", model_h, re.MULTILINE)
+    if match is None:
+        raise ValueError("a generated model.h names its kernel in its last line (RJ_KERNEL)")
+    handler = f"#define RJ_HANDLER {match[1]}({match[2]})\n"
+    return (("model_ffi", (("model_ffi.h", handler), ("model_layout.h", _text("model_layout.h")))),)
 
 
 @functools.cache

@@ -53,7 +53,7 @@ class AdaptiveKernel(NamedTuple):
     def backward(self) -> str:
         """The reverse mode's handler, built and registered on the first call."""
         text, name = self.backward_header
-        if load(_NAME, (name,), headers(text, adaptive=True), linked()) is None:
+        if load(_NAME, (name,), headers(text, adaptive=True), linked(text)) is None:
             raise RuntimeError(
                 "the reverse mode of rigidjax's adaptive model kernel could not be built (see "
                 "the warning); pass solver=rigidjax.ExplicitRK(method) to differentiate "

@@ -1,5 +1,6 @@
 // Any model's ODE at fixed steps of an explicit Runge–Kutta method, as XLA FFI kernels for the
-// CPU (rigidjax/kernels/model.py writes model.h, builds and registers them).
+// CPU (rigidjax/kernels/model.py writes model.h, builds and registers them; the handler that
+// decodes XLA's operands is model_ffi.cc's, linked in, so this build includes no XLA header).
 //
 //   the model (model.h, written from the JAX field's jaxpr)  ẏ = f(t, y, p), y ∈ R^N, p ∈ R^P
 //   one step  z_i = y + h Σ_{l<i} a_il k_l,  k_i = f(t + c_i h, z_i),  u = y + h Σ_l b_l k_l
@@ -481,16 +482,16 @@ Info ModelInfo() { return {Model::N, Model::P, Model::NR}; }
     return HANDLER(f);                                                                         \
   }
 #define RJ_FORWARD(NAME, DT)                                         \
-  void rj::Steps##DT RJ_STEPS_ARGS(RJ_T_##DT) { Group RJ_STEPS_CALL; } \
+  void rj::RunSteps RJ_STEPS_ARGS(RJ_T_##DT) { Group RJ_STEPS_CALL; } \
   RJ_EXPORT(NAME, RjSteps##DT)
 #define RJ_BACKWARD(NAME, DT)                                                      \
-  void rj::StepsBack##DT RJ_STEPS_BACK_ARGS(RJ_T_##DT) { GroupBack RJ_STEPS_BACK_CALL; } \
+  void rj::RunStepsBack RJ_STEPS_BACK_ARGS(RJ_T_##DT) { GroupBack RJ_STEPS_BACK_CALL; } \
   RJ_EXPORT(NAME, RjStepsBack##DT)
 #define RJ_ADAPTIVE_FORWARD(NAME, DT)                                                   \
-  void rj::Adaptive##DT RJ_ADAPTIVE_ARGS(RJ_T_##DT) { AdaptiveRun RJ_ADAPTIVE_CALL; } \
+  void rj::RunAdaptive RJ_ADAPTIVE_ARGS(RJ_T_##DT) { AdaptiveRun RJ_ADAPTIVE_CALL; } \
   RJ_EXPORT(NAME, RjAdaptive##DT)
 #define RJ_ADAPTIVE_BACKWARD(NAME, DT)                                                             \
-  void rj::AdaptiveBack##DT RJ_ADAPTIVE_BACK_ARGS(RJ_T_##DT) { AdaptiveRunBack RJ_ADAPTIVE_BACK_CALL; } \
+  void rj::RunAdaptiveBack RJ_ADAPTIVE_BACK_ARGS(RJ_T_##DT) { AdaptiveRunBack RJ_ADAPTIVE_BACK_CALL; } \
   RJ_EXPORT(NAME, RjAdaptiveBack##DT)
 
 RJ_KERNEL

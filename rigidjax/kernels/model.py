@@ -265,7 +265,7 @@ class Kernel(NamedTuple):
         """The handler's name of the reverse mode (with the cotangents of the steps' sizes and
         start times where `times`), built and registered on the first call."""
         text, name = self.backward_headers[times]
-        if load(_NAME, (name,), headers(text), linked()) is None:
+        if load(_NAME, (name,), headers(text), linked(text)) is None:
             raise RuntimeError(
                 "the reverse mode of rigidjax's model kernel could not be built (see the "
                 "warning); pass solver=rigidjax.ExplicitRK(method) to differentiate through "
@@ -296,7 +296,7 @@ def forward_part(
     method = cast(type[diffrax.AbstractERK], type(solver))
     source = hoisted.source(unit, record)
     text, name = header(method, dtype, source, "forward", adaptive=adaptive, fixed=fixed)
-    if load(_NAME, (name,), headers(text, adaptive=adaptive), linked()) is None:
+    if load(_NAME, (name,), headers(text, adaptive=adaptive), linked(text)) is None:
         return None
     return method, source, name
 

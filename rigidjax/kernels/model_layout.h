@@ -1,9 +1,9 @@
 // The batch layout of rigidjax/kernels/model.cc's kernels, shared by a model's build (its
-// steps: model.cc, model_adaptive.h) and the XLA FFI handlers that decode and check the
-// operands (model_ffi.cc, compiled once and linked into every model's library, so that a
-// model's build parses no XLA header): the rows that jax.vmap adds to every operand, the
-// parameter blocks, a block of bodies' setup, the model's sizes (Info) and the entry points by
-// which the handlers run its steps.
+// steps: model.cc, model_adaptive.h) and the XLA FFI handler that decodes and checks the
+// operands (model_ffi.cc, compiled once per kernel and dtype and linked into every model's
+// library, so that a model's build parses no XLA header): the rows that jax.vmap adds to every
+// operand, the parameter blocks, a block of bodies' setup, the model's sizes (Info) and the
+// entry points by which the handler runs its steps.
 #pragma once
 
 #include <cstdint>
@@ -111,9 +111,8 @@ void Fill(int64_t m, const int64_t* row, const int64_t* col, const Param<T>* prm
   }
 }
 
-// The model's build defines ModelInfo and the entry points of its one kernel (for one dtype);
-// the others stay undefined (weak: null), as model_ffi.cc's handlers of the other kernels,
-// which Python never registers for this build.
+// The model's build defines ModelInfo and the entry point of its one kernel, for one dtype;
+// model_ffi.cc, compiled for the same kernel and dtype, calls it.
 RJ_HIDDEN Info ModelInfo();
 
 // Their parameters and arguments, by kernel.
@@ -138,23 +137,22 @@ RJ_HIDDEN Info ModelInfo();
    T* y0b, T* pb)
 #define RJ_ADAPTIVE_BACK_CALL (at, prm, tl, cl, hl, y, ts, jump, ctl, hk, gy, y0b, pb)
 
-#define RJ_WEAK __attribute__((weak, visibility("hidden")))
-// Steps: fixed steps (model.cc's Group) of the bodies [first, first + count) that share their
-// steps; StepsBack: their reverse mode (GroupBack); Adaptive: adaptive steps of every body
-// (model_adaptive.h; tl, cl: the strides of ts and ctl); AdaptiveBack: their reverse mode (hl:
-// the strides of hk).
-#define RJ_ENTRY_POINTS(T, DT)                   \
-  RJ_WEAK void Steps##DT RJ_STEPS_ARGS(T);        \
-  RJ_WEAK void StepsBack##DT RJ_STEPS_BACK_ARGS(T); \
-  RJ_WEAK void Adaptive##DT RJ_ADAPTIVE_ARGS(T);  \
-  RJ_WEAK void AdaptiveBack##DT RJ_ADAPTIVE_BACK_ARGS(T);
-RJ_ENTRY_POINTS(float, F32)
-RJ_ENTRY_POINTS(double, F64)
+// RunSteps: fixed steps (model.cc's Group) of the bodies [first, first + count) that share
+// their steps; RunStepsBack: their reverse mode (GroupBack); RunAdaptive: adaptive steps of
+// every body (model_adaptive.h; tl, cl: the strides of ts and ctl); RunAdaptiveBack: their
+// reverse mode (hl: the strides of hk).
+#define RJ_ENTRY_POINTS(T)                        \
+  RJ_HIDDEN void RunSteps RJ_STEPS_ARGS(T);        \
+  RJ_HIDDEN void RunStepsBack RJ_STEPS_BACK_ARGS(T); \
+  RJ_HIDDEN void RunAdaptive RJ_ADAPTIVE_ARGS(T);  \
+  RJ_HIDDEN void RunAdaptiveBack RJ_ADAPTIVE_BACK_ARGS(T);
+RJ_ENTRY_POINTS(float)
+RJ_ENTRY_POINTS(double)
 
 }  // namespace rj
 
-// model_ffi.cc's handlers (XLA's FFI calling convention), per kernel and dtype; a model's
-// library exports its kernel's under the kernel's own name (model.cc's RJ_KERNEL).
+// model_ffi.cc's handler (XLA's FFI calling convention), per kernel and dtype; a model's
+// library exports it under the kernel's own name (model.cc's RJ_KERNEL).
 #define RJ_HANDLERS(DT)                                                     \
   extern "C" RJ_HIDDEN XLA_FFI_Error* RjSteps##DT(XLA_FFI_CallFrame*);      \
   extern "C" RJ_HIDDEN XLA_FFI_Error* RjStepsBack##DT(XLA_FFI_CallFrame*);  \
