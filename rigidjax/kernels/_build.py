@@ -56,13 +56,20 @@ def _cpu() -> str:
     return "\n".join(dict.fromkeys(keep))
 
 
-def _key(source: bytes, headers: Headers, compiler: list[str], objects: tuple[Path, ...]) -> str:
+@functools.cache
+def _version(compiler: tuple[str, ...]) -> str:
+    """The compiler's `--version`, asked once per process (a build links two units: each key
+    holds it)."""
     try:
-        version = subprocess.run(
+        return subprocess.run(
             [*compiler, "--version"], capture_output=True, text=True, timeout=30, check=True
         ).stdout
     except (OSError, subprocess.SubprocessError) as e:
         raise KernelUnavailable(f"no C++ compiler ({' '.join(compiler)}: {e})") from e
+
+
+def _key(source: bytes, headers: Headers, compiler: list[str], objects: tuple[Path, ...]) -> str:
+    version = _version(tuple(compiler))
     h = hashlib.sha256(source)
     for name, text in headers:
         h.update(f"{name}\n{text}".encode())
