@@ -5,6 +5,7 @@ decoding of XLA's operands) are compiled once into object files of the same cach
 
 from __future__ import annotations
 
+import concurrent.futures
 import contextlib
 import ctypes
 import functools
@@ -15,7 +16,7 @@ import shlex
 import subprocess
 import tempfile
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from importlib import resources
 from pathlib import Path
 
@@ -99,55 +100,92 @@ def _exclusive(lock: Path) -> Iterator[None]:
 
 def build(name: str, headers: Headers = (), link: Units = ()) -> Path:
     """The shared library of `rigidjax/kernels/{name}.cc` with the generated `headers` (file
-    name, text) beside it, linked with the object files of the units `link`, each compiled if
-    not in the cache yet: by one process at a time (`_exclusive`; the others find it built),
-    to a temporary file renamed into place, so that no process loads half a file."""
-    objects = tuple(_cached(unit, unit_headers, ".o") for unit, unit_headers in link)
-    return _cached(name, headers, ".so", objects)
-
-
-def _cached(name: str, headers: Headers, suffix: str, objects: tuple[Path, ...] = ()) -> Path:
-    """`rigidjax/kernels/{name}.cc` compiled with `headers`: a library linking `objects`
-    (`suffix` ".so") or an object file (".o"), from the cache or built into it."""
-    source = resources.files("rigidjax.kernels").joinpath(f"{name}.cc").read_bytes()
+    name, text) beside it, linked with the object files of the units `link`, each built if not
+    in the cache yet: by one process at a time (`_exclusive`; the others find it built), to a
+    temporary file renamed into place, so that no process loads half a file. The units' missing
+    objects compile while the library's own source does (threads: each a compiler process)."""
     compiler = _compiler()
-    folder = user_cache_dir() / "kernels"
-    path = folder / f"{name}-{_key(source, headers, compiler, objects)}{suffix}"
+    objects = tuple(_path(unit, unit_headers, ".o", compiler) for unit, unit_headers in link)
+    library = _path(name, headers, ".so", compiler, objects)
+    if library.exists():
+        return library
+    with concurrent.futures.ThreadPoolExecutor(max(len(link), 1)) as pool:
+        built = [
+            pool.submit(_make, obj, unit, unit_headers, compiler)
+            for obj, (unit, unit_headers) in zip(objects, link, strict=True)
+        ]
+        _make(library, name, headers, compiler, objects, lambda: [b.result() for b in built])
+    return library
+
+
+def _source(name: str) -> bytes:
+    return resources.files("rigidjax.kernels").joinpath(f"{name}.cc").read_bytes()
+
+
+def _path(
+    name: str, headers: Headers, suffix: str, compiler: list[str], objects: tuple[Path, ...] = ()
+) -> Path:
+    """Where the cache holds `{name}.cc` compiled with `headers`: an object file (`suffix`
+    ".o") or a library linking `objects` (".so")."""
+    key = _key(_source(name), headers, compiler, objects)
+    return user_cache_dir() / "kernels" / f"{name}-{key}{suffix}"
+
+
+def _make(
+    path: Path,
+    name: str,
+    headers: Headers,
+    compiler: list[str],
+    objects: tuple[Path, ...] = (),
+    ready: Callable[[], object] = lambda: None,
+) -> None:
+    """Build `path` (see `_path`) unless the cache has it; `ready()` returns once `objects`
+    exist (the library's own source compiles first)."""
     if path.exists():
-        return path
+        return
     try:
-        folder.mkdir(parents=True, exist_ok=True)
+        path.parent.mkdir(parents=True, exist_ok=True)
         with _exclusive(path.with_suffix(".lock")):
             if not path.exists():  # built by another process while this one waited
-                _compile(name, source, headers, compiler, path, objects)
+                _compile(name, headers, compiler, path, objects, ready)
     except (OSError, subprocess.SubprocessError) as e:
         raise KernelUnavailable(f"building {name}.cc failed: {e}") from e
-    return path
+
+
+def _run(command: list[str], name: str) -> None:
+    done = subprocess.run(command, capture_output=True, text=True, timeout=600)
+    if done.returncode != 0:
+        raise KernelUnavailable(
+            f"building {name}.cc failed ({shlex.join(command)}):\n{done.stderr[-2000:]}"
+        )
 
 
 def _compile(
     name: str,
-    source: bytes,
     headers: Headers,
     compiler: list[str],
     path: Path,
     objects: tuple[Path, ...],
+    ready: Callable[[], object],
 ) -> None:
-    """Compile `source` (`name`.cc) with `headers` into the object file or, linking `objects`,
-    the library `path` (by its suffix)."""
+    """Compile `name`.cc with `headers` into the object file or the library `path` (by its
+    suffix); a library with `objects`: its own object first, then, once `ready()`, the link."""
     with tempfile.TemporaryDirectory(dir=path.parent) as tmp:
         src = Path(tmp) / f"{name}.cc"
-        src.write_bytes(source)
+        src.write_bytes(_source(name))
         for header, text in headers:
             (Path(tmp) / header).write_text(text)
         out = Path(tmp) / path.name
-        kind = ["-c"] if path.suffix == ".o" else ["-shared", *map(str, objects)]
-        command = [*compiler, *FLAGS, f"-I{jax.ffi.include_dir()}", str(src), *kind, "-o", str(out)]
-        done = subprocess.run(command, capture_output=True, text=True, timeout=600)
-        if done.returncode != 0:
-            raise KernelUnavailable(
-                f"building {name}.cc failed ({shlex.join(command)}):\n{done.stderr[-2000:]}"
-            )
+        compile_ = [*compiler, *FLAGS, f"-I{jax.ffi.include_dir()}", str(src)]
+        if path.suffix == ".o":
+            _run([*compile_, "-c", "-o", str(out)], name)
+        elif not objects:
+            _run([*compile_, "-shared", "-o", str(out)], name)
+        else:
+            own = Path(tmp) / f"{name}.o"
+            _run([*compile_, "-c", "-o", str(own)], name)
+            ready()
+            _run([*compiler, *FLAGS, "-shared", str(own), *map(str, objects), "-o", str(out)], name)
         os.replace(out, path)
 
 

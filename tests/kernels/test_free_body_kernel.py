@@ -289,20 +289,20 @@ def test_processes_needing_one_kernel_compile_it_once(monkeypatch, tmp_path):
 
 def test_the_linked_handlers_compile_once_for_every_model(monkeypatch, tmp_path):
     """The units every kernel links (the XLA FFI handlers) are one cached object file: a
-    second model compiles only itself, and links the same object."""
+    second model compiles only itself (its object, then the link), and links the same one."""
     calls = _fake_compiler(monkeypatch, tmp_path)
     link = (("model_ffi", (("model_layout.h", "// layout"),)),)
     first = _build.build("model", (("model.h", "// model 1"),), link)
     second = _build.build("model", (("model.h", "// model 2"),), link)
     assert first != second and first.exists() and second.exists()
-    assert calls.read_text().split() == ["compile"] * 3
+    assert calls.read_text().split() == ["compile"] * (1 + 2 + 2)
     assert len(list((tmp_path / "cache").rglob("model_ffi-*.o"))) == 1
     assert _build.build("model", (("model.h", "// model 1"),), link) == first
-    assert calls.read_text().split() == ["compile"] * 3
+    assert calls.read_text().split() == ["compile"] * 5
     # changed handlers: their object and every library that links them built anew
     changed = (("model_ffi", (("model_layout.h", "// another layout"),)),)
     assert _build.build("model", (("model.h", "// model 1"),), changed) != first
-    assert calls.read_text().split() == ["compile"] * 5
+    assert calls.read_text().split() == ["compile"] * (5 + 1 + 2)
 
 
 def test_a_file_system_without_locks_still_builds(monkeypatch, tmp_path):
