@@ -464,7 +464,7 @@ void GroupBack(const T* y, const Param<T>* prm, const int32_t* n, const T* h, co
 }
 
 #ifdef RJ_ADAPTIVE
-#include "model_adaptive.h"  // adaptive steps: AdaptiveSteps, AdaptiveStepsBack
+#include "model_adaptive.h"  // adaptive steps: AdaptiveRun, AdaptiveRunBack
 #endif
 
 }  // namespace
