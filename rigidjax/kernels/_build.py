@@ -118,7 +118,8 @@ def build(name: str, headers: Headers = (), link: Units = ()) -> Path:
     return library
 
 
-def _source(name: str) -> bytes:
+def _read(name: str) -> bytes:
+    """The source of `rigidjax/kernels/{name}.cc`."""
     return resources.files("rigidjax.kernels").joinpath(f"{name}.cc").read_bytes()
 
 
@@ -127,7 +128,7 @@ def _path(
 ) -> Path:
     """Where the cache holds `{name}.cc` compiled with `headers`: an object file (`suffix`
     ".o") or a library linking `objects` (".so")."""
-    key = _key(_source(name), headers, compiler, objects)
+    key = _key(_read(name), headers, compiler, objects)
     return user_cache_dir() / "kernels" / f"{name}-{key}{suffix}"
 
 
@@ -172,7 +173,7 @@ def _compile(
     suffix); a library with `objects`: its own object first, then, once `ready()`, the link."""
     with tempfile.TemporaryDirectory(dir=path.parent) as tmp:
         src = Path(tmp) / f"{name}.cc"
-        src.write_bytes(_source(name))
+        src.write_bytes(_read(name))
         for header, text in headers:
             (Path(tmp) / header).write_text(text)
         out = Path(tmp) / path.name
