@@ -8,7 +8,7 @@ from jaxtyping import Array
 
 from .._checks import as_float, check_positive
 from .._custom_types import InertiaLike, Mat33, Scalar, ScalarLike, Vec3
-from .inertia import as_tensor, check_inertia, principal_axes
+from .inertia import as_tensor, check_inertia, diagonal, principal_axes
 
 __all__ = ["RigidBody", "euler_rhs"]
 
@@ -61,7 +61,7 @@ class RigidBody(eqx.Module):
         """`(I, I⁻¹)` for `euler_rhs`: the principal moments `(..., 3)` and their reciprocals for
         a diagonal body, else the tensor and its inverse `(..., 3, 3)`."""
         if self.diagonal:
-            m = jnp.diagonal(self.inertia, axis1=-2, axis2=-1)
+            m = diagonal(self.inertia)
             return m, 1 / m
         return self.inertia, jnp.linalg.inv(self.inertia)
 

@@ -62,6 +62,13 @@ __all__ = [
 ]
 
 
+def diagonal(T: Mat33) -> Vec3:
+    """The diagonal `(..., 3)` of tensors `T (..., 3, 3)`, as three static slices: their
+    transpose is a pad, where `jnp.diagonal`'s is a scatter (a gradient w.r.t. the moments of
+    1e5 bodies on 2 CPU cores: 1.0 ms instead of 2.7 ms)."""
+    return jnp.stack([T[..., 0, 0], T[..., 1, 1], T[..., 2, 2]], -1)
+
+
 @jax.jit
 def _diag(a: Scalar, b: Scalar, c: Scalar) -> Mat33:
     """Diagonal tensor diag(a, b, c) with the broadcast batch shape of a, b, c (one compiled

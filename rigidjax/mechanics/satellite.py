@@ -62,6 +62,7 @@ from ..solvers.exact_free_body import ExactFreeBody, RigidBodyField
 from ..solvers.splitting import LiePoissonSplitting
 from ._paths import fixed_steps
 from .body import RigidBody
+from .inertia import diagonal
 from .sixdof import SixDofTrajectory, Wrench, initial_state, simulate_6dof
 
 __all__ = [
@@ -173,7 +174,7 @@ def _moments(inertia) -> Array:
             "normal, z nadir): the inertia tensor must be diagonal",
             lambda I: f", off-diagonal {off(np, I):.3g}",
         )
-    return jnp.diagonal(I)
+    return diagonal(I)
 
 
 def pitch_frequency(inertia: RealLike | RigidBody, n: RealLike) -> Array:

@@ -63,7 +63,7 @@ from .._custom_types import (
     Vec3Like,
 )
 from .body import euler_rhs
-from .inertia import as_tensor, check_inertia, principal_axes
+from .inertia import as_tensor, check_inertia, diagonal, principal_axes
 
 __all__ = [
     "characteristic_coefficients",
@@ -94,7 +94,7 @@ def _inertia(inertia: InertiaLike) -> tuple[Mat33 | Vec3, bool]:
     if not tensor:
         check_shape(I, (3,), "inertia")
     T = check_inertia(as_tensor(I), "inertia")  # traced: the check rides on T, so use it
-    return (T if tensor else jnp.diagonal(T, axis1=-2, axis2=-1)), tensor
+    return (T if tensor else diagonal(T)), tensor
 
 
 def _axis(axis: AxisLike) -> Int[Array, "*#batch"]:

@@ -408,3 +408,19 @@ def test_gradients_of_moments(rng):
 
     gc = jax.jit(jax.grad(steiner_xx))(jnp.array([0.1, 0.2, 0.3]))
     np.testing.assert_allclose(gc, [0.0, 0.8, 1.2], rtol=1e-14)
+
+
+def test_the_moments_gradient_of_a_principal_axes_body_has_no_scatter():
+    """A body given by its moments keeps them as a diagonal tensor; their gradient comes back
+    through slices (a pad), not `jnp.diagonal`'s scatter, which on the CPU took 2.7 ms against
+    1.0 ms for 1e5 bodies."""
+    from rigidjax import RigidBody
+
+    def f(I):
+        m, m_inv = RigidBody(I).operator()
+        return jnp.sum(m * jnp.arange(1.0, 4.0)) + jnp.sum(m_inv)
+
+    I = jnp.array([[1.0, 2.0, 2.5], [1.5, 2.0, 3.0]])
+    program = str(jax.make_jaxpr(jax.grad(f))(I))
+    assert "gather" not in program  # jnp.diagonal: a gather, transposed to a scatter
+    np.testing.assert_allclose(jax.grad(f)(I), jnp.arange(1.0, 4.0) - 1 / I**2, rtol=1e-15)
