@@ -543,6 +543,7 @@ def test_derivatives_at_a_sphere():
     np.testing.assert_allclose(by_w, np.eye(3), rtol=0, atol=1e-14)
 
 
+@pytest.mark.slow  # compile-heavy (jacfwd and jacrev of the whole closed form): 28 s
 def test_derivatives_at_steady_rotations():
     """A steady rotation on the separatrix (about the middle axis; in a symmetric top's plane of
     equal moments) is a rest point of Euler's equations, as is any rotation of a sphere: Ω stays
