@@ -157,6 +157,7 @@ def test_torque_through_gpu_kernel_with_diffrax_gradients(on_gpu_kernel):
         np.testing.assert_allclose(g, r, rtol=1e-10, atol=1e-12)
 
 
+@pytest.mark.slow  # ~11 s: Pallas' interpreter
 def test_heavy_top_through_gpu_kernel(on_gpu_kernel):
     """The heavy top's model (a PyTree state) takes the GPU kernel too: the Diffrax path's
     numbers; under `jax.vmap` over tops (one-body solves) the tops join one kernel call."""

@@ -291,6 +291,7 @@ def _same_flips(got: rj.Trajectory, cpu: rj.Trajectory) -> None:
     np.testing.assert_array_equal(got.stats["num_steps"], cpu.stats["num_steps"])
 
 
+@pytest.mark.slow  # ~12 s: Pallas' interpreter (the fixed-step event's stays quick)
 def test_flip_event_in_the_kernel(monkeypatch):
     """The first flip (`flip_event`, terminating) located in the adaptive kernel by the Illinois
     method on the step, each body its own: the CPU kernel's event times (measured ≤ 1e-14
