@@ -371,10 +371,11 @@ void StepBack(int64_t m, const T (*__restrict x)[kBlock], const T (*__restrict n
 // stages rather than reading them from that pass: keeping the S − 1 stage arguments too was
 // slower (measured for RK4 on 1e5 bodies, 200 steps, 2 cores: the gradient at 5.3× the forward
 // run instead of 4.35× with the damping torque, in L2-sized segments of 20 steps 5.1×).
-// Nor does the forward run keep every state for this sweep: it makes them faster than memory
-// takes them (the same benchmark: 1.1 GB of states in 70 ms, where this 2-core machine writes
-// 1.28 GB in 72 ms, reads it in 41 ms and touches a fresh buffer of that size first in 3.2 s),
-// so that recomputing an interval's states (80 ms) costs less than storing and reading them.
+// Nor does the forward run keep every state for this sweep: it makes them about as fast as
+// memory takes them (the same benchmark: 1.1 GB of states in 70 ms; this 2-core machine, both
+// cores streaming, writes 1.28 GB in 48-53 ms, reads it in 42 ms and touches a fresh buffer of
+// that size first in 0.34 s), so that storing and reading them back costs at least what
+// recomputing an interval's states does (80 ms), and a fresh residual per call far more.
 constexpr int64_t kStoreAll = 2048;
 
 template <typename T>
