@@ -370,7 +370,12 @@ void StepBack(int64_t m, const T (*__restrict x)[kBlock], const T (*__restrict n
 // longer ones recompute segments of about √n steps from checkpoints. StepBack recomputes its
 // stages rather than reading them from that pass: keeping the S − 1 stage arguments too was
 // slower (measured for RK4 on 1e5 bodies, 200 steps, 2 cores: the gradient at 5.3× the forward
-// run instead of 4.35× with the damping torque, in L2-sized segments of 20 steps 5.1×).
+// run instead of 4.35× with the damping torque, in L2-sized segments of 20 steps 5.1×, which
+// recompute each state twice). Nor does it pay where the interval's states and stage arguments
+// fit in L2 with the segment recomputed once (blocks of 8 or 16 bodies: 0.37 and 0.74 MB):
+// value_and_grad took 337 ms with stored arguments at either size, against 320 ms recomputed
+// at 16 and 306 ms at kBlock = 64 (gravity gradient: stored 500 and 511 ms, recomputed at 16
+// 519 ms, at 64 493 ms; the forward run itself slows in small blocks).
 // Nor does the forward run keep every state for this sweep: it makes them about as fast as
 // memory takes them (the same benchmark: 1.1 GB of states in 70 ms; this 2-core machine, both
 // cores streaming, writes 1.28 GB in 48-53 ms, reads it in 42 ms and touches a fresh buffer of
