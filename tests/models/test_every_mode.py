@@ -142,7 +142,10 @@ def _omega(t, a):
     return rj.euler.to_matrix(jnp.stack([t, 0.2, 0.3]), "ZXZ") @ a
 
 
-@pytest.mark.parametrize("method", ["quat", "rotvec", "matrix"])
+@pytest.mark.parametrize(
+    "method",  # ~7-10 s each: the other two kinematics with the slow tests
+    ["quat", *(pytest.param(m, marks=pytest.mark.slow) for m in ("rotvec", "matrix"))],
+)
 def test_fallback_without_parameters(method):
     """`darboux` with `ω(t)` built by `euler.to_matrix` (an indexed update: no kernel, and a
     model without parameters) at fixed steps: one warning, and the attitude of an adaptive
