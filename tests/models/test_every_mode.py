@@ -148,12 +148,14 @@ def _omega(t, a):
 )
 def test_fallback_without_parameters(method):
     """`darboux` with `ω(t)` built by `euler.to_matrix` (an indexed update: no kernel, and a
-    model without parameters) at fixed steps: one warning, and the attitude of an adaptive
-    solve at tight tolerances."""
+    model without parameters) at fixed steps: one warning per solve, and the attitude of an
+    adaptive solve at tight tolerances (itself a fallback, with its own warning)."""
     a0 = jnp.array([0.1, 0.2, 0.3])
-    with pytest.warns(RuntimeWarning, match="scatter"):
+    with pytest.warns(RuntimeWarning, match="scatter") as fixed_warnings:
         fixed = rj.darboux(lambda t: _omega(t, a0), TS, P0=jnp.eye(3), method=method, **FIXED)
-    tight = rj.darboux(lambda t: _omega(t, a0), TS, P0=jnp.eye(3), rtol=1e-12, atol=1e-12)
+    with pytest.warns(RuntimeWarning, match="scatter") as tight_warnings:
+        tight = rj.darboux(lambda t: _omega(t, a0), TS, P0=jnp.eye(3), rtol=1e-12, atol=1e-12)
+    assert len(fixed_warnings) == 1 and len(tight_warnings) == 1
     np.testing.assert_allclose(fixed, tight, rtol=0, atol=1e-8)
 
 
