@@ -52,6 +52,25 @@ def test_flip_event_is_the_closed_form_and_holds_the_state():
         np.testing.assert_allclose(np.linalg.norm(traj.quat[b, k]), 1.0, atol=1e-14)
 
 
+@pytest.mark.parametrize(
+    "kinematics",
+    [
+        "matrix",
+        pytest.param("cayley_klein", marks=pytest.mark.slow),
+        pytest.param("euler", marks=pytest.mark.slow),
+        pytest.param("rotvec", marks=pytest.mark.slow),
+    ],
+)
+def test_flip_event_of_a_batch_in_every_chart(kinematics):
+    """The event reads each body's state in the chart's own components (a matrix `(3, 3)`,
+    Cayley–Klein `(2, 2, 2)`); a batched solve also evaluates lanes it discards, with zero
+    states, which must not trip the checks meant for user input."""
+    traj = rj.simulate(BODY, W, ts=TS, kinematics=kinematics, event=flip_event(W), options=TIGHT)
+    exact = rj.analytic.time_of_first_flip(BODY.inertia.diagonal(), W)
+    np.testing.assert_allclose(_event_t(traj), exact, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(np.linalg.norm(traj.quat, axis=-1), 1.0, atol=1e-13)
+
+
 def test_direction_filters_the_crossings():
     w0 = jnp.array([0.0, 0.0, 1.0])
     ts = jnp.linspace(0.0, 7.0, 3)

@@ -38,6 +38,15 @@ __all__ = [
 ]
 
 
+def _unit_state(q: Quat) -> Quat:
+    """`q / |q|` of an integrator's state, not user input: no argument checks. A batched loop
+    also evaluates lanes it discards (a finished body's, an event's placeholder), where the
+    state may be zero: those stay zero, with finite derivatives (the double `where`)."""
+    n2 = quat.norm2(q)[..., None]
+    some = n2 > 0
+    return jnp.where(some, q / jnp.sqrt(jnp.where(some, n2, 1)), q)
+
+
 class AbstractKinematics(eqx.Module):
     """An attitude state with its kinematic equation and its map to the rotation tensor."""
 
@@ -124,7 +133,7 @@ class Quaternion(AbstractKinematics):
         return quat.to_matrix(y)
 
     def to_quat(self, y: Quat) -> Quat:
-        return quat.normalize(y)
+        return _unit_state(y)
 
     def vector_field(self, y: Quat, w: Vec3) -> Quat:
         pure = jnp.concatenate([jnp.zeros_like(w[..., :1]), w], axis=-1)
@@ -287,7 +296,7 @@ class CayleyKlein(AbstractKinematics):
         return quat.to_matrix(self._quat(y))
 
     def to_quat(self, y: Float[Array, "*#batch 2 2 2"]) -> Quat:
-        return quat.normalize(self._quat(y))
+        return _unit_state(self._quat(y))
 
     @staticmethod
     def _quat(y: Float[Array, "*#batch 2 2 2"]) -> Quat:

@@ -90,15 +90,17 @@ def split_components(y: Array) -> tuple[Array, Array]:
 
 
 class OneBodyState(eqx.Module):
-    """`(Ω (3,), q (4,))` of one body's state on the Diffrax path: `(att (n, 1), Ω (3, 1))`
-    batch last for the kinematics `kin`, `(R (1, 3, 3), Ω (1, 3))` for RKMK (`kin` None)."""
+    """`(Ω (3,), q (4,))` of one body's state on the Diffrax path: `(att (..., 1), Ω (3, 1))`
+    batch last for the kinematics `kin` (`att` the chart's components: `(4, 1)` for a
+    quaternion, `(3, 3, 1)` for a matrix, `(2, 2, 2, 1)` Cayley–Klein), `(R (1, 3, 3),
+    Ω (1, 3))` for RKMK (`kin` None)."""
 
     kin: AbstractKinematics | None
 
     def __call__(self, y) -> tuple[Array, Array]:
         if self.kin is None:
             return y[1][0], quat.from_matrix(y[0][0], assume_valid=True)
-        return y[1][:, 0], self.kin.to_quat(y[0][:, 0])
+        return y[1][..., 0], self.kin.to_quat(y[0][..., 0])
 
 
 def raise_rerun(
