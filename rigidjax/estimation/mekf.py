@@ -266,6 +266,13 @@ def mekf(
         lambda xp, t: ~xp.isfinite(t) | ~(xp.diff(t, axis=-1, prepend=-xp.inf) > 0),
         "ts must be strictly increasing and finite",
     )
+    qm = validate(
+        qm,
+        lambda xp, q: xp.all(xp.isfinite(q), axis=-1) & (xp.sum(q * q, axis=-1) == 0),
+        "q_meas has a row of zeros, which is no attitude",
+        lambda q: f": row {np.argwhere(np.all(q == 0, axis=-1))[0].tolist()}",
+        hint="; give a row of NaN where there is no measurement",
+    )
     q0_ = check_finite(vector(q0, 4, "q0"), "q0")
     q0_ = quat.normalize(q0_)
     b0 = jnp.zeros(3) if bias0 is None else check_finite(vector(bias0, 3, "bias0"), "bias0")

@@ -238,6 +238,7 @@ def test_vmap_and_batch_agree():
         (dict(P0=jnp.eye(6).at[0, 1].set(1e-3)), "P0 must be symmetric"),
         (dict(gyro=jnp.zeros((5, 3))), "gyro must have shape"),
         (dict(q_meas=jnp.ones((4, 4))), "q_meas must have shape"),
+        (dict(q_meas=jnp.ones((5, 4)).at[2].set(0.0)), r"row of zeros.*row \[2\].*row of NaN"),
     ],
 )
 def test_errors_name_the_argument(change, needle):
