@@ -82,9 +82,15 @@ def open_existing(
 ) -> tuple[zarr.Group, tuple[int, ...]] | None:
     """The store at `path` and its chunk shape, if it holds a sweep with the same fingerprint
     and outputs and (when `chunk` is given) the same chunks; a ValueError if it holds another
-    one; None if there is no store yet. Without `chunk`, the stored chunking is adopted (a
+    one, or if `path` is a folder with files and no Zarr store (which creating the store would
+    erase); None if there is no store yet. Without `chunk`, the stored chunking is adopted (a
     resumed or multi-process sweep with the default chunk size uses the first call's)."""
     if not (path / "zarr.json").exists():
+        if path.is_dir() and any(path.iterdir()):  # creating the store would empty it
+            raise ValueError(
+                f"store {str(path)!r} is a folder with files and no Zarr store in it; give a "
+                "new path or an empty folder (a sweep's store replaces what a folder holds)"
+            )
         return None
     g = zarr.open_group(str(path), mode="r+")
     if "_sweep" not in g:

@@ -17,6 +17,10 @@ __all__ = ["Design", "grid", "sample"]
 
 _METHODS = ("sobol", "latin", "uniform")
 
+RESERVED = ("status",)
+"""Names that a sweep's Dataset gives its own variables, besides those with a leading `_`
+(the store's records, `_sweep`): no factor or observable may take them."""
+
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Design:
@@ -36,10 +40,16 @@ class Design:
 
     def __post_init__(self):
         """Every design is checked here, however it was made: points for every factor, one per
-        cell of `shape`, all finite (a ValueError naming the factor and the point)."""
+        cell of `shape`, all finite (a ValueError naming the factor and the point), none named
+        as the results' own variables (`RESERVED`)."""
         if not self.points or math.prod(self.shape) == 0:
             raise ValueError("design is empty: give at least one factor and one point")
         for name, v in self.points.items():
+            if name in RESERVED or name[:1] == "_":
+                raise ValueError(
+                    f"design factor {name!r} takes a name the results reserve "
+                    f"({', '.join(RESERVED)}, or a leading '_'): rename it"
+                )
             v = np.asarray(v)
             if v.shape != (math.prod(self.shape),):
                 raise ValueError(

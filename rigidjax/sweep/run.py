@@ -23,7 +23,7 @@ import xarray as xr
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from . import _layout, _store
-from .design import Design
+from .design import RESERVED, Design
 
 __all__ = ["STATUS", "run"]
 
@@ -72,8 +72,11 @@ def _outputs(model: Model, design: Design) -> dict[str, jax.ShapeDtypeStruct]:
             continue
         if not isinstance(name, str) or not hasattr(s, "shape"):
             raise ValueError(f"model output {name!r} must be an array, got {s!r}")
-        if name in design.points or name == "status" or name.startswith("_"):
-            raise ValueError(f"model output {name!r} clashes with a factor or a reserved name")
+        if name in design.points or name in design.dims or name in RESERVED or name[:1] == "_":
+            raise ValueError(
+                f"model output {name!r} clashes with a factor, a dimension of the design or a "
+                f"reserved name ({', '.join(RESERVED)}, or a leading '_'): rename it"
+            )
         shapes[name] = jax.ShapeDtypeStruct(tuple(s.shape), s.dtype)
     return shapes
 

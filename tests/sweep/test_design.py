@@ -58,6 +58,8 @@ def test_quasi_random_designs_fill_the_cube_evenly():
         (lambda: sweep.sample(4, key=KEY, x=(1, 0)), "range 'x' must have finite low < high"),
         (lambda: sweep.sample(4, key=KEY, x=(0, 1, "log")), "low must be positive"),
         (lambda: sweep.sample(4, key=KEY, x=(1, 2, "ln")), "may only be 'log'"),
+        (lambda: sweep.grid(status=[1.0, 2.0]), "factor 'status' takes a name the results"),
+        (lambda: sweep.sample(4, key=KEY, _sweep=(0, 1)), "factor '_sweep' takes a name"),
     ],
 )
 def test_bad_designs(call, match):

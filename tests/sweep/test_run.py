@@ -198,6 +198,15 @@ def test_bad_models_and_stores(tmp_path):
         sweep.run(lambda p: p["I2"], design(), progress=False)
     with pytest.raises(ValueError, match="clashes with a factor"):
         sweep.run(lambda p: {"I2": p["I2"]}, design(), progress=False)
+    sampled = sweep.sample(4, key=jax.random.key(0), I2=(1.1, 2.9))
+    with pytest.raises(ValueError, match="'point' clashes with a factor, a dimension"):
+        sweep.run(lambda p: {"point": p["I2"]}, sampled, progress=False)
+    # a folder with files of the user's and no store: refused, never emptied
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("keep")
+    with pytest.raises(ValueError, match="a folder with files and no Zarr store"):
+        sweep.run(model, design(), store=tmp_path / "mine", progress=False)
+    assert (tmp_path / "mine" / "notes.txt").read_text() == "keep"
     # (with the jaxtyping hook on, its TypeCheckError names the parameter and the type)
     with pytest.raises(TypeError, match=r"(?s)design.*Design"):
         sweep.run(model, {"I2": [1.0]}, progress=False)
