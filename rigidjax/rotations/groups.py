@@ -187,8 +187,11 @@ def reduce(
     Returns the reduced unit quaternions `(..., 4)` (sign of the product as computed); with
     `return_indices=True` also the indices `(...)` of the chosen elements of `left` and `right`
     (`None` for an argument not given; SciPy returns them with a leading length-1 axis for a single
-    rotation, here they have the batch shape of `q`). Ties go to the first pair (row-major over
-    left, right). Differentiable in `q` (the choice is piecewise constant).
+    rotation, here they have the batch shape of `q`). Exact ties go to the first pair (row-major
+    over left, right); pairs whose magnitudes differ only by rounding (symmetric groups give
+    many) are told apart by that rounding, as in SciPy, which may choose another of them: the
+    reduced rotations' magnitudes agree. Differentiable in `q` (the choice is piecewise
+    constant).
     """
     q = _unit(vector(q, 4, "q"), "q")
     lg = None if left is None else _group_arg(left, "left").astype(q.dtype)
