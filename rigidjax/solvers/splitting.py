@@ -16,13 +16,15 @@ from __future__ import annotations
 
 import diffrax
 import equinox as eqx
+import jax
 import jax.tree_util as jtu
+from jax.extend.core import Literal
 from jaxtyping import PyTree
 
 from .._custom_types import Args, DenseInfo, RealScalarLike, Y
 from .exact_free_body import AbstractFlowSolver, RigidBodyField, field_of, free_flow
 
-__all__ = ["LiePoissonSplitting", "strang_step"]
+__all__ = ["LiePoissonSplitting", "reads_omega", "strang_step"]
 
 _CBRT2 = 2.0 ** (1.0 / 3.0)
 # Yoshida (1990) triple jump: S(w1 h) S(w0 h) S(w1 h) is of order 4 for a symmetric S of order 2.
@@ -49,6 +51,18 @@ def _drift(field: RigidBodyField, t: RealScalarLike, y: tuple, args: Args, h: Re
     if len(y) == 2:
         return omega, q
     return omega, q, _axpy(y[2], h, field.drift(t, y, args))
+
+
+def reads_omega(torque, t: RealScalarLike, dtype) -> bool:
+    """Whether the torque of one body, `torque(t, Ω (3,), q (4,))`, uses Ω: the data flow of its
+    jaxpr from Ω to the result (an operation on anything computed from Ω counts)."""
+    shapes = jax.ShapeDtypeStruct((3,), dtype), jax.ShapeDtypeStruct((4,), dtype)
+    jaxpr = jax.make_jaxpr(lambda w, q: torque(t, w, q))(*shapes).jaxpr
+    live = {jaxpr.invars[0]}
+    for eqn in jaxpr.eqns:
+        if any(not isinstance(v, Literal) and v in live for v in eqn.invars):
+            live.update(eqn.outvars)
+    return any(not isinstance(v, Literal) and v in live for v in jaxpr.outvars)
 
 
 def strang_step(field: RigidBodyField, t0: RealScalarLike, h: RealScalarLike, y: tuple, args: Args):
@@ -85,6 +99,12 @@ class LiePoissonSplitting(AbstractFlowSolver):
         self, terms: diffrax.AbstractTerm, t0: RealScalarLike, t1: RealScalarLike, y0: Y, args: Args
     ) -> tuple[Y, None, DenseInfo]:
         field, direction = field_of(terms, "LiePoissonSplitting")
+        if field.torque is not None and reads_omega(field.torque, t0, y0[0].dtype):
+            raise ValueError(
+                "LiePoissonSplitting needs a torque of the attitude and time only (its kick "
+                "holds Ω fixed), and this torque reads omega: use a Runge–Kutta solver (the "
+                "default) for it"
+            )
         if len(y0) not in (2, 3):
             raise ValueError("LiePoissonSplitting integrates y = (omega, q) or (omega, q, x)")
         # Diffrax integrates backwards in time as forwards in −t: undo that for the flows

@@ -14,6 +14,7 @@ import rigidjax as rj
 from rigidjax import heavy_top as ht
 from rigidjax import satellite as sat
 from rigidjax.solvers import ExactFreeBody, LiePoissonSplitting
+from rigidjax.solvers.splitting import reads_omega
 from tests.helpers import cross, rigid_body_dop853
 
 I_TOP = np.array([1.0, 1.5, 2.0])
@@ -104,6 +105,19 @@ def test_clear_errors():
             solver=LiePoissonSplitting(),
             stepsize_controller=diffrax.PIDController(1e-8, 1e-8),
         )
+    fixed = dict(
+        solver=LiePoissonSplitting(), dt0=0.1, stepsize_controller=diffrax.ConstantStepSize()
+    )
+    with pytest.raises(ValueError, match="this torque reads omega"):  # its kick would be Euler's
+        rj.simulate(rj.RigidBody(I_TOP), W0, None, ts, torque=lambda t, w, q: -0.5 * w, **fixed)
+
+
+def test_torques_that_read_omega():
+    """The data flow of the torque's jaxpr: a use of Ω anywhere counts, its shape alone not."""
+    assert reads_omega(lambda t, w, q: -0.5 * w, 0.0, jnp.float64)
+    assert reads_omega(lambda t, w, q: q[1:] * jnp.sum(w * w), 0.0, jnp.float64)
+    assert not reads_omega(lambda t, w, q: jnp.cross(q[1:], jnp.ones(3)), 0.0, jnp.float64)
+    assert not reads_omega(lambda t, w, q: jnp.zeros_like(w) + jnp.sin(t), 0.0, jnp.float64)
 
 
 @pytest.mark.slow
