@@ -10,9 +10,10 @@ from typing import Any
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
-from .._checks import as_float, check_finite, check_unit_norm, vector
+from .._checks import as_float, check_finite, check_unit_norm, validate, vector
 from .._custom_types import RealLike
 from ..rotations import quat
 
@@ -27,6 +28,18 @@ def _gain(params: Any, name: str, default: Array) -> Array:
             f"{type(params).__name__}"
         )
     return jnp.asarray(params.get(name, default))
+
+
+def _gain_arg(x: RealLike, name: str) -> Array:
+    """A law's gain, checked finite and non-negative (a negative gain drives the body away:
+    the error grows, or B-dot adds energy)."""
+    return validate(
+        check_finite(as_float(x, name), name),
+        lambda xp, v: ~(v >= 0),
+        f"{name} must be non-negative",
+        lambda v: f", got {v}" if v.ndim == 0 else f", got min {np.min(v)}",
+        hint=" (a negative gain pushes the body away from the goal)",
+    )
 
 
 class QuaternionPD(eqx.Module):
@@ -54,7 +67,7 @@ def quaternion_pd(
     kp: RealLike, kd: RealLike, q_target: RealLike, wheel_axes: RealLike | None = None
 ) -> QuaternionPD:
     """The `QuaternionPD` law `u = −kp sgn(q_e0) q_e,1:3 − kd Ω` towards the attitude
-    `q_target (4,)` (unit; P body → space) with gains `kp`, `kd` (scalars or `(3,)`), for a body
+    `q_target (4,)` (unit; P body → space) with gains `kp`, `kd` ≥ 0 (scalars or `(3,)`), for a body
     torque, or for the wheels with spin axes `wheel_axes (3, n)` (motor torques `−A⁺ u`)."""
     qt = check_unit_norm(vector(q_target, 4, "q_target"), "q_target")
     if qt.shape != (4,):
@@ -66,8 +79,8 @@ def quaternion_pd(
             raise ValueError(f"wheel_axes must have shape (3, n), got {A.shape}")
         allocation = -jnp.linalg.pinv(A / jnp.linalg.norm(A, axis=0))
     return QuaternionPD(
-        check_finite(as_float(kp, "kp"), "kp"),
-        check_finite(as_float(kd, "kd"), "kd"),
+        _gain_arg(kp, "kp"),
+        _gain_arg(kd, "kd"),
         qt / jnp.linalg.norm(qt),
         allocation,
     )
@@ -93,6 +106,6 @@ class BDot(eqx.Module):
 
 
 def bdot(gain: RealLike, b_field: Callable[[Array], Array] | None = None) -> BDot:
-    """The `BDot` law with gain `k > 0` and the magnetic field in space `b_field(t) -> (3,)`
+    """The `BDot` law with gain `k ≥ 0` and the magnetic field in space `b_field(t) -> (3,)`
     (default: a unit field along space Z)."""
-    return BDot(check_finite(as_float(gain, "gain"), "gain"), b_field)
+    return BDot(_gain_arg(gain, "gain"), b_field)

@@ -215,6 +215,15 @@ def test_closed_loop_failures_are_named(solver):
         rj.simulate(g, W0, None, TS, controller=broken, control_period=0.1, solver=solver, **FIXED)
 
 
+def test_negative_gains_are_refused():
+    """A negative gain drives the body away (B-dot would add energy): a clear error."""
+    with pytest.raises(ValueError, match="gain must be non-negative, got -1.0"):
+        rj.control.bdot(-1.0)
+    with pytest.raises(ValueError, match="kd must be non-negative, got min -0.5"):
+        rj.control.quaternion_pd(2.0, jnp.array([1.0, -0.5, 1.0]), Q_T)
+    assert float(rj.control.bdot(0.0).gain) == 0.0  # zero: no control, allowed
+
+
 def test_bdot():
     """The B-dot torque `k (Ω × B) × B` (B the space field in body axes) matches its formula, and
     held at T_c = 0.05 it removes kinetic energy from a tumbling body (down to the rotation
