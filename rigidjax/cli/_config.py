@@ -14,6 +14,18 @@ import numpy as np
 
 from ._common import UsageError
 
+OBSERVABLES = (
+    "max_nutation",
+    "first_flip_time",
+    "energy_drift",
+    "momentum_drift",
+    "omega_end",
+    "quat_end",
+)
+CLOSED_LOOP = ("settling_time", "peak_wheel_speed", "saturation_count", "pointing_error_end")
+"""The observables of a sweep with `[wheels]` and `[control]` (a closed loop)."""
+ESTIMATED = ("knowledge_error_end", "knowledge_error_rms", "control_error_end")
+"""The observables a closed loop with `[sensors]` adds (the estimator in the loop)."""
 SECTIONS: dict[str, dict[str, str]] = {
     "body": {"inertia": "principal moments [I1, I2, I3] or a 3×3 tensor (body axes)"},
     "initial": {
@@ -62,25 +74,17 @@ SECTIONS: dict[str, dict[str, str]] = {
         "seed": "the noise seed: each point's key is folded from it and the point's factor "
         "values (default 0)",
     },
-    "observables": {"names": "which observables to compute (default: all of OBSERVABLES)"},
+    "observables": {
+        "names": f"which observables to compute (default: {', '.join(OBSERVABLES[:4])}; "
+        f"with [control]: {', '.join(CLOSED_LOOP)}, with [sensors] also {', '.join(ESTIMATED)}; "
+        f"a free body also offers {', '.join(OBSERVABLES[4:])})"
+    },
     "run": {
         "chunk_size": "points per compiled chunk (default: from the memory per point)",
         "precision": "float64 (default) or float32",
     },
 }
 REQUIRED = {"body": ("inertia",), "initial": ("omega0",), "times": ("t_end", "num")}
-OBSERVABLES = (
-    "max_nutation",
-    "first_flip_time",
-    "energy_drift",
-    "momentum_drift",
-    "omega_end",
-    "quat_end",
-)
-CLOSED_LOOP = ("settling_time", "peak_wheel_speed", "saturation_count", "pointing_error_end")
-"""The observables of a sweep with `[wheels]` and `[control]` (a closed loop)."""
-ESTIMATED = ("knowledge_error_end", "knowledge_error_rms", "control_error_end")
-"""The observables a closed loop with `[sensors]` adds (the estimator in the loop)."""
 METHODS = ("tsit5", "dopri5", "dopri8", "rk4")
 KINEMATICS = ("quat", "rotvec", "matrix", "euler", "cayley_klein", "geometric")
 Template = Any  # nested lists of floats and factor names
@@ -404,7 +408,7 @@ def load(path: Path) -> Config:
         raise _fail(path, "[observables] names", "must be a non-empty list")
     for n in names:
         if n not in known:
-            kind = "a closed loop" if control else "a free body ([control] adds CLOSED_LOOP)"
+            kind = "a closed loop" if control else f"a free body ([control] adds {CLOSED_LOOP})"
             raise _fail(
                 path, "[observables] names", f"unknown {n!r} for {kind}; choose from {known}"
             )

@@ -191,10 +191,15 @@ def run(args: argparse.Namespace) -> int:
     import jax
 
     from .. import sweep
+    from ..sweep import _store
 
-    if jax.process_index() == 0 and not (out / CONFIG_COPY).exists():
-        write_atomic(out / CONFIG_COPY, lambda f: Path(f).write_text(c.text, encoding="utf-8"))
     store = out / STORE
+    if jax.process_index() == 0 and not (out / CONFIG_COPY).exists():
+        try:  # (before the copy is written: a refused --out keeps only what it held)
+            _store.refuse_foreign(store)
+        except ValueError as e:
+            raise UsageError(f"--out {out}: {e}") from e
+        write_atomic(out / CONFIG_COPY, lambda f: Path(f).write_text(c.text, encoding="utf-8"))
     try:
         with checks_as_nan():  # every point was checked: no host callbacks, cacheable
             ds = sweep.run(

@@ -28,6 +28,16 @@ def check_writable(path: Path) -> None:
         raise ValueError(f"store {str(path)!r} cannot be written ({str(parent)!r} is not writable)")
 
 
+def refuse_foreign(path: Path) -> None:
+    """A ValueError if `path` is a folder with files and no Zarr store: creating the store
+    there would erase them."""
+    if path.is_dir() and not (path / "zarr.json").exists() and any(path.iterdir()):
+        raise ValueError(
+            f"store {str(path)!r} is a folder with files and no Zarr store in it; give a new "
+            "path or an empty folder (a sweep's store replaces what a folder holds)"
+        )
+
+
 def trailing_dims(name: str, shape: tuple[int, ...]) -> tuple[str, ...]:
     """Names of an observable's own dimensions (after the design's)."""
     return tuple(f"{name}_dim_{i}" for i in range(len(shape)))
@@ -86,11 +96,7 @@ def open_existing(
     erase); None if there is no store yet. Without `chunk`, the stored chunking is adopted (a
     resumed or multi-process sweep with the default chunk size uses the first call's)."""
     if not (path / "zarr.json").exists():
-        if path.is_dir() and any(path.iterdir()):  # creating the store would empty it
-            raise ValueError(
-                f"store {str(path)!r} is a folder with files and no Zarr store in it; give a "
-                "new path or an empty folder (a sweep's store replaces what a folder holds)"
-            )
+        refuse_foreign(path)
         return None
     g = zarr.open_group(str(path), mode="r+")
     if "_sweep" not in g:

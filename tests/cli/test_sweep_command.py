@@ -177,6 +177,20 @@ def test_config_errors(tmp_path, capsys, change, needles):
     assert not (tmp_path / "out").exists()
 
 
+def test_refuses_a_store_folder_of_other_files_and_writes_nothing(tmp_path, capsys):
+    """`--out` whose `sweep.zarr` is a folder of the user's files: refused before any work, the
+    files kept, and no `sweep.toml` left beside them."""
+    config = tmp_path / "c.toml"
+    config.write_text(CONFIG)
+    out = tmp_path / "o"
+    (out / "sweep.zarr").mkdir(parents=True)
+    (out / "sweep.zarr" / "mine.txt").write_text("keep")
+    rc = main(["sweep", str(config), "--out", str(out), "--no-progress"])
+    assert_user_error(rc, capsys.readouterr().err, "--out", "a folder with files and no Zarr")
+    assert sorted(p.name for p in out.iterdir()) == ["sweep.zarr"]
+    assert (out / "sweep.zarr" / "mine.txt").read_text() == "keep"
+
+
 def test_missing_config_file(tmp_path, capsys):
     rc = main(["sweep", str(tmp_path / "none.toml"), "--no-progress"])
     assert_user_error(rc, capsys.readouterr().err, "none.toml", "cannot read")
