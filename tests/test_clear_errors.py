@@ -152,6 +152,10 @@ def test_omega_to_rates_at_gimbal_lock():
         euler.omega_to_rates(np.zeros(3), W0)  # the default ZXZ at the identity, check=False
     with pytest.raises(ValueError, match=r"gimbal lock.*seq='XYX'"):
         euler.omega_to_rates(np.array([0.1, 0.0, 0.2]), W0, "XYX")
+    # the other locks, whose sin π and cos(π/2) are no exact zero in floating point
+    for seq, beta in (("ZXZ", np.pi), ("ZYX", np.pi / 2), ("xyz", -np.pi / 2)):
+        with pytest.raises(ValueError, match=rf"gimbal lock.*seq='{seq}'"):
+            euler.omega_to_rates(np.array([0.1, beta, 0.2]), W0, seq)
     # traced, no check (as documented): the inverse formula's 1/0
     assert not np.all(np.isfinite(jax.jit(euler.omega_to_rates)(np.zeros(3), W0)))
 

@@ -289,8 +289,9 @@ def omega_to_rates(
     Singular at gimbal lock, `det J = ±sin β` (proper Euler) or `±cos β` (Tait–Bryan), where the
     rates blow up as 1/det. With `check=True` that is an error naming `angles` (a ValueError on
     concrete angles, else a run-time `equinox.error_if`) where `|det J| < tol`; concrete angles
-    exactly at the lock (`det J = 0`, e.g. the default ZXZ at β = 0) are that error whatever
-    `check` (traced ones give inf/NaN there). For aircraft
+    at the lock to rounding (`|det J|` ≤ 16 ulp: β = 0 or `np.pi` for the default ZXZ, ±π/2 for
+    Tait–Bryan, whose sine or cosine is no exact zero in floating point) are that error whatever
+    `check` (traced ones give inf/NaN or rates of order 1e16 there). For aircraft
     angles (THEORY §4; 002 #148) use `seq="ZYX"` with angles (yaw, pitch, roll) and body ω: it
     returns (yaw rate, pitch rate, roll rate). `angles`, `omega` must be finite.
     """
@@ -302,8 +303,10 @@ def omega_to_rates(
     det = jnp.sum(c1 * adj[..., 0, :], -1)
     if check or is_concrete(det):
 
+        at_lock = 16 * float(np.finfo(det.dtype).eps)  # sin π, cos(π/2) in floating point
+
         def locked(xp: Any, d: Any) -> Any:
-            return ~(xp.abs(d) >= tol) if check else ~(xp.abs(d) > 0)
+            return ~(xp.abs(d) >= tol) if check else ~(xp.abs(d) > at_lock)
 
         def detail(d: np.ndarray) -> str:
             k = _validation.first(locked(np, d))
