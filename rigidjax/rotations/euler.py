@@ -302,7 +302,6 @@ def omega_to_rates(
     adj = jnp.stack([jnp.cross(c2, c3), jnp.cross(c3, c1), jnp.cross(c1, c2)], axis=-2)
     det = jnp.sum(c1 * adj[..., 0, :], -1)
     if check or is_concrete(det):
-
         at_lock = 16 * float(np.finfo(det.dtype).eps)  # sin π, cos(π/2) in floating point
 
         def locked(xp: Any, d: Any) -> Any:
