@@ -32,10 +32,14 @@ from ..models.solve import solve_tree
 Controller = Callable[[Array, Array, Array, Any], Array]
 
 
-def sample_grid(ts: np.ndarray, period: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """`(grid, sample, out)`: the sorted union of the output times `ts` and the samples
+def sample_grid(
+    ts: np.ndarray, period: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`(grid, sample, out, src)`: the sorted union of the output times `ts` and the samples
     `ts[0] + k period < ts[-1]` (a sample within `1e-9` of the span from an output time is that
-    output time), whether each grid point is a sample, and the grid index of each output time."""
+    output time), whether each grid point is a sample, the grid index of each output time, and
+    where each grid point comes from: `src ≥ 0` the output time `ts[src]`, else the sample
+    `k = −1 − src`."""
     if not period > 0:
         raise ValueError(f"control_period must be positive, got {period}")
     span = ts[-1] - ts[0]
@@ -43,19 +47,21 @@ def sample_grid(ts: np.ndarray, period: float) -> tuple[np.ndarray, np.ndarray, 
     count = int(np.ceil(span / period * (1 - 1e-12)))
     samples = ts[0] + period * np.arange(count)
     near = np.searchsorted(ts, samples)
-    new = []
+    new, new_k = [], []
     sample_at = np.zeros(ts.shape[0], bool)
-    for s, k in zip(samples, near, strict=True):
+    for i, (s, k) in enumerate(zip(samples, near, strict=True)):
         hits = [j for j in (k - 1, k) if 0 <= j < ts.shape[0] and abs(ts[j] - s) <= tol]
         if hits:
             sample_at[hits[0]] = True
         else:
             new.append(s)
+            new_k.append(i)
     grid = np.concatenate([ts, np.asarray(new, ts.dtype)])
     sample = np.concatenate([sample_at, np.ones(len(new), bool)])
+    src = np.concatenate([np.arange(ts.shape[0]), -1 - np.asarray(new_k, int)])
     order = np.argsort(grid, kind="stable")
     out = np.argsort(order)[: ts.shape[0]]
-    return grid[order], sample[order], out
+    return grid[order], sample[order], out, src[order]
 
 
 class _Held(eqx.Module):
@@ -125,8 +131,12 @@ def held_solve(
             "jit): the sample grid is built from them; close over them instead of passing "
             "them as traced arguments"
         )
-    grid_np, sample_np, out = sample_grid(times, float(period))
-    grid = jnp.asarray(grid_np, ts.dtype)
+    grid_np, sample_np, out, src = sample_grid(times, float(period))
+    # the grid's values, with the derivatives of the times it is made of (an output time, or
+    # ts[0] + k period): differentiating ts moves the outputs and the samples with it
+    ts_of = np.maximum(src, 0)
+    made_of = jnp.where(src >= 0, ts[ts_of], ts[0] + float(period) * (-1 - np.minimum(src, -1)))
+    grid = jnp.asarray(grid_np, ts.dtype) + (made_of - jax.lax.stop_gradient(made_of))
     inner = dataclasses.replace(options, throw=False)
     keep = np.zeros(grid_np.shape[0], bool)
     keep[out] = True

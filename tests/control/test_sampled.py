@@ -73,10 +73,11 @@ def wheel_rhs(t, y, u):
 
 
 def test_sample_grid():
-    grid, sample, out = sample_grid(np.array([0.0, 0.25, 1.0]), 0.3)
+    grid, sample, out, src = sample_grid(np.array([0.0, 0.25, 1.0]), 0.3)
     np.testing.assert_allclose(grid, [0.0, 0.25, 0.3, 0.6, 0.9, 1.0])
     assert sample.tolist() == [True, False, True, True, True, False] and out.tolist() == [0, 1, 5]
-    grid, sample, out = sample_grid(np.linspace(0.0, 1.0, 11), 0.1)  # 3 × 0.1 ≠ 0.3: merged
+    assert src.tolist() == [0, 1, -2, -3, -4, 2]  # ts[0], ts[1], samples 1-3, ts[2]
+    grid, sample, out, src = sample_grid(np.linspace(0.0, 1.0, 11), 0.1)  # 3 × 0.1 ≠ 0.3: merged
     assert len(grid) == 11 and sample[:-1].all() and not sample[-1]
 
 
@@ -213,6 +214,26 @@ def test_closed_loop_failures_are_named(solver):
         rj.IntegrationError, match=r"controller returned a non-finite command .* t = 1\.1"
     ):
         rj.simulate(g, W0, None, TS, controller=broken, control_period=0.1, solver=solver, **FIXED)
+
+
+@pytest.mark.slow  # the reverse kernel with output times, and the Diffrax path's jacfwd
+@pytest.mark.parametrize("solver", [rj.RK4(), rj.ExplicitRK(rj.RK4())], ids=["kernel", "diffrax"])
+def test_derivatives_wrt_the_output_times_of_a_closed_loop(solver):
+    """The sample grid is built from the values of `ts`, and carries their derivatives: moving
+    the last output time moves where the state is read, moving `ts[0]` moves every sample with
+    it. jacrev and jacfwd equal central differences (they were zero)."""
+    law = rj.control.quaternion_pd(2.0, 3.0, Q_T)
+    kw = dict(controller=law, control_period=0.1, solver=solver, **FIXED)
+
+    def end(times):
+        return rj.simulate(rj.Gyrostat(I, h=H), W0, None, times, **kw).omega[-1]
+
+    ts = jnp.array([0.02, 0.55, 0.97])
+    e = jnp.eye(3)
+    fd = jnp.stack([(end(ts + 1e-6 * e[i]) - end(ts - 1e-6 * e[i])) / 2e-6 for i in (0, 2)], -1)
+    for jac in (jax.jacrev(end), jax.jacfwd(end)):
+        np.testing.assert_allclose(jac(ts)[:, [0, 2]], fd, rtol=0, atol=1e-8)
+    assert float(jnp.abs(fd).min()) > 1e-3  # (a zero derivative would fail)
 
 
 def test_negative_gains_are_refused():
