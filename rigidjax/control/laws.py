@@ -67,8 +67,8 @@ def quaternion_pd(
     kp: RealLike, kd: RealLike, q_target: RealLike, wheel_axes: RealLike | None = None
 ) -> QuaternionPD:
     """The `QuaternionPD` law `u = −kp sgn(q_e0) q_e,1:3 − kd Ω` towards the attitude
-    `q_target (4,)` (unit; P body → space) with gains `kp`, `kd` ≥ 0 (scalars or `(3,)`), for a body
-    torque, or for the wheels with spin axes `wheel_axes (3, n)` (motor torques `−A⁺ u`)."""
+    `q_target (4,)` (unit; P body → space) with gains `kp`, `kd` ≥ 0 (scalars or `(3,)`), for a
+    body torque, or for the wheels with spin axes `wheel_axes (3, n)` (motor torques `−A⁺ u`)."""
     qt = check_unit_norm(vector(q_target, 4, "q_target"), "q_target")
     if qt.shape != (4,):
         raise ValueError(f"q_target must be one quaternion, shape (4,), got {qt.shape}")

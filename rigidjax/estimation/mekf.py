@@ -25,7 +25,7 @@ axes: `q = q̂ ∘ δq(δθ)`, `b = b̂ + δb`, covariance `P (6, 6)`.
 from __future__ import annotations
 
 import math
-from typing import Annotated, NamedTuple
+from typing import Annotated, Any, NamedTuple
 
 import equinox as eqx
 import jax
@@ -266,11 +266,15 @@ def mekf(
         lambda xp, t: ~xp.isfinite(t) | ~(xp.diff(t, axis=-1, prepend=-xp.inf) > 0),
         "ts must be strictly increasing and finite",
     )
+
+    def zero_row(xp: Any, q: Any) -> Any:  # (|q|² may underflow to 0 for a tiny row)
+        return xp.all(xp.isfinite(q), axis=-1) & (xp.sum(q * q, axis=-1) == 0)
+
     qm = validate(
         qm,
-        lambda xp, q: xp.all(xp.isfinite(q), axis=-1) & (xp.sum(q * q, axis=-1) == 0),
+        zero_row,
         "q_meas has a row of zeros, which is no attitude",
-        lambda q: f": row {np.argwhere(np.all(q == 0, axis=-1))[0].tolist()}",
+        lambda q: f": row {np.argwhere(zero_row(np, q))[0].tolist()}",
         hint="; give a row of NaN where there is no measurement",
     )
     q0_ = check_finite(vector(q0, 4, "q0"), "q0")
