@@ -4,8 +4,9 @@
 parameter convention `m = k²`. Usable on their own: `jit`, `vmap`, `grad` work, float32 and float64
 keep their dtype, leading batch dimensions broadcast, loops have a fixed number of steps.
 
-Sources: Abramowitz & Stegun (A&S) 16.4 (arithmetic–geometric mean, descending Landen), 16.17
-(addition theorems), 17.6 (AGM for K and F); THEORY §6.
+Sources: Abramowitz & Stegun (A&S) 16.4 (arithmetic–geometric mean, Landen), 16.8 (quarter
+periods), 16.17 (addition theorems), 16.22 (Maclaurin series), 17.6 (AGM for K and F); Fukushima
+2009 (duplication without cancellation); THEORY §6.
 """
 
 from __future__ import annotations
@@ -43,27 +44,66 @@ def _agm(m: Array, m1: Array) -> tuple[Array, Array]:
     return As, Cs
 
 
+# Doublings of `_ellipj_reduced`: an argument |w| ≤ K/2 ≤ 174 (1 − m ≥ 1e-300) is halved 18 times
+# to |h| ≤ 7e-4, where three Maclaurin terms of sn and of 1 − cn are exact to rounding (the next
+# terms are h⁶ ≤ 1e-19 of the first).
+_DOUBLINGS = 18
+
+
+def _ellipj_doubling(w: Array, m: Array, m1: Array) -> tuple[Array, Array, Array]:
+    """`(sn, cn, dn)(w|m)` for |w| ≤ K/2, each to a few ulps RELATIVE to itself, by duplication
+    from `h = w/2^N` (Maclaurin series, A&S 16.22) with the duplication formulas written without
+    cancellation (cf. Fukushima 2009, Celest. Mech. Dyn. Astr. 105, "conditional duplication"):
+    `sn 2u = 2 s c d/Δ`, `1 − cn 2u = 2 s² d²/Δ` while `1 − cn < ½`, then
+    `cn 2u = (m c⁴ + 2 m1 c² − m1)/(m1 + m c² (2 − c²))`, with `d² = m1 + m c²` and
+    `Δ = 1 − m s⁴ = d² + m s² c²` (sums of non-negative terms; `cn 2u` has no cancellation for
+    |2u| ≤ K/2, where `m c⁴ ≥ √m1·O(1) ≫ m1`)."""
+    h = w / 2.0**_DOUBLINGS
+    h2 = h * h
+    s = h * (1 - h2 * ((1 + m) / 6 - h2 * (1 + m * (14 + m)) / 120))
+    x = h2 * (0.5 - h2 * ((1 + 4 * m) / 24 - h2 * (1 + m * (44 + 16 * m)) / 720))
+
+    def step(sxc, _):
+        s, x, c = sxc
+        c2 = c * c
+        d2 = m1 + m * c2
+        s2 = s * s
+        den = d2 + m * s2 * c2
+        x2 = 2 * s2 * d2 / den
+        c_2 = (m * c2 * c2 + 2 * m1 * c2 - m1) / (m1 + m * c2 * (2 - c2))
+        small = x < 0.5
+        s_2 = 2 * s * c * jnp.sqrt(d2) / den
+        return (s_2, jnp.where(small, x2, 1 - c_2), jnp.where(small, 1 - x2, c_2)), None
+
+    (s, _, c), _ = jax.lax.scan(step, (s, x, 1 - x), None, length=_DOUBLINGS)
+    return s, c, jnp.sqrt(m1 + m * c * c)
+
+
+def _ellipj_reduced(u: Array, m: Array, m1: Array) -> tuple[Array, Array, Array, Array]:
+    """`(j, s, c, d)` with `u = 2jK + r`, |r| ≤ K, `(s, c, d) = (sn, cn, dn)(r|m)` (c ≥ 0), so
+    that `am u = jπ + atan2(s, c)`, `sn u = (−1)ʲ s`, `cn u = (−1)ʲ c`, `dn u = d`, for 0 ≤ m < 1.
+    s and d are accurate to a few ulps relative and c to a few ulps of d (errors growing like
+    `eps·|u|` from the reduction): the accuracy that `Π(n; am u|m)` needs close to m = 1, where
+    `dΠ/dφ ~ 1/dn` is large near `r = ±K` (an amplitude accurate only to ulps of π, as from the
+    descending Landen algorithm, costs a factor `1/√m1` there). For |r| ≤ K/2 the duplication of
+    `_ellipj_doubling`; beyond it the reflection `sn(K − v) = cd v`, `cn(K − v) = √m1 sd v`,
+    `dn(K − v) = √m1 nd v` (A&S 16.8) with `v = K − |r|` ∈ [0, K/2]."""
+    K = _ellipk(m, m1)
+    j = jnp.round(u / (2 * K))
+    r = u - 2 * j * K
+    near = jnp.abs(r) <= 0.5 * K
+    s, c, d = _ellipj_doubling(jnp.where(near, r, K - jnp.abs(r)), m, m1)
+    k1 = jnp.sqrt(m1)
+    sr = jnp.where(near, s, jnp.sign(r) * c / d)
+    return j, sr, jnp.where(near, c, k1 * s / d), jnp.where(near, d, k1 / d)
+
+
 def _ellipj(u: Array, m: Array, m1: Array) -> tuple[Array, Array, Array, Array]:
-    """sn, cn, dn, am for 0 ≤ m < 1 by the descending AGM algorithm (A&S 16.4.3):
-    `φ_N = 2^N a_N u`, `φ_{n−1} = ½(φ_n + arcsin((c_n/a_n) sin φ_n))`, `am = φ_0`,
-    `sn = sin φ_0`, `cn = cos φ_0`; `dn = √(m1 + m cn²)` (= √(1 − m sn²), a sum of non-negative
-    terms, so no cancellation near m = 1). `m1 = 1 − m` is passed separately so that it can be given
-    more accurately than `1 − m` (near the separatrix of the rigid body)."""
-    As, Cs = _agm(m, m1)
-    k = Cs / As
-    phi = (2.0**_AGM_STEPS) * As[-1] * u
-
-    def step(phi, kn):
-        return 0.5 * (phi + jnp.arcsin(kn * jnp.sin(phi))), None
-
-    phi, _ = jax.lax.scan(
-        step,
-        phi,
-        jnp.broadcast_to(k[:, *(None,) * (phi.ndim - k.ndim + 1)], (k.shape[0], *phi.shape)),
-        reverse=True,
-    )
-    c = jnp.cos(phi)
-    return jnp.sin(phi), c, jnp.sqrt(m1 + m * c * c), phi
+    """sn, cn, dn, am for 0 ≤ m < 1 from `_ellipj_reduced`. `m1 = 1 − m` is passed separately so
+    that it can be given more accurately than `1 − m` (near the separatrix of the rigid body)."""
+    j, s, c, d = _ellipj_reduced(u, m, m1)
+    sign = 1 - 2 * jnp.remainder(j, 2)
+    return sign * s, sign * c, d, j * math.pi + jnp.arctan2(s, c)
 
 
 def _ellipk(m: Array, m1: Array) -> Array:
@@ -74,7 +114,8 @@ def _ellipk(m: Array, m1: Array) -> Array:
 
 def _ellipf(phi: Array, m: Array, m1: Array) -> Array:
     """Incomplete integral of the first kind `F(φ|m) = ∫₀^φ dθ/√(1 − m sin²θ)` for any real φ and
-    0 ≤ m < 1, by running the descending algorithm of `_ellipj` backwards (ascending Landen):
+    0 ≤ m < 1, by running the descending Landen algorithm of A&S 16.4.3
+    (`φ_{n−1} = ½(φ_n + arcsin((c_n/a_n) sin φ_n))`) backwards (ascending Landen):
     `sin(2φ_{n−1} − φ_n) = (c_n/a_n) sin φ_n` solved for φ_n gives
     `φ_n = 2φ_{n−1} − atan2(k sin 2φ_{n−1}, 1 + k cos 2φ_{n−1})`, `k = c_n/a_n < 1`; then
     `F = φ_N / (2^N a_N)`. No quadrant bookkeeping is needed and the map is smooth in φ and m."""
@@ -114,8 +155,10 @@ def ellipj(u: ScalarLike, m: ScalarLike) -> tuple[Scalar, Scalar, Scalar, Scalar
 
     Parameter convention of A&S 16.1 (and SciPy): `m = k²`, 0 ≤ m ≤ 1;
     `u = ∫₀^am dθ/√(1 − m sin²θ)`, `sn = sin am`, `cn = cos am`, `dn = √(1 − m sn²)`.
-    For m < 1 the descending AGM/Landen algorithm of A&S 16.4 with a fixed number of steps
-    (accurate to a few ulps of `m` for any real `u`, error growing like `eps·|u|`); at m = 1
+    For m < 1 the reduction to |u| ≤ K/2 by the quarter periods and duplication from a small
+    argument (`_ellipj_reduced`: sn, dn and the amplitude's distance from the nearest odd
+    multiple of π/2 accurate to a few ulps relative, also as m → 1; errors growing like
+    `eps·|u|`); at m = 1
     `sn = tanh u`, `cn = dn = sech u`, `am = gd u = 2 atan(tanh(u/2))`. NaN outside [0, 1].
     Differentiable in u and in m on [0, 1).
     """
@@ -261,22 +304,14 @@ def _carlson_fj(sx: Array, sy: Array, sz: Array, sp: Array) -> tuple[Array, Arra
     return rf, rj
 
 
-def _ellippi_diff(n: Array, phi0: Array, phi1: Array, m: Array, m1: Array) -> Array:
-    """`Π(n; φ1|m) − Π(n; φ0|m)` for any real φ0, φ1 and n ≤ 0, 0 ≤ m < 1:
-    `Π(n; jπ + φr) = 2j Π(n|m) + Π(n; φr)` with |φr| ≤ π/2 (DLMF 19.25.14 and 19.25.2 for the
-    complete integral `R_F(0, 1 − m, 1) + (n/3) R_J(0, 1 − m, 1, 1 − n)`); one call of
-    `_carlson_fj` for the three integrals."""
-    j0, j1 = jnp.round(phi0 / math.pi), jnp.round(phi1 / math.pi)
-    phi = jnp.stack(jnp.broadcast_arrays(phi0 - j0 * math.pi, phi1 - j1 * math.pi))
-    s, c = jnp.sin(phi), jnp.cos(phi)
-    # (φ0r, φ1r, complete) stacked on a leading axis
-    sx = jnp.concatenate([jnp.abs(c), jnp.zeros_like(c[:1])])
-    sy = jnp.concatenate([jnp.sqrt(m1 + m * c * c), jnp.broadcast_to(jnp.sqrt(m1), c[:1].shape)])
-    sp = jnp.concatenate([jnp.sqrt(1 - n * s * s), jnp.broadcast_to(jnp.sqrt(1 - n), c[:1].shape)])
-    ss = jnp.concatenate([s, jnp.ones_like(s[:1])])
-    rf, rj = _carlson_fj(sx, sy, jnp.ones_like(sx), sp)
-    pis = ss * rf + (n / 3) * ss**3 * rj
-    return 2 * (j1 - j0) * pis[2] + pis[1] - pis[0]
+def _f_pi(n: Array, s: Array, c: Array, m: Array, m1: Array) -> tuple[Array, Array]:
+    """`(F(φ|m), Π(n; φ|m))` for |φ| ≤ π/2 given by `s = sin φ` and `c = cos φ ≥ 0`, n ≤ 0,
+    0 ≤ m < 1: `F = s R_F(c², 1 − m s², 1)`, `Π = F + (n/3) s³ R_J(c², 1 − m s², 1, 1 − n s²)`
+    (DLMF 19.25.5, 19.25.14), with `1 − m s² = m1 + m c²`. Taking s and c (not φ) keeps Π
+    accurate where `1 − m s²` is tiny (φ near ±π/2, m near 1) if c is accurate there."""
+    rf, rj = _carlson_fj(c, jnp.sqrt(m1 + m * c * c), jnp.ones_like(c), jnp.sqrt(1 - n * s * s))
+    f = s * rf
+    return f, f + (n / 3) * s**3 * rj
 
 
 @jax.jit
@@ -285,11 +320,17 @@ def ellippi(n: ScalarLike, phi: ScalarLike, m: ScalarLike) -> Scalar:
     `Π(n; φ|m) = ∫₀^φ dθ / ((1 − n sin²θ) √(1 − m sin²θ))` for any real φ, n ≤ 0 (the
     characteristic of the free rigid body's precession angle) and 0 ≤ m < 1 (A&S 17.2.14–15
     convention: characteristic n, parameter m; DLMF's Π(φ, α², k) with α² = n, k² = m), by
-    Carlson's R_F and R_J (DLMF 19.25.14; Carlson 1995) and
-    `Π(n; φ + π) = Π(n; φ) + 2Π(n|m)`. NaN outside that range. Differentiable in n, φ and m."""
+    Carlson's R_F and R_J (`_f_pi`) and `Π(n; jπ + φ) = Π(n; φ) + 2jΠ(n|m)` (DLMF 19.25.2 for
+    the complete integral). NaN outside that range. Differentiable in n, φ and m."""
     n, phi, m = floats((n, "n"), (phi, "phi"), (m, "m"))
     n, phi, m = jnp.broadcast_arrays(n, phi, m)
     bad = ~((m >= 0) & (m < 1) & (n <= 0))
     ms = jnp.where(bad, jnp.zeros_like(m), m)
     ns = jnp.where(bad, jnp.zeros_like(n), n)
-    return jnp.where(bad, jnp.nan, _ellippi_diff(ns, jnp.zeros_like(phi), phi, ms, 1 - ms))
+    j = jnp.round(phi / math.pi)
+    phr = phi - j * math.pi
+    # (φ reduced, complete) stacked on a leading axis
+    s = jnp.stack([jnp.sin(phr), jnp.ones_like(phr)])
+    c = jnp.stack([jnp.abs(jnp.cos(phr)), jnp.zeros_like(phr)])
+    pis = _f_pi(ns, s, c, ms, 1 - ms)[1]
+    return jnp.where(bad, jnp.nan, 2 * j * pis[1] + pis[0])

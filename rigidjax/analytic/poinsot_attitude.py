@@ -14,7 +14,7 @@ from .._checks import as_float, check_finite, vector
 from .._custom_types import Quat, QuatLike, RealScalarLike, TimesLike, Vec3Like
 from ..rotations import quat
 from ._rest_point import attitude_at_rest
-from .elliptic import _ellipf, _ellipj, _ellippi_diff
+from .elliptic import _ellipj_reduced, _f_pi
 from .euler_poinsot import (
     _body_inputs,
     _omega,
@@ -78,10 +78,12 @@ def _psi_exact(p: _Plan, t: Array) -> tuple[Array, Array]:
     and `∫ du/(1 + ν² sn² u) = Π(−ν²; am u|m)` (A&S 17.2.14, third kind, negative characteristic:
     no singularity), so
         `ψ(t) = (M/I1) t − (M (I3 − I1)/(I1 I3 λ)) [Π(−ν²; am(u0 + λt)|m) − Π(−ν²; am u0|m)]`.
-    `am u0 = atan2(sn u0, cn u0)` with `(sn u0, cn u0) ∝ ((A1/A2) Ω2, Ω1)` at t = 0,
-    `u0 = F(am u0|m)` and `am(u0 + λt)` from the descending Landen algorithm (continuous in t);
-    Π by Carlson's R_F, R_J (`elliptic._ellippi_diff`). Also returns `_omega_periodic(p, t)`
-    (the Jacobi functions are evaluated once for both). Cf. Celledoni, Fassò, Säfström, Zanna 2008
+    The amplitudes are taken as `jπ + φ` with |φ| ≤ π/2 given by `(sin φ, cos φ)`, both accurate
+    also close to the separatrix (m → 1), where `dΠ/dφ ~ 1/dn` is large near φ = ±π/2: at t = 0
+    `(sin, cos) ∝ ((A1/A2) Ω2, Ω1)`, `u0 = 2j0 K + F(φ0|m)` by Carlson's R_F (`elliptic._f_pi`,
+    which also gives Π), and `am(u0 + λt)` from `elliptic._ellipj_reduced` (quarter periods and
+    duplication, cn accurate to ulps of dn). Also returns `_omega_periodic(p, t)` (the Jacobi
+    functions of λt are evaluated in the same call). Cf. Celledoni, Fassò, Säfström, Zanna 2008
     (with Principia's corrections, `documentation/Celledoni.tex`): the same third-kind integral."""
     I1, I2, I3 = p.Ip
     w1, w2, _ = p.wp
@@ -89,14 +91,28 @@ def _psi_exact(p: _Plan, t: Array) -> tuple[Array, Array]:
     nu2 = I1 * P1 / (I3 * p.P3)
     s0 = jnp.sqrt(p.b * I2 / I1) * w2
     flat = (s0 == 0) & (w1 == 0)  # steady rotation about axis 3: ψ does not depend on am u0
-    phi0 = jnp.arctan2(s0, jnp.where(flat, jnp.ones_like(w1), w1))
-    u0 = _ellipf(phi0, p.m, p.m1)
+    c0 = jnp.where(flat, jnp.ones_like(w1), w1)
+    r0 = jnp.sqrt(s0 * s0 + c0 * c0)
+    # am u0 = j0 π + φ0r, |φ0r| ≤ π/2
+    back = c0 < 0
+    j0 = jnp.where(back, jnp.where(s0 >= 0, 1.0, -1.0), 0.0).astype(t.dtype)
+    flip = jnp.where(back, -1.0, 1.0).astype(t.dtype)
+    f0, pi0 = _f_pi(
+        -nu2,
+        jnp.stack([flip * s0 / r0, jnp.ones_like(r0)]),
+        jnp.stack([flip * c0 / r0, jnp.zeros_like(r0)]),
+        p.m,
+        p.m1,
+    )
+    u0 = 2 * j0 * p.K + f0[0]
     # one call for am(u0 + λt) and for (sn, cn, dn)(λt) of the addition theorems (`_omega`)
     vt = p.lam_p * t
-    sn, cn, dn, am = _ellipj(jnp.stack([u0 + vt, vt]), p.m, p.m1)
-    d_pi = _ellippi_diff(-nu2, phi0, am[0], p.m, p.m1)
+    j, s, c, d = _ellipj_reduced(jnp.stack([u0 + vt, vt]), p.m, p.m1)
+    pi1 = _f_pi(-nu2, s[0], c[0], p.m, p.m1)[1]
+    d_pi = 2 * (j[0] - j0) * pi0[1] + pi1 - pi0[0]
     psi = p.M / I1 * t - p.M * (I3 - I1) / (I1 * I3 * p.lam_p) * d_pi
-    return psi, _omega_periodic(p, t, (sn[1], cn[1], dn[1]))
+    sign = 1 - 2 * jnp.remainder(j[1], 2)
+    return psi, _omega_periodic(p, t, (sign * s[1], sign * c[1], d[1]))
 
 
 def _flow(p: _Plan, q0: Array, t: Array) -> tuple[Array, Array]:
@@ -162,18 +178,16 @@ def free_rigid_body_attitude(
         `ψ̇ = (Ω·n − (Ω·e)(n·e))/(1 − (n·e)²) = |M| (2E − I_e Ω_e²)/(M² − I_e² Ω_e²)`
     (Landau–Lifshitz (37.15) for e = axis 3). ψ̇ > 0, and ψ is in closed form by the incomplete
     elliptic integral of the third kind with a negative characteristic (`_psi_exact`; Π by
-    Carlson's symmetric integrals), exact to rounding away from the separatrix; close to it
-    (not on it) ψ loses accuracy as about 1e-16/δ, δ the relative distance of the polhode from
-    the separatrix, since the amplitude `am u` that Π takes is flat near `u = K` there (the
-    quaternion for I = (1, 2, 3), Ω0 = (δ, 1, δ), over 4 s: 7e-13 off at δ = 1e-4, 6e-5 at
-    1e-12). On the separatrix the integral is elementary (see `_psi_sep`). Finally
-    `G = P0 B(0)ᵀ`.
+    Carlson's symmetric integrals), exact to rounding, close to the separatrix too (the
+    amplitudes are carried with cn accurate to ulps of dn, see `_psi_exact`: ψ 4e-14 off a
+    40-digit quadrature for I = (1, 2, 3), Ω0 = (δ, 1, δ) over 4 s, δ = 1e-4 … 1e-14). On the
+    separatrix the integral is elementary (see `_psi_sep`). Finally `G = P0 B(0)ᵀ`.
 
     Derivatives are the motion's, with two limits: on the separatrix itself, away from a rest
-    point, only those along it; and close to it ψ's derivatives lose accuracy (measured against
-    central differences from 1.5 rad/s about the middle axis: relative errors 3e-9 at 1e-4 rad/s
-    off it, 1e-5 at 1e-6, of order 1 at 1e-8; Ω's hold to 1e-8 and fail at 1e-9), as `u0` and
-    `am(u0 + λt)` grow sensitive in opposite ways.
+    point, only those along it; and close to it the derivatives lose accuracy, as `u0` and
+    `am(u0 + λt)` grow sensitive in opposite ways (I = (1, 2, 3), Ω0 = (ε, 1.5, ε), t ≤ 3,
+    against Richardson-extrapolated central differences: relative errors 2e-8 at ε = 1e-4,
+    6e-7 at 1e-6, 1e-4 at 1e-8, 6e-3 at 1e-10, of order 1 at 1e-12).
     """
     inertia, omega0, ts = _body_inputs(inertia, omega0, ts, check)
     dtype = ts.dtype

@@ -405,6 +405,19 @@ def test_attitude_separatrix_and_long_times(batch):
     assert qdist(g["q"][0][idx], ivp(g["I"][0], g["w"][0], T_ALL[idx], g["q0"][0])[1]) < 1e-8
 
 
+def test_attitude_close_to_the_separatrix():
+    """δ off the separatrix (1 − m ≈ δ²) the precession angle stays exact to rounding: Π takes
+    the amplitudes with cn accurate to ulps of dn, where dΠ/dφ ~ 1/dn is large (with the
+    amplitude only to ulps of π, the quaternion was 1e-8 off at δ = 1e-8 and 1e-2 at 1e-14)."""
+    ts = np.linspace(0.0, 4.0, 5)
+    I = np.array([1.0, 2.0, 3.0])
+    w = np.array([[d, 1.0, d] for d in (1e-8, 1e-11, 1e-14)])
+    q0 = random_quat(np.random.default_rng(5), len(w))
+    q = np.asarray(analytic.free_rigid_body_attitude(I, w, q0, ts))
+    for k in range(len(w)):
+        assert qdist(q[k], ivp(I, w[k], ts, q0[k])[1]) < 1e-11, w[k]
+
+
 # ---------------------------------------------------------------------------------------------
 # symmetric top, fixed axis
 # ---------------------------------------------------------------------------------------------
