@@ -13,11 +13,12 @@ import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optimistix as optx
 from jaxtyping import Array, PyTree
 
-from ._checks import attach_check, is_concrete
-from ._custom_types import Frame
+from ._checks import attach_check, check_positive, concrete_value, is_concrete
+from ._custom_types import Frame, RealScalarLike
 from ._modes import both_modes
 from .solvers.exact_free_body import AbstractFlowSolver
 from .solvers.explicit_rk import unrolled
@@ -139,11 +140,12 @@ def raise_failure(
     return attach_check(ys, result != diffrax.RESULTS.successful, index, messages)
 
 
-def warn_unattainable(dtype, rtol: float | None, atol: float | None) -> None:
-    """Warn when a tolerance asks for more than `dtype` can give (a few ulps)."""
+def warn_unattainable(dtype, rtol: RealScalarLike | None, atol: RealScalarLike | None) -> None:
+    """Warn when a tolerance known now asks for more than `dtype` can give (a few ulps)."""
     attainable = 4 * float(jnp.finfo(dtype).eps)
-    for name, value in (("rtol", rtol), ("atol", atol)):
-        if isinstance(value, int | float) and value < attainable:
+    for name, given in (("rtol", rtol), ("atol", atol)):
+        value = None if given is None else concrete_value(given)
+        if value is not None and value < attainable:
             warnings.warn(
                 f"{name} = {value:g} is below what {jnp.dtype(dtype).name} can reach (about "
                 f"{attainable:.1g}); the solver will take tiny steps and may not converge. Use "
@@ -158,9 +160,9 @@ class SolveKwargs(TypedDict, total=False):
 
     solver: diffrax.AbstractSolver
     stepsize_controller: diffrax.AbstractStepSizeController
-    rtol: float
-    atol: float
-    dt0: float
+    rtol: RealScalarLike
+    atol: RealScalarLike
+    dt0: RealScalarLike
     max_steps: int
     adjoint: diffrax.AbstractAdjoint
     progress_meter: diffrax.AbstractProgressMeter
@@ -177,6 +179,8 @@ class SolveOptions(eqx.Module):
       `diffrax.ConstantStepSize()` with `dt0`.
     - `rtol`, `atol`: default `default_tolerances(dtype)` (1e-10 in float64, 1e-6 in float32).
     - `dt0`: the (initial) step; default Diffrax's initial-step heuristic for adaptive steps.
+    - `rtol`, `atol` and `dt0` are positive finite numbers (checked when the program runs if
+      traced); they set the discretisation, so derivatives with respect to them are zero.
     - `max_steps`: bound on the steps of each output interval.
     - `adjoint`: default `diffrax.RecursiveCheckpointAdjoint()` (reverse mode: `jax.grad`,
       `jax.jacrev`); `diffrax.ForwardMode()` for `jax.jacfwd` and `jax.jvp`.
@@ -190,9 +194,9 @@ class SolveOptions(eqx.Module):
 
     solver: diffrax.AbstractSolver | None = None
     stepsize_controller: diffrax.AbstractStepSizeController | None = None
-    rtol: float | None = None
-    atol: float | None = None
-    dt0: float | None = None
+    rtol: RealScalarLike | None = None
+    atol: RealScalarLike | None = None
+    dt0: RealScalarLike | None = None
     max_steps: int = eqx.field(static=True, default=100_000)
     adjoint: diffrax.AbstractAdjoint | None = None
     progress_meter: diffrax.AbstractProgressMeter | None = None
@@ -201,8 +205,9 @@ class SolveOptions(eqx.Module):
     def __check_init__(self):
         for name in ("rtol", "atol", "dt0"):
             value = getattr(self, name)
-            if isinstance(value, int | float) and not value > 0:
-                raise ValueError(f"{name} must be positive, got {value}")
+            v = None if value is None else concrete_value(value)
+            if v is not None and not (v.ndim == 0 and v > 0 and np.isfinite(v)):
+                raise ValueError(f"{name} must be a positive finite number, got {value}")
         if not (isinstance(self.max_steps, int) and self.max_steps > 0):
             raise ValueError(f"max_steps must be a positive integer, got {self.max_steps!r}")
 
@@ -226,7 +231,17 @@ class SolveOptions(eqx.Module):
                 f"unexpected keyword argument(s) {unknown}; the solver options are "
                 f"{sorted(SolveKwargs.__annotations__)} (or options=rigidjax.SolveOptions(...))"
             )
-        return dataclasses.replace(options, **kwargs) if kwargs else options
+        options = dataclasses.replace(options, **kwargs) if kwargs else options
+        # Tolerances and the step set the discretisation, not the motion: their derivatives are
+        # zero (fixed steps round to a whole number per interval); traced ones (under jit) are
+        # checked when the program runs.
+        traced = {}
+        for name in ("rtol", "atol", "dt0"):
+            value = getattr(options, name)
+            if not is_concrete(value):
+                value = jax.lax.stop_gradient(value)
+                traced[name] = value if is_concrete(value) else check_positive(value, name)
+        return dataclasses.replace(options, **traced) if traced else options
 
 
 def solve_saved(

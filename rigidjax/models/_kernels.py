@@ -65,7 +65,9 @@ def kernel_solve(
     width = ts[1:] - ts[:-1]
     n = fixed_step_count(width, jnp.asarray(options.dt0, ts.dtype))
     taken = jnp.minimum(n, options.max_steps).astype(jnp.int32)
-    ys = run(n, taken, width / n, ts[:-1])
+    h = width / n
+    # the kernel takes n, h and t0 mapped alike under `jax.vmap` (a mapped dt0 maps n and h)
+    ys = run(n, taken, h, ts[:-1] + 0 * h)
     finite = jnp.all(jnp.isfinite(ys), axis=(0, 2))
     kept = np.arange(ts.shape[0]) if keep is None else np.flatnonzero(keep)
     over = jnp.concatenate([jnp.zeros(1, jnp.int32), jnp.cumsum(n > options.max_steps)])
@@ -272,7 +274,8 @@ def _gpu(
     def steps(ts):
         width = ts[1:] - ts[:-1]
         n = fixed_step_count(width, jnp.asarray(options.dt0, ts.dtype))
-        return jnp.minimum(n, options.max_steps).astype(jnp.int32), width / n, ts[:-1]
+        h = width / n
+        return jnp.minimum(n, options.max_steps).astype(jnp.int32), h, ts[:-1] + 0 * h
 
     spec = model_pallas.Spec(hoisted, model.unit, type(method), model.record)
 

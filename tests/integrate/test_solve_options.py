@@ -1,6 +1,7 @@
 """SolveOptions: one options object for every integrating entry point; AbstractTrajectory."""
 
 import diffrax
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -9,6 +10,7 @@ import rigidjax as rj
 from rigidjax._integrate import default_tolerances
 from rigidjax._trajectory import AbstractTrajectory
 from rigidjax.mechanics import heavy_top, kepler, satellite, sixdof
+from tests.rotations.test_bad_input import raises_in_jit
 
 TS = jnp.linspace(0.0, 2.0, 5)
 BODY = rj.RigidBody(jnp.array([1.0, 2.0, 3.0]))
@@ -79,13 +81,33 @@ def test_bad_options_are_clear_errors():
     with pytest.raises(TypeError, match=r"(?s)options.*SolveOptions"):
         rj.simulate(BODY, W0, None, TS, options={"rtol": 1e-6})
     for field in ("rtol", "atol", "dt0"):
-        for bad in (0.0, -1e-3):
-            with pytest.raises(ValueError, match=f"{field} must be positive"):
+        # arrays and NumPy scalars too (they ran: a negative dt0 stepped backwards)
+        for bad in (0.0, -1e-3, np.inf, np.nan, jnp.array(-1e-3), np.float32(-1e-3)):
+            with pytest.raises(ValueError, match=f"{field} must be a positive finite number"):
                 rj.SolveOptions(**{field: bad})
     with pytest.raises(ValueError, match="max_steps must be a positive integer"):
         rj.SolveOptions(max_steps=0)
     with pytest.raises(ValueError, match="dt0"):
         rj.simulate(BODY, W0, None, TS, stepsize_controller=diffrax.ConstantStepSize())
+
+
+def test_traced_step_and_tolerances():
+    """Under jit a bad dt0 or rtol is a run-time error; derivatives with respect to them are
+    zero (fixed steps round to a whole number per interval; they were a tracer leak), and a
+    vmapped dt0 maps the kernel's steps (it was a shape error)."""
+    fixed = {"solver": rj.RK4(), "stepsize_controller": diffrax.ConstantStepSize()}
+
+    def end(dt0):
+        return rj.simulate(BODY, W0, None, TS, dt0=dt0, **fixed).omega[-1, 0]
+
+    with raises_in_jit("dt0 must be positive and finite"):
+        jax.jit(end)(-0.1).block_until_ready()
+    with raises_in_jit("rtol must be positive and finite"):
+        jax.jit(lambda r: rj.simulate(BODY, W0, None, TS, rtol=r).omega)(-1e-8).block_until_ready()
+    assert float(jax.grad(end)(0.1)) == 0.0
+    assert float(jax.jit(jax.grad(end))(0.1)) == 0.0
+    dts = jnp.array([0.1, 0.07])
+    np.testing.assert_array_equal(jax.vmap(end)(dts), [end(dt) for dt in dts])
 
 
 def test_default_tolerances_per_dtype():
