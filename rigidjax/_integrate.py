@@ -5,7 +5,6 @@ top, 6-DOF bodies, Kepler, the satellite, identification) goes through `solve_sa
 from __future__ import annotations
 
 import dataclasses
-import warnings
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, NoReturn, TypedDict, cast
 
@@ -20,6 +19,7 @@ from jaxtyping import Array, PyTree
 from ._checks import attach_check, check_positive, concrete_value, is_concrete
 from ._custom_types import Frame, RealScalarLike
 from ._modes import both_modes
+from ._tolerances import default_tolerances, warn_unattainable
 from .solvers.exact_free_body import AbstractFlowSolver
 from .solvers.explicit_rk import unrolled
 from .solvers.rkmk import RKMK, LieTerm
@@ -27,14 +27,6 @@ from .solvers.step_end_map import StepEndMap
 
 if TYPE_CHECKING:
     from .events import Event, RootedEvent
-
-
-def default_tolerances(dtype, *, tight: bool = False) -> tuple[float, float]:
-    """The defaults of every integrator, per dtype, decided here only: `(rtol, atol)` = 1e-10 in
-    float64 (1e-12 with `tight`, for orbits followed over many periods) and 1e-6 in float32."""
-    if jnp.finfo(dtype).eps < 1e-10:
-        return (1e-12, 1e-12) if tight else (1e-10, 1e-10)
-    return (1e-6, 1e-6)
 
 
 class IntegrationError(RuntimeError):
@@ -138,21 +130,6 @@ def raise_failure(
     for i, r in enumerate(causes):
         index = jnp.where(result == r, i, index)
     return attach_check(ys, result != diffrax.RESULTS.successful, index, messages)
-
-
-def warn_unattainable(dtype, rtol: RealScalarLike | None, atol: RealScalarLike | None) -> None:
-    """Warn when a tolerance known now asks for more than `dtype` can give (a few ulps)."""
-    attainable = 4 * float(jnp.finfo(dtype).eps)
-    for name, given in (("rtol", rtol), ("atol", atol)):
-        value = None if given is None else concrete_value(given)
-        if value is not None and value < attainable:
-            warnings.warn(
-                f"{name} = {value:g} is below what {jnp.dtype(dtype).name} can reach (about "
-                f"{attainable:.1g}); the solver will take tiny steps and may not converge. Use "
-                f"{name} >= {attainable:.1g}, or float64 (jax.config.update('jax_enable_x64', "
-                "True) and float64 inputs)",
-                stacklevel=4,
-            )
 
 
 class SolveKwargs(TypedDict, total=False):

@@ -3,12 +3,13 @@ and/or attitude data, gyro bias and scale factor, robust losses, covariance.
 
 Least squares through the model of the motion (`rigidjax.fit.flow`: Euler's equations and the
 quaternion kinematics, fixed RK4 steps), by Levenberg–Marquardt (`rigidjax.fit.levenberg`) with
-forward-mode Jacobians. The unknowns (`rigidjax.fit.parameters`): the inertia (physical for
-every parameter value), one initial state per experiment, and the sensor errors.
+forward-mode Jacobians. The unknowns (`rigidjax.fit.parameters`): the inertia (kept physical as
+a constraint, planar bodies included), one initial state per experiment, and the sensor errors.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 
 import equinox as eqx
@@ -16,7 +17,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from .._checks import validate
+from .._checks import is_concrete, validate
 from .._compile import quick_compile_jit
 from .._custom_types import Frame, RealLike
 from ..mechanics.inertia import as_tensor, check_inertia, principal_axes
@@ -115,25 +116,40 @@ def identify_inertia(
     scale-factor error s with `gyro_scale=True` (with both data kinds, the gyro residuals are
     fitted first, then everything). Start: `inertia_guess` (moments or a tensor, checked as
     `RigidBody`'s: finite, positive definite, triangle inequality), else the linear least-squares
-    estimate from Euler's equations (`rigidjax.fit.initial`).
+    estimate from Euler's equations (`rigidjax.fit.initial`). The estimate is physical: the
+    fit keeps the second-moment matrix `Σ = tr(I)/2 E − I ⪰ 0` as a constraint
+    (`rigidjax.fit.parameters`), so a planar body (`I3 = I1 + I2`) is reached and identified
+    like any other; where the constraint is active, the std is that of the unconstrained
+    linearisation.
 
     Covariance (`rigidjax.fit.covariance`): `"gauss_newton"` (`s²(JᵀJ)⁻¹`, residual-variance
     scaled; default for `"l2"`) or `"sandwich"` (`A⁻¹BA⁻¹`; default for the robust losses).
 
     Scale: torque-free motion depends on I only up to a factor (Euler's equations are
-    homogeneous in I), so without `torque` the tensor is normalised to `trace` (default 1) and
-    `result.scale` says so; with a known `torque(t, Ω, q)` (or one per experiment) the absolute
-    tensor is fitted (unless `trace` is given). A torque piecewise constant between sample
-    times is evaluated on the right piece.
+    homogeneous in I), so without `torque` the tensor is normalised to `trace` (a positive
+    number, default 1) and `result.scale` says so; with a known `torque(t, Ω, q)` (or one per
+    experiment) the absolute tensor is fitted (unless `trace` is given). A torque piecewise
+    constant between sample times is evaluated on the right piece.
 
     Integration (`rigidjax.fit.flow`): RK4 with each step turning the body by at most
-    `h = min(rtol, atol)^(1/5)` rad (default 0.02 rad; RK4's local error is O(h⁵)), at most
-    `sim_max_steps` steps per sample interval. The fit is compiled once per data shape and set
-    of options, and `jax.vmap`-able over datasets.
+    `h = min(rtol, atol)^(1/5)` rad (default 0.02 rad; RK4's local error is O(h⁵)); a sample
+    interval that needs more than `sim_max_steps` steps is an error. `max_steps`: the most
+    Levenberg–Marquardt steps (`converged` is False when they run out). The fit is compiled
+    once per data shape and set of options, and `jax.vmap`-able over datasets.
     """
     data = experiments(ts, omega_obs, quat_obs)
     E, T = data.shape
     dtype = data.ts.dtype
+    if trace is not None and not isinstance(trace, int | float) and is_concrete(trace):
+        trace = float(trace)  # a NumPy or JAX scalar
+    if trace is not None and not (isinstance(trace, int | float) and 0 < trace < math.inf):
+        raise ValueError(
+            f"trace must be positive (and finite), got {trace!r}: it is the trace the inertia "
+            "tensor is normalised to (a Python number; the fit is compiled for it)"
+        )
+    for name, n in (("max_steps", max_steps), ("sim_max_steps", sim_max_steps)):
+        if not (isinstance(n, int) and not isinstance(n, bool) and n >= 1):
+            raise ValueError(f"{name} must be a positive integer, got {n!r}")
     if torque is None and trace is None:
         trace = 1.0
     scale = (
@@ -181,7 +197,7 @@ def identify_inertia(
         jnp.asarray(sigma_angle, dtype),
         rho,
     )
-    est = _fit(
+    est, needed = _fit(
         data,
         (
             I_guess,
@@ -193,6 +209,20 @@ def identify_inertia(
         _Options(method, step_angle, sim_max_steps, solver_rtol, solver_atol, max_steps),
         scale,
     )
+    # an RK4 step count capped by sim_max_steps would make the model inaccurate: a wrong fit
+    num_steps = validate(
+        needed,
+        lambda xp, n: n > sim_max_steps,
+        f"the model's simulation reached sim_max_steps = {sim_max_steps} RK4 steps in a sample "
+        "interval",
+        lambda n: (
+            f" (it needs {int(n)}: each step turns the body by at most {step_angle:g} rad "
+            "at the data's largest angular rate)"
+        ),
+        hint="; raise sim_max_steps, give samples closer together, or loosen rtol/atol",
+        on=est.num_steps,
+    )
+    est = eqx.tree_at(lambda e: e.num_steps, est, num_steps)
     identifiable = validate(
         est.identifiable,
         lambda xp, ok: ~ok,
@@ -258,8 +288,10 @@ def _fit(
     layout: Layout,
     opts: _Options,
     scale: str,
-) -> InertiaEstimate:
-    """The fit, compiled as one program (calls with the same shapes and options reuse it)."""
+) -> tuple[InertiaEstimate, Int[Array, ""]]:
+    """The fit, compiled as one program (calls with the same shapes and options reuse it), and
+    the most RK4 steps a sample interval needs (the model is integrated with at most
+    `sim_max_steps`)."""
     data = data.arranged()
     E, T = data.shape
     I_guess, w_guess, q_guess = guesses
@@ -267,7 +299,8 @@ def _fit(
     if I_guess is None:  # the linear least-squares estimate (rigidjax.fit.initial)
         I_guess = _linear_guess(data, q_ref, model)
     p0 = layout.pack(params_from_inertia(I_guess), w_guess)
-    substeps = substeps_for(data.ts, 1.25 * angular_rate(data), opts.step_angle, opts.sim_max_steps)
+    needed = substeps_for(data.ts, 1.25 * angular_rate(data), opts.step_angle, 2**31 - 1)
+    substeps = jnp.minimum(needed, opts.sim_max_steps)
 
     # stages (one Levenberg–Marquardt loop, `rigidjax.fit.levenberg`): the gyro residuals with
     # ideal sensors, then with the sensor errors free, then with the attitude residuals too
@@ -308,6 +341,8 @@ def _fit(
         rtol=opts.rtol,
         atol=opts.atol,
         max_steps=opts.max_steps,
+        constraint=layout.constraint,
+        project=layout.project,
     )
     p, z, Jz = sol.params, sol.aux, sol.aux_jacobian
     gauge = layout.gauge(p, model.trace)
@@ -327,7 +362,7 @@ def _fit(
     b_std = std[k - 3 : k] if layout.bias else zero
     s_std = std[layout.size - 3 :] if layout.scale else zero
     w0, q0 = layout.omega0(p), quat.canonical(layout.q0(p, q_ref))
-    return InertiaEstimate(
+    est = InertiaEstimate(
         inertia=I,
         inertia_std=jnp.sqrt(jnp.clip(jnp.diagonal(cov_I), 0.0)).reshape(3, 3),
         principal_moments_std=jnp.sqrt(jnp.clip(jnp.einsum("ia,ab,ib->i", a, cov_I, a), 0.0)),
@@ -347,3 +382,4 @@ def _fit(
         loss=model.loss.name,
         covariance_method=opts.covariance,
     )
+    return est, jnp.max(needed)

@@ -7,6 +7,15 @@ less than `rtol · cost + atol` and changes no parameter by more than `√rtol (
 after `max_steps` steps; also when no step lowers the cost any more (λ > 10¹⁶: a minimum to
 rounding, as with exact data).
 
+Constraint (optional): `c(p) ≥ 0` with its gradient n from `constraint(p)`, and `project(p)`
+onto the feasible set. The damped step is the solution of the step's quadratic model `½ δᵀMδ
++ gᵀδ` (`M` the damped matrix above, `g = Jᵀr`) subject to the linearised constraint
+`c + nᵀδ ≥ 0`: `δ = −M⁻¹g + ν M⁻¹n`, `ν = max(0, −(c − nᵀM⁻¹g)/(nᵀM⁻¹n))` (Nocedal & Wright
+§16.1; the projection in the metric M, so that the loop stops at a Karush–Kuhn–Tucker point
+of the constrained problem), and the trial point is `project(p + δ)` (feasible exactly; the
+change by `project` is of second order). The loop can so reach and stay on the boundary of the
+feasible set, where a smooth reparametrisation would be singular.
+
 Stages: `residuals(p, stage)` may depend on an integer stage `0 … stages − 1`; when stage `s`
 has converged the loop goes on from its solution with stage `s + 1` (the identification fits
 the smooth gyro residuals before the attitude ones). One loop, one trace of the Jacobian: the
@@ -49,8 +58,12 @@ def levenberg_marquardt(
     rtol: float = 1e-10,
     atol: float = 1e-14,
     max_steps: int = 256,
+    constraint: Callable[[Array], tuple[Array, Array]] | None = None,
+    project: Callable[[Array], Array] | None = None,
 ) -> LMResult:
-    """Minimise `½ |r(p)|²` where `(r, aux) = residuals(p, stage)`; see the module docstring."""
+    """Minimise `½ |r(p)|²` where `(r, aux) = residuals(p, stage)`, subject to `c(p) ≥ 0` with
+    `(c, ∇c) = constraint(p)` and `project` if given (p0 is projected first); see the module
+    docstring."""
     dtype = p0.dtype
     mu = jnp.asarray(1e-9, dtype)
 
@@ -73,8 +86,17 @@ def levenberg_marquardt(
     def body(s):
         p, (r, J, a, Ja), cost, lam, stage, k, _ = s
         H, g = J.T @ J, J.T @ r
-        dp = -jnp.linalg.solve(H + lam * (jnp.diag(jnp.diag(H)) + mu * jnp.eye(p.shape[0])), g)
+        M = H + lam * (jnp.diag(jnp.diag(H)) + mu * jnp.eye(p.shape[0]))
+        if constraint is None:
+            dp = -jnp.linalg.solve(M, g)
+        else:  # the step's model minimised subject to the linearised constraint c + nᵀδ ≥ 0
+            c, n = constraint(p)
+            x = jnp.linalg.solve(M, jnp.stack([g, n], axis=1))
+            dp, Mn = -x[:, 0], x[:, 1]
+            dp = dp + jnp.maximum(0.0, -(c + n @ dp) / (n @ Mn)) * Mn
         dp = jnp.where(jnp.isfinite(dp), dp, 0.0)
+        if project is not None:
+            dp = project(p + dp) - p
         trial = evaluate(p + dp, stage)
         new_cost = 0.5 * trial[0] @ trial[0]
         accept = new_cost < cost
@@ -98,6 +120,7 @@ def levenberg_marquardt(
         lam = jnp.where(advance, 1e-3, lam)
         return p, vals, cost, lam, stage + advance, k + 1, done
 
+    p0 = p0 if project is None else project(p0)
     lam0, int0 = jnp.asarray(1e-3, dtype), jnp.asarray(0)
     init = (p0, tuple(zeros), inf, lam0, int0, int0, jnp.asarray(False))
     p, (r, J, a, Ja), cost, _, _, k, done = jax.lax.while_loop(cond, body, init)

@@ -1,15 +1,20 @@
 """The unknowns of an identification as one flat vector, and the physical inertia parameters.
 
-Inertia: with the second-moment ("pseudo-inertia") matrix `Σ = L Lᵀ ⪰ 0` (L lower triangular,
-six free entries), `I = tr(Σ) E − Σ` has principal moments `I_i = σ_j + σ_k ≥ 0` (σ ≥ 0 the
-eigenvalues of Σ), which satisfy the triangle inequality: EVERY parameter value is a physical
-body (Wensing, Kim & Slotine, "Linear matrix inequalities for physically consistent inertial
-parameter identification", IEEE RA-L 2018: the pseudo-inertia `Σ ⪰ 0`; Rucker & Wensing,
-"Smooth parameterization of rigid-body inertia", IEEE RA-L 2022: its Cholesky factor). Planar
-bodies (one σ = 0, `I3 = I1 + I2`) lie inside the parameter space; only a rank-one Σ (a rod)
-is singular. With the trace fixed, the overall scale of L is a gauge direction.
+Inertia: the six entries of the second-moment ("pseudo-inertia") matrix `Σ = tr(I)/2 E − I`,
+`θ = (Σ11, Σ22, Σ33, Σ12, Σ13, Σ23)`, with `I = tr(Σ) E − Σ` (linear both ways). The principal
+moments are `I_i = σ_j + σ_k` (σ the eigenvalues of Σ), so `Σ ⪰ 0` is exactly the physical
+set: positive moments that satisfy the triangle inequality (Wensing, Kim & Slotine, "Linear
+matrix inequalities for physically consistent inertial parameter identification", IEEE RA-L
+2018). The fits keep `Σ ⪰ 0` as a constraint (`feasibility`, `project`: the smallest
+eigenvalue `σ_min ≥ 0`) rather than by a factor `Σ = L Lᵀ`: the map `L ↦ L Lᵀ` is singular
+wherever `Σ` is (its Jacobian loses rank when a diagonal entry of L vanishes), so a planar
+body (`σ_min = 0`, `I3 = I1 + I2`, a legitimate `RigidBody`) would be a singular point of the
+fit: a rank-deficient Jacobian (reported as not identifiable), no covariance, slow
+convergence. In θ the Jacobian is regular up to the boundary, planar bodies included. With the
+trace fixed, the overall scale of θ is a gauge direction. A rank-one Σ (a rod) has a zero
+moment: no rigid body the fits can simulate.
 
-The vector: `[L (6) | Ω0 (E × 3) | δq0 (E × 3, with attitude data) | bias (3) | scale (3)]`,
+The vector: `[θ (6) | Ω0 (E × 3) | δq0 (E × 3, with attitude data) | bias (3) | scale (3)]`,
 where `q0 = q_ref ∘ exp(δq0)` and the gyro model is `ω_gyro = (1 + s) ⊙ Ω + b`.
 """
 
@@ -22,19 +27,24 @@ from jaxtyping import Array, ArrayLike, Float
 
 from ..rotations import quat
 
-__all__ = ["Layout", "inertia_from_params", "params_from_inertia"]
+__all__ = ["Layout", "feasibility", "inertia_from_params", "params_from_inertia", "project"]
 
 
-def _tril(params: Float[Array, "6"]) -> Float[Array, "3 3"]:
-    """L (lower triangular) from (L00, L11, L22, L10, L20, L21)."""
-    L = jnp.diag(params[:3])
-    return L.at[1, 0].set(params[3]).at[2, 0].set(params[4]).at[2, 1].set(params[5])
+def _sym(params: Float[Array, "6"]) -> Float[Array, "3 3"]:
+    """Σ (symmetric) from (Σ11, Σ22, Σ33, Σ12, Σ13, Σ23)."""
+    p = params
+    return jnp.stack(
+        [
+            jnp.stack([p[0], p[3], p[4]]),
+            jnp.stack([p[3], p[1], p[5]]),
+            jnp.stack([p[4], p[5], p[2]]),
+        ]
+    )
 
 
 def inertia_from_params(params: Float[ArrayLike, "6"], trace: float | None) -> Float[Array, "3 3"]:
-    """`I = tr(Σ) E − Σ`, Σ = L Lᵀ, rescaled to `trace` if given (physical for every value)."""
-    L = _tril(jnp.asarray(params))
-    S = L @ L.T
+    """`I = tr(Σ) E − Σ`, rescaled to `trace` if given (physical where `Σ ⪰ 0`)."""
+    S = _sym(jnp.asarray(params))
     I = jnp.trace(S) * jnp.eye(3, dtype=S.dtype) - S
     return I if trace is None else I * (trace / jnp.trace(I))
 
@@ -42,13 +52,31 @@ def inertia_from_params(params: Float[ArrayLike, "6"], trace: float | None) -> F
 def params_from_inertia(
     I: Float[ArrayLike, "3 3"], trace: float | None = None
 ) -> Float[Array, "6"]:
-    """Parameters of `I` (Σ = tr(I)/2 E − I, Cholesky; a planar body's singular Σ is nudged by
-    1e-9·tr Σ so the factor exists)."""
-    del trace  # the same factor serves both gauges
+    """Parameters of `I`: the entries of `Σ = tr(I)/2 E − I` (exact, planar bodies included)."""
+    del trace  # the same parameters serve both gauges
     I = jnp.asarray(I)
     S = jnp.trace(I) / 2 * jnp.eye(3, dtype=I.dtype) - I
-    L = jnp.linalg.cholesky(S + 1e-9 * jnp.trace(S) * jnp.eye(3, dtype=I.dtype))
-    return jnp.concatenate([jnp.diagonal(L), jnp.stack([L[1, 0], L[2, 0], L[2, 1]])])
+    return jnp.stack([S[0, 0], S[1, 1], S[2, 2], S[1, 0], S[2, 0], S[2, 1]])
+
+
+def feasibility(params: Float[Array, "6"]) -> tuple[Float[Array, ""], Float[Array, "6"]]:
+    """`(c, ∇c)`: `c = σ_min(Σ) = vᵀΣv` (≥ 0: physical; v its unit eigenvector) and its
+    gradient `∂c/∂θ = (v1², v2², v3², 2v1v2, 2v1v3, 2v2v3)` (first-order perturbation of a
+    simple eigenvalue)."""
+    s, V = jnp.linalg.eigh(_sym(params))
+    v = V[:, 0]
+    return s[0], jnp.stack(
+        [v[0] ** 2, v[1] ** 2, v[2] ** 2, 2 * v[0] * v[1], 2 * v[0] * v[2], 2 * v[1] * v[2]]
+    )
+
+
+def project(params: Float[Array, "6"]) -> Float[Array, "6"]:
+    """The nearest physical parameters (Frobenius-nearest `Σ ⪰ 0`: negative eigenvalues set to
+    0); a physical θ is returned unchanged."""
+    s, V = jnp.linalg.eigh(_sym(params))
+    S = (V * jnp.maximum(s, 0.0)) @ V.T
+    clipped = jnp.stack([S[0, 0], S[1, 1], S[2, 2], S[1, 0], S[2, 0], S[2, 1]])
+    return jnp.where(s[0] < 0, clipped, params)
 
 
 class Layout(NamedTuple):
@@ -70,11 +98,11 @@ class Layout(NamedTuple):
         k += 3 * self.E * self.attitude
         return k if name == "bias" else k + 3 * self.bias
 
-    def pack(self, L, omega0) -> Float[Array, " p"]:
-        """The starting vector from L and Ω0 (E, 3): zero attitude increments, bias and scale
+    def pack(self, theta, omega0) -> Float[Array, " p"]:
+        """The starting vector from θ and Ω0 (E, 3): zero attitude increments, bias and scale
         error."""
         n = 3 * self.E * self.attitude + 3 * self.bias + 3 * self.scale
-        return jnp.concatenate([L, omega0.reshape(-1), jnp.zeros(n, omega0.dtype)])
+        return jnp.concatenate([theta, omega0.reshape(-1), jnp.zeros(n, omega0.dtype)])
 
     def inertia(self, p, trace: float | None) -> Float[Array, "3 3"]:
         return inertia_from_params(p[:6], trace)
@@ -96,7 +124,16 @@ class Layout(NamedTuple):
         return b, s
 
     def gauge(self, p, trace: float | None) -> Float[Array, " p"] | None:
-        """The direction that changes nothing (the scale of L with the trace fixed)."""
+        """The direction that changes nothing (the scale of θ with the trace fixed)."""
         if trace is None:
             return None
         return jnp.zeros_like(p).at[:6].set(p[:6])
+
+    def constraint(self, p) -> tuple[Float[Array, ""], Float[Array, " p"]]:
+        """`feasibility` of the inertia parameters, its gradient padded to the whole vector."""
+        c, n = feasibility(p[:6])
+        return c, jnp.zeros_like(p).at[:6].set(n)
+
+    def project(self, p) -> Float[Array, " p"]:
+        """`p` with the inertia parameters made physical (`project`)."""
+        return p.at[:6].set(project(p[:6]))

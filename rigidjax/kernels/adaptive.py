@@ -21,6 +21,7 @@ import numpy as np
 from jax.custom_derivatives import SymbolicZero
 from jaxtyping import Array, Float, Int
 
+from .._custom_types import RealScalarLike
 from . import tableau
 from ._build import load
 from ._source import header, headers, linked
@@ -65,7 +66,7 @@ class AdaptiveKernel(NamedTuple):
 def controls(
     controller: diffrax.AbstractStepSizeController,
     solver: diffrax.AbstractSolver,
-    dt0: float | Array | None,
+    dt0: RealScalarLike | None,
     max_steps: int,
     dtype,
     direction: int | None = None,
@@ -109,7 +110,7 @@ def controls(
 
 
 def fixed_controls(
-    dt0: float | Array,
+    dt0: RealScalarLike,
     max_steps: int,
     dtype,
     direction: int | None = None,

@@ -15,7 +15,8 @@ import optimistix as optx
 from jaxtyping import Array
 
 from .._batch import first_failure
-from .._integrate import SolveOptions, default_tolerances, warn_unattainable
+from .._integrate import SolveOptions
+from .._tolerances import default_tolerances, warn_unattainable
 from ..events import Event
 from ..kernels import adaptive, tableau
 from ._diffrax_path import method_of

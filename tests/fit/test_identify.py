@@ -10,8 +10,9 @@ from scipy.spatial.transform import Rotation
 
 from rigidjax import identify_inertia
 from rigidjax.fit.identify import inertia_from_params, params_from_inertia
+from rigidjax.fit.parameters import feasibility, project
 from rigidjax.mechanics.inertia import check_inertia
-from tests.helpers import rigid_body_dop853
+from tests.helpers import fd_jacobian, rigid_body_dop853
 
 TS = np.linspace(0.0, 8.0, 81)
 R = Rotation.from_rotvec([0.3, -0.5, 0.2]).as_matrix()
@@ -88,25 +89,87 @@ def test_known_torque_gives_absolute_inertia():
 
 @settings(max_examples=40, deadline=None)
 @given(st.lists(st.floats(-3, 3), min_size=6, max_size=6))
-def test_every_parameter_is_a_physical_body(params):
-    """Symmetric, PSD, triangle inequality for every value; singular only for a rank-one Σ."""
+def test_projection_gives_a_physical_body(params):
+    """`project` clips the negative eigenvalues of Σ (NumPy reference): symmetric, PSD, triangle
+    inequality; physical parameters unchanged; exact round trip through the tensor."""
     p = np.asarray(params)
-    L = np.diag(p[:3]) + np.array([[0, 0, 0], [p[3], 0, 0], [p[4], p[5], 0]])
-    sigma = np.linalg.eigvalsh(L @ L.T)
+    S = np.array([[p[0], p[3], p[4]], [p[3], p[1], p[5]], [p[4], p[5], p[2]]])
+    s, V = np.linalg.eigh(S)
+    S_ref = (V * np.maximum(s, 0.0)) @ V.T
+    sigma = np.linalg.eigvalsh(S_ref)
     assume(sigma[1] > 1e-6 * max(sigma[2], 1e-300))  # exclude the rod (rank-one Σ) and Σ = 0
+    proj = np.asarray(project(jnp.asarray(p)))
+    if s[0] >= 0:  # physical: unchanged
+        np.testing.assert_array_equal(proj, p)
+    np.testing.assert_allclose(proj, S_ref[[0, 1, 2, 1, 2, 2], [0, 1, 2, 0, 0, 1]], atol=1e-12)
     for trace in (None, 1.0):
-        I = inertia_from_params(jnp.asarray(p), trace)
+        I = inertia_from_params(jnp.asarray(proj), trace)
         check_inertia(I, rtol=1e-9)
         back = params_from_inertia(I, trace)
-        # params_from_inertia nudges Σ by 1e-9 tr Σ so that a planar body's factor exists
-        tol = 1e-8 * float(jnp.trace(I))
-        np.testing.assert_allclose(inertia_from_params(back, trace), I, rtol=1e-6, atol=tol)
+        np.testing.assert_allclose(project(back), back, rtol=1e-12, atol=1e-15)  # to rounding
+        np.testing.assert_allclose(inertia_from_params(back, trace), I, rtol=1e-12, atol=1e-12)
+
+
+def test_feasibility_gradient():
+    """`∂σ_min/∂θ` against central differences of NumPy's smallest eigenvalue of Σ."""
+    p = np.array([0.3, 1.1, 0.7, 0.2, -0.1, 0.25])
+
+    def smallest(x):
+        S = np.array([[x[0], x[3], x[4]], [x[3], x[1], x[5]], [x[4], x[5], x[2]]])
+        return np.linalg.eigvalsh(S)[:1]
+
+    c, n = feasibility(jnp.asarray(p))
+    np.testing.assert_allclose(c, smallest(p)[0], rtol=1e-12)
+    np.testing.assert_allclose(n, fd_jacobian(smallest, p)[0], atol=1e-8)
 
 
 def test_planar_body_is_reachable():
-    """A plate (I3 = I1 + I2, normal along body x) has exact parameters: the fit can reach it."""
+    """A plate (I3 = I1 + I2, normal along body x) has exact parameters (σ_min = 0: on the
+    boundary of the physical set, not outside it)."""
     I = np.diag([3.0, 1.0, 2.0])
-    np.testing.assert_allclose(inertia_from_params(params_from_inertia(I), None), I, atol=1e-8)
+    p = params_from_inertia(I)
+    np.testing.assert_array_equal(inertia_from_params(p, None), I)
+    assert float(feasibility(p)[0]) == 0.0
+
+
+def planar_data(moments):
+    """Clean gyro and attitude data (SciPy DOP853) of the rotated body with these moments, and
+    its tensor normalised to trace 1."""
+    I = R @ np.diag(moments) @ R.T
+    omega, quat_ = rigid_body_dop853(I, W0, Q0, TS, lambda t, w, q: np.zeros(3))
+    return omega, quat_, I / np.trace(I)
+
+
+@pytest.mark.parametrize("moments", [[1.0, 2.0, 3.0], [1.0, 2.0, 2.999]])
+def test_planar_body_identified(moments):
+    """A plate (and a nearly planar body) is identified like any other body: its truth from
+    clean gyro data, identifiable, std of the size of the actual scatter (noisy data), and a
+    physical estimate (the constraint Σ ⪰ 0 is active for a plate)."""
+    omega, _, ref = planar_data(moments)
+    est = identify_inertia(TS, omega_obs=omega)
+    assert bool(est.converged) and bool(est.identifiable)
+    np.testing.assert_allclose(est.inertia, ref, atol=1e-6)
+    np.testing.assert_allclose(est.principal_moments, np.asarray(moments) / sum(moments), atol=1e-6)
+    assert float(np.max(est.inertia_std)) < 1e-8  # clean data
+    rng = np.random.default_rng(3)
+    sigma = 1e-3
+    est = identify_inertia(
+        TS, omega_obs=omega + sigma * rng.normal(size=omega.shape), sigma_omega=sigma
+    )
+    assert bool(est.converged) and bool(est.identifiable)
+    check_inertia(est.inertia, rtol=1e-12)
+    err = np.abs(np.asarray(est.inertia) - ref)
+    std = np.asarray(est.inertia_std)
+    assert np.all(err < 4 * std) and 1e-5 < float(np.max(std)) < 1e-3, (err, std)
+
+
+@pytest.mark.slow  # compiles the attitude-only fit
+def test_planar_body_from_attitude_data():
+    _, quat_, ref = planar_data([1.0, 2.0, 3.0])
+    est = identify_inertia(TS, quat_obs=quat_)
+    assert bool(est.converged) and bool(est.identifiable)
+    np.testing.assert_allclose(est.inertia, ref, atol=1e-6)
+    assert abs(abs(float(jnp.dot(est.q0, Q0))) - 1) < 1e-9
 
 
 def test_bad_input():
@@ -118,6 +181,29 @@ def test_bad_input():
         identify_inertia(TS)
     with pytest.raises(ValueError, match=r"omega_obs must have shape \(81, 3\)"):
         identify_inertia(TS, omega_obs=OMEGA[:10])
+    for trace in (
+        -1.0,
+        0.0,
+        np.inf,
+        np.nan,
+    ):  # -1 gave a negative-definite tensor, 0 "not identifiable"
+        with pytest.raises(ValueError, match=r"trace must be positive \(and finite\), got"):
+            identify_inertia(TS, omega_obs=OMEGA, trace=trace)
+    for name in ("max_steps", "sim_max_steps"):
+        for n in (0, -3):
+            with pytest.raises(ValueError, match=f"{name} must be a positive integer, got"):
+                identify_inertia(TS, omega_obs=OMEGA, **{name: n})
+
+
+def test_step_limits():
+    """Too few RK4 steps for the data is a clear error (it was blamed on the data: "not
+    identifiable"); one Levenberg–Marquardt step is a valid, unconverged fit."""
+    with pytest.raises(
+        ValueError, match=r"reached sim_max_steps = 1 .* \(it needs \d+: .*raise sim"
+    ):
+        identify_inertia(TS, omega_obs=OMEGA, sim_max_steps=1)
+    est = identify_inertia(TS, omega_obs=OMEGA, max_steps=1)
+    assert not bool(est.converged) and int(est.num_steps) == 1
 
 
 @pytest.mark.slow

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import rigidjax as rj
-from rigidjax._integrate import default_tolerances
+from rigidjax._tolerances import default_tolerances
 from rigidjax._trajectory import AbstractTrajectory
 from rigidjax.mechanics import heavy_top, kepler, satellite, sixdof
 from tests.rotations.test_bad_input import raises_in_jit
