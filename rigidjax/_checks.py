@@ -208,6 +208,15 @@ def _got(v: np.ndarray) -> str:
     return f", got {v}"
 
 
+def check_frame(frame: object, name: str = "frame") -> None:
+    """A frame argument: `"space"` (Zhilin's "left") or `"body"` ("right"); anything else (a
+    typo such as "inertial" or "Space") is a ValueError, never silently one of them."""
+    if frame not in ("space", "body"):
+        raise ValueError(
+            f"{name} must be 'space' or 'body' (Zhilin's 'left' and 'right'), got {frame!r}"
+        )
+
+
 def check_finite(x: Array, name: str) -> Array:
     """`x`, checked to be finite everywhere (see `validate`); the error shows the first
     non-finite entry."""

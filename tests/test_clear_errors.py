@@ -207,6 +207,28 @@ def test_nonfinite_torque_is_named_fixed_steps():
         rj.simulate(body, np.array([0.0, 400.0, 1.0]), None, TS, dt0=0.5, **kw)
 
 
+@pytest.mark.parametrize("frame", ["inertial", "Space", "left"])
+def test_torque_frame_typos_are_refused(frame):
+    """A torque_frame other than "space" or "body" ran as "body" ("left", Zhilin's word for
+    space, gave a wrong answer)."""
+    tq = lambda t, w, q: jnp.array([0.0, 0.0, 1.0])  # noqa: E731
+    match = f"torque_frame must be 'space' or 'body' .*got '{frame}'"
+    with pytest.raises(ValueError, match=match):
+        rj.simulate(rj.RigidBody([1.0, 2.0, 2.5]), W0, None, TS, torque=tq, torque_frame=frame)
+    with pytest.raises(ValueError, match=match):
+        rj.simulate(rj.Gyrostat([1.0, 2.0, 2.5], h=[0.0, 0.0, 0.5]), W0, None, TS,
+                    torque=tq, torque_frame=frame)  # fmt: skip
+    with pytest.raises(ValueError, match=match):
+        rj.identify_inertia(TS, omega_obs=np.ones((3, 3)), torque=tq, torque_frame=frame)
+
+
+def test_mekf_names_a_zero_q0():
+    ts = np.linspace(0.0, 1.0, 3)
+    q = np.tile([1.0, 0.0, 0.0, 0.0], (3, 1))
+    with pytest.raises(ValueError, match=r"q0 is a zero quaternion.*\|q0\| > 0"):
+        rj.estimation.mekf(ts, np.zeros((2, 3)), q, arw=1e-3, rrw=1e-5, sigma=1e-3, q0=np.zeros(4))
+
+
 def test_kepler_r0_zero():
     with pytest.raises(ValueError, match=r"r0 must be non-zero.*singular at the centre"):
         kepler.simulate_central(np.zeros(3), np.array([0.0, 1.0, 0.0]), TS, alpha=1.0)

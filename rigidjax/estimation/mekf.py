@@ -37,7 +37,7 @@ from .._checks import as_float, broadcast_batch, check_finite, is_concrete, vali
 from .._custom_types import RealLike
 from .._numerics import cofactors
 from ..rotations import _series, quat
-from ..rotations._quat_core import _from_rotvec, _to_rotvec
+from ..rotations._quat_core import _from_rotvec, _to_rotvec, _unit
 
 __all__ = ["MEKF", "FilterState", "mekf", "propagate", "update"]
 
@@ -277,8 +277,7 @@ def mekf(
         lambda q: f": row {np.argwhere(zero_row(np, q))[0].tolist()}",
         hint="; give a row of NaN where there is no measurement",
     )
-    q0_ = check_finite(vector(q0, 4, "q0"), "q0")
-    q0_ = quat.normalize(q0_)
+    q0_ = _unit(check_finite(vector(q0, 4, "q0"), "q0"), "q0")
     b0 = jnp.zeros(3) if bias0 is None else check_finite(vector(bias0, 3, "bias0"), "bias0")
     arw_, rrw_ = _level(arw, "arw", False), _level(rrw, "rrw", False)
     sigma_ = _level(sigma, "sigma", True)

@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from .._checks import is_concrete, validate
+from .._checks import check_frame, is_concrete, validate
 from .._compile import quick_compile_jit
 from .._custom_types import Frame, RealLike
 from ..mechanics.inertia import as_tensor, check_inertia, principal_axes
@@ -137,6 +137,7 @@ def identify_inertia(
     Levenberg–Marquardt steps (`converged` is False when they run out). The fit is compiled
     once per data shape and set of options, and `jax.vmap`-able over datasets.
     """
+    check_frame(torque_frame, "torque_frame")
     data = experiments(ts, omega_obs, quat_obs)
     E, T = data.shape
     dtype = data.ts.dtype

@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from .._checks import matrix, vector
+from .._checks import check_frame, matrix, vector
 from .._custom_types import EulerSeq, Frame, Mat33, Mat33Like, Quat, Vec3, Vec3Like
 from ..rotations import euler, quat, so3
 from . import euler_atlas
@@ -53,8 +53,7 @@ class AbstractKinematics(eqx.Module):
     frame: Frame = eqx.field(static=True, default="space", kw_only=True)
 
     def __check_init__(self):
-        if self.frame not in ("space", "body"):
-            raise ValueError(f"frame must be 'space' or 'body', got {self.frame!r}")
+        check_frame(self.frame)
 
     @abc.abstractmethod
     def from_matrix(self, P: Mat33Like) -> Array:

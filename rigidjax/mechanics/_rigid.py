@@ -16,7 +16,7 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from .._batch import first_failure
-from .._checks import broadcast_batch
+from .._checks import broadcast_batch, check_frame
 from .._custom_types import Frame, RealLike
 from .._integrate import SolveOptions
 from ..events import Event
@@ -59,6 +59,7 @@ def rigid_call(
     check: bool,
 ) -> RigidCall:
     """`simulate`'s arguments checked (clear errors) and flattened into a `RigidCall`."""
+    check_frame(torque_frame, "torque_frame")
     ts, omega0, q0 = initial_rotation(ts, omega0, q0, check)
     dtype = ts.dtype
     batch = broadcast_batch(body=body.batch_shape, omega0=omega0.shape[:-1], q0=q0.shape[:-1])

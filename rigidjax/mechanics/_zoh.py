@@ -25,6 +25,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
+from .._checks import concrete_value
+from .._custom_types import RealScalarLike
 from .._integrate import SolveOptions, raise_failure
 from ..events import Event
 from ..models.solve import solve_tree
@@ -102,7 +104,7 @@ def held_solve(
     args: tuple,
     ts: Array,
     times: np.ndarray | None,
-    period: float,
+    period: RealScalarLike,
     cmd0: Array,
     options: SolveOptions,
     *,
@@ -125,17 +127,20 @@ def held_solve(
     With `memory0` (a controller's memory, a PyTree), `command(t_k, y_k, memory) -> (cmd,
     memory, log (log_size,))` and the commands returned are `(K, m + log_size)`: each command
     followed by its log."""
-    if times is None or not isinstance(period, int | float | np.floating):
+    value = concrete_value(period)
+    if times is None or value is None or value.ndim != 0:
         raise ValueError(
-            "with a controller, ts and control_period must be concrete (not traced under "
-            "jit): the sample grid is built from them; close over them instead of passing "
-            "them as traced arguments"
+            "with a controller, ts and control_period (a number) must be concrete (not traced "
+            "under jit): the sample grid is built from them; close over them instead of "
+            "passing them as traced arguments"
         )
-    grid_np, sample_np, out, src = sample_grid(times, float(period))
+    period = float(value)
+    grid_np, sample_np, out, src = sample_grid(times, period)
     # the grid's values, with the derivatives of the times it is made of (an output time, or
     # ts[0] + k period): differentiating ts moves the outputs and the samples with it
     ts_of = np.maximum(src, 0)
-    made_of = jnp.where(src >= 0, ts[ts_of], ts[0] + float(period) * (-1 - np.minimum(src, -1)))
+    steps = jnp.asarray(period * (-1 - np.minimum(src, -1)), ts.dtype)  # (a NumPy float64)
+    made_of = jnp.where(src >= 0, ts[ts_of], ts[0] + steps)
     grid = jnp.asarray(grid_np, ts.dtype) + (made_of - jax.lax.stop_gradient(made_of))
     inner = dataclasses.replace(options, throw=False)
     keep = np.zeros(grid_np.shape[0], bool)

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any, Unpack
 
 from jaxtyping import Array
 
-from .._custom_types import Frame, RealLike
+from .._custom_types import Frame, RealLike, RealScalarLike
 from .._integrate import SolveKwargs, SolveOptions
 from ..events import Event
 from ..kinematics.formulations import AbstractKinematics
@@ -42,7 +42,7 @@ def simulate(
     wheel_speed0: RealLike | None = None,
     h_rate: Callable[[Array], Array] | None = None,
     controller: Callable[..., Array] | None = None,
-    control_period: float | None = None,
+    control_period: RealScalarLike | None = None,
     controller_params: Any = None,
     controller_key: Any = None,
     torque_frame: Frame = "body",

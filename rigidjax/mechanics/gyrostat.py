@@ -37,10 +37,11 @@ from .._batch import first_failure
 from .._checks import (
     broadcast_batch,
     check_finite,
+    check_frame,
     concrete_value,
     vector,
 )
-from .._custom_types import Frame, RealLike
+from .._custom_types import Frame, RealLike, RealScalarLike
 from .._integrate import SolveKwargs, SolveOptions
 from .._numerics import inv3
 from ..control.stateful import StatefulController
@@ -84,6 +85,9 @@ class _Field(eqx.Module):
     h_rate: Callable[[Array], Array] | None
     torque_frame: str = eqx.field(static=True)
     wheels: bool = eqx.field(static=True)
+
+    def __check_init__(self):
+        check_frame(self.torque_frame, "torque_frame")
 
     def __call__(self, t, y, args):
         w, q = y[0], y[1]
@@ -130,7 +134,7 @@ def simulate_gyrostat(
     wheel_speed0: RealLike | None = None,
     h_rate: Callable[[Array], Array] | None = None,
     controller: Controller | StatefulController | None = None,
-    control_period: float | None = None,
+    control_period: RealScalarLike | None = None,
     controller_params: Any = None,
     controller_key: Any = None,
     torque_frame: Frame = "body",

@@ -30,7 +30,14 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
-from .._checks import as_float, check_times, check_unit_norm, initial_vector, vector
+from .._checks import (
+    as_float,
+    check_frame,
+    check_times,
+    check_unit_norm,
+    initial_vector,
+    vector,
+)
 from .._custom_types import Frame, RealLike, Vec3
 from .._integrate import SolveKwargs, SolveOptions
 from .._trajectory import AbstractTrajectory
@@ -107,8 +114,7 @@ def wrench_at_point(
     position of the point of application relative to the COM in BODY axes and `force` is given in
     `force_frame` axes (`"body"` for e.g. a thruster fixed to the body). Shapes broadcast; use
     `.total()` to add several loads given as arrays `(n, 3)`."""
-    if force_frame not in ("space", "body"):
-        raise ValueError(f"force_frame must be 'space' or 'body', got {force_frame!r}")
+    check_frame(force_frame, "force_frame")
     f = vector(force, 3, "force")
     a = vector(point, 3, "point")
     q = vector(q, 4, "q")
@@ -125,8 +131,7 @@ def wrench_at_point(
 def pure_torque(torque: RealLike, q: RealLike, *, frame: Frame = "body") -> Wrench:
     """A couple (zero net force; 004: its moment is the same about every origin), given in
     `frame` axes."""
-    if frame not in ("space", "body"):
-        raise ValueError(f"frame must be 'space' or 'body', got {frame!r}")
+    check_frame(frame)
     K = vector(torque, 3, "torque")
     if frame == "space":
         K = quat.rotate(quat.conj(vector(q, 4, "q")), K)

@@ -27,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, DTypeLike, Float
 
-from .._checks import is_concrete, matrix, validate, vector
+from .._checks import check_frame, is_concrete, matrix, validate, vector
 from .._custom_types import (
     EulerSeq,
     Frame,
@@ -117,8 +117,7 @@ def _parse_seq(seq: object) -> tuple[tuple[int, int, int], bool]:
 
 
 def _check_frame(frame: object) -> None:
-    if frame not in ("body", "space"):
-        raise ValueError(f"frame must be 'body' or 'space', got frame={frame!r}")
+    check_frame(frame)
 
 
 def _seq_axes(

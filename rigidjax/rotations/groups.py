@@ -204,7 +204,7 @@ def reduce(
     qr = mul(q[..., None, :], rs)  # (..., R, 4)
     lbar = ls * jnp.array([1, -1, -1, -1], q.dtype)  # scalar part of l ∘ x is l̄ · x
     r0 = jnp.abs(jnp.einsum("li,...ri->...lr", lbar, qr))  # (..., L, R)
-    flat = jnp.argmax(r0.reshape(*r0.shape[:-2], -1), axis=-1)
+    flat = jnp.argmax(r0.reshape(*r0.shape[:-2], ls.shape[0] * rs.shape[0]), axis=-1)
     li, ri = flat // rs.shape[0], flat % rs.shape[0]
     reduced = mul(ls[li], jnp.take_along_axis(qr, ri[..., None, None], axis=-2)[..., 0, :])
     if not return_indices:

@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import DTypeLike, PRNGKeyArray
 
-from .._checks import is_concrete, matrix, validate, vector
+from .._checks import check_frame, is_concrete, matrix, validate, vector
 from .._custom_types import Frame, Mat33, Mat33Like, Scalar, Vec3, Vec3Like
 from . import _quat_core, _series, _validation, quat
 from ._compiled import compiled
@@ -177,12 +177,9 @@ def angular_velocity(P: Mat33Like, P_dot: Mat33Like, frame: Frame = "space") -> 
     `P`, `P_dot` must be finite."""
     P = _validation.check_finite(matrix(P, "P"), "P", 2)
     P_dot = _validation.check_finite(matrix(P_dot, "P_dot"), "P_dot", 2)
+    check_frame(frame)
     Pt = jnp.swapaxes(P, -1, -2)
-    if frame == "space":
-        return vee(P_dot @ Pt)
-    if frame == "body":
-        return vee(Pt @ P_dot)
-    raise ValueError(f"frame must be 'space' or 'body', got {frame!r}")
+    return vee(P_dot @ Pt) if frame == "space" else vee(Pt @ P_dot)
 
 
 def project(A: Mat33Like) -> Mat33:

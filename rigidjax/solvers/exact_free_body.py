@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import jax.tree_util as jtu
 from jaxtyping import Array, PyTree
 
+from .._checks import check_frame
 from .._custom_types import Args, DenseInfo, RealScalarLike, Y
 from ..analytic.poinsot_attitude import free_body_flow
 from ._stateless import AbstractStatelessSolver
@@ -70,8 +71,7 @@ class RigidBodyField(eqx.Module):
     torque_frame: str = eqx.field(static=True, default="body")
 
     def __check_init__(self) -> None:
-        if self.torque_frame not in ("body", "space"):
-            raise ValueError(f"torque_frame must be 'body' or 'space', got {self.torque_frame!r}")
+        check_frame(self.torque_frame, "torque_frame")
 
     def torque_body(self, t: RealScalarLike, omega: Array, q: Array) -> Array:
         """The torque in body axes for a batch of states `(..., 3)`, `(..., 4)`."""

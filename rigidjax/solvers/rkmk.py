@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import jax.tree_util as jtu
 from jaxtyping import PyTree
 
+from .._checks import check_frame
 from .._custom_types import (
     Args,
     DenseInfo,
@@ -123,8 +124,7 @@ class RKMK(_stages.AbstractTableauSolver):
     term_structure: ClassVar = LieTerm
 
     def __check_init__(self) -> None:
-        if self.frame not in ("space", "body"):
-            raise ValueError(f"frame must be 'space' or 'body', got {self.frame!r}")
+        check_frame(self.frame)
 
     # A property where Diffrax declares a ClassVar, as Diffrax's own wrappers (`HalfSolver`) do.
     @property

@@ -236,6 +236,22 @@ def test_derivatives_wrt_the_output_times_of_a_closed_loop(solver):
     assert float(jnp.abs(fd).min()) > 1e-3  # (a zero derivative would fail)
 
 
+def test_float32_and_an_array_period():
+    """float32 inputs give a float32 closed loop in a float64 process (the sample grid's
+    offsets were NumPy float64 and promoted the state); a concrete array period is a period
+    (it was refused as traced)."""
+    f32 = np.float32
+    gy = rj.Gyrostat(I.astype(f32), h=H.astype(f32))
+    law = rj.control.quaternion_pd(0.5, 1.0, Q_T.astype(f32))
+    tr = rj.simulate(gy, W0.astype(f32), None, TS.astype(f32), controller=law, control_period=0.25)
+    assert {tr.omega.dtype, tr.quat.dtype, tr.h.dtype, tr.ts.dtype} == {np.dtype(f32)}
+    ref = rj.simulate(rj.Gyrostat(I, h=H), W0, None, TS, controller=law, control_period=0.25)
+    np.testing.assert_allclose(tr.omega, ref.omega, atol=1e-5)
+    arr = rj.simulate(rj.Gyrostat(I, h=H), W0, None, TS, controller=law,
+                      control_period=jnp.asarray(0.25))  # fmt: skip
+    np.testing.assert_array_equal(arr.omega, ref.omega)
+
+
 def test_negative_gains_are_refused():
     """A negative gain drives the body away (B-dot would add energy): a clear error."""
     with pytest.raises(ValueError, match="gain must be non-negative, got -1.0"):

@@ -91,6 +91,15 @@ def test_reduce_matches_scipy(cases):
 
 
 @pytest.mark.slow
+def test_reduce_of_an_empty_batch():
+    """An empty batch reduces to an empty batch (reshape with -1 of zero elements was a
+    ZeroDivisionError)."""
+    g = quat.rotation_group("O")
+    assert quat.reduce(jnp.zeros((0, 4)), left=g).shape == (0, 4)
+    red, li, ri = quat.reduce(jnp.zeros((2, 0, 4)), g, g, return_indices=True)
+    assert red.shape == (2, 0, 4) and li.shape == ri.shape == (2, 0)
+
+
 def test_reduce_gradient():
     q = sf(Rotation.from_rotvec([0.3, 2.0, -0.4]))
     g = sf(Rotation.create_group("O"))
