@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import TypeVar
 
 from .._cache import user_cache_dir
+from .._folders import write_problem
 
 PROG = "rigidjax"
 T = TypeVar("T")
@@ -45,32 +46,16 @@ def checked(where: str, make: Callable[[], T]) -> T:
         raise UsageError(f"{where}: {e}") from e
 
 
-def _nearest_existing(path: Path) -> Path:
-    """`path` or its closest ancestor that exists (a dangling link counts as existing)."""
-    for p in (path, *path.absolute().parents):
-        if p.exists() or p.is_symlink():
-            return p
-    return Path(path.absolute().anchor)  # pragma: no cover - the root always exists
-
-
 def check_out(out: Path) -> None:
     """Raise UsageError unless `out` is, or can be created as, a writable folder. Nothing is
-    left behind: writability is probed with a temporary file in `out` or its closest existing
-    ancestor (the folder itself is made only when the results are written)."""
-    fix = "give a folder path with --out DIR"
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"--out {out}: is an existing file, not a folder; {fix}")
-    existing = _nearest_existing(out)
-    if not existing.is_dir():
-        raise UsageError(f"--out {out}: {existing} exists and is not a folder; {fix}")
-    try:
-        with tempfile.TemporaryFile(dir=existing):
-            pass
-    except OSError as e:
+    left behind (`rigidjax._folders.write_problem`; the folder itself is made only when the
+    results are written)."""
+    problem = write_problem(out)
+    if problem is not None:
         raise UsageError(
-            f"--out {out}: cannot write in {existing} ({e.strerror or e}); choose a writable "
-            "folder with --out DIR or change its permissions"
-        ) from e
+            f"--out {out}: {problem}; choose a writable folder with --out DIR or change its "
+            "permissions"
+        )
 
 
 def write_atomic(path: Path, write: Callable[[str], object]) -> None:

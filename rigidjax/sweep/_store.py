@@ -4,7 +4,6 @@ the design's fingerprint and one done-flag per chunk, written only after the chu
 
 from __future__ import annotations
 
-import os
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -12,20 +11,21 @@ import jax
 import numpy as np
 import zarr
 
+from .._folders import write_problem
 from .design import Design
 
 DONE = "_sweep/done"
 
 
 def check_writable(path: Path) -> None:
-    """A ValueError, before any computation, if a store cannot be written at `path`."""
-    if path.exists() and not path.is_dir():
-        raise ValueError(f"store {str(path)!r} is a file; give a directory for the Zarr store")
-    parent = path if path.exists() else path.parent
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
-        raise ValueError(f"store {str(path)!r} cannot be written ({str(parent)!r} is not writable)")
+    """A ValueError, before any computation, if a store cannot be made and written at `path`
+    (`rigidjax._folders.write_problem`: nothing is left behind)."""
+    problem = write_problem(path)
+    if problem is not None:
+        raise ValueError(
+            f"store {str(path)!r} cannot be written: {problem}; give a writable directory for "
+            "the Zarr store"
+        )
 
 
 def refuse_foreign(path: Path) -> None:

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 import rigidjax
+from rigidjax import _folders
 from rigidjax.cli import main
 
 cli = importlib.import_module("rigidjax.cli.simulate")  # the default command's module
@@ -95,7 +96,7 @@ def test_out_unwritable_probe(tmp_path, capsys, monkeypatch, no_jax_work):
     def refuse(*args, **kwargs):
         raise PermissionError(13, "Permission denied")
 
-    monkeypatch.setattr(common.tempfile, "TemporaryFile", refuse)
+    monkeypatch.setattr(_folders.tempfile, "TemporaryFile", refuse)
     rc = main(["--out", str(tmp_path / "a" / "b"), "--no-progress"])
     assert_user_error(rc, capsys.readouterr().err, "--out", "cannot write", "Permission denied")
     assert not (tmp_path / "a").exists()  # the check creates nothing

@@ -16,7 +16,7 @@ import pytest
 import xarray as xr
 
 import rigidjax as rj
-from rigidjax import sweep
+from rigidjax import _folders, sweep
 from tests.helpers import rigid_body_dop853
 from tests.sweep._model import TS, design, model
 
@@ -210,6 +210,19 @@ def test_bad_models_and_stores(tmp_path):
     # (with the jaxtyping hook on, its TypeCheckError names the parameter and the type)
     with pytest.raises(TypeError, match=r"(?s)design.*Design"):
         sweep.run(model, {"I2": [1.0]}, progress=False)
+
+
+def test_unwritable_store_as_root(tmp_path, monkeypatch):
+    """Writability is probed, not read from permissions (`os.access` says yes to root, and a
+    store under /proc failed in zarr with a FileNotFoundError)."""
+
+    def refuse(*args, **kwargs):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(_folders.tempfile, "TemporaryFile", refuse)
+    with pytest.raises(ValueError, match="cannot be written: .*Permission denied"):
+        sweep.run(model, design(), store=tmp_path / "a" / "s.zarr", progress=False)
+    assert not (tmp_path / "a").exists()
 
 
 _PROCESS_RUN = """
