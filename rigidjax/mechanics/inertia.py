@@ -345,10 +345,13 @@ def check_inertia(
     I = matrix(I, name)
     tol = inertia_rtol(I.dtype) if rtol is None else float(rtol)
     if not is_concrete(I):
-        _, _, _, _, _, bad_sym, bad_pd, bad_tri = _violations(I, tol, jnp, diagonal)
-        fails = jnp.stack([jnp.any(bad_sym), jnp.any(bad_pd), jnp.any(bad_tri)])
+        finite, _, _, _, _, bad_sym, bad_pd, bad_tri = _violations(I, tol, jnp, diagonal)
+        fails = jnp.stack(
+            [~jnp.all(finite), jnp.any(bad_sym), jnp.any(bad_pd), jnp.any(bad_tri)]
+        )
         msgs = [
-            f"{name} is not a finite symmetric tensor (|I - I^T| > rtol*max|I|, rtol={tol:g}); "
+            f"{name} has non-finite entries (NaN or inf); give finite moments",
+            f"{name} is not symmetric (|I - I^T| > rtol*max|I|, rtol={tol:g}); "
             f"symmetrize it with (I + I^T)/2",
             f"{name} is not positive definite (smallest principal moment <= rtol*largest, "
             f"rtol={tol:g}); a rotator/collinear body (I3 = 0) is a physical limit but not "
@@ -371,7 +374,7 @@ def check_inertia(
 
     if not finite.all():
         _, at = first(~finite)
-        problems.append(f"has non-finite entries{at}")
+        problems.append(f"has non-finite entries{at}; give finite moments")
 
     def pd(idx: tuple[int, ...]) -> tuple[str, str]:
         wi = w[idx]
