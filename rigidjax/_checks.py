@@ -4,7 +4,7 @@ ValueError on concrete input and an `equinox.error_if` under tracing, with the s
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, TypeVar, overload
 
 import equinox as eqx
 import jax
@@ -114,13 +114,21 @@ class Check(NamedTuple):
     hint: str = ""
 
 
-def validate_all(x: Array, checks: Sequence[Check], on: Array | None = None) -> Array:
+_T = TypeVar("_T")
+
+
+@overload
+def validate_all(x: Array, checks: Sequence[Check], on: None = None) -> Array: ...
+@overload
+def validate_all(x: Array, checks: Sequence[Check], on: _T) -> _T: ...
+def validate_all(x: Array, checks: Sequence[Check], on: Any = None) -> Any:
     """Several checks of `x` at the cost of one: the ValueError of the first check that fails
     when the value of `x` is known now (`concrete_value`: concrete `x`, also a constant inside a
     trace or the primal under an eager `grad`/`jacfwd`/`jacrev`; the check runs in NumPy), or
     one `equinox.branched_error_if` carrying the message of the first failing check (`x` known
-    only at run time, under jit/vmap). Returns `on` (default `x`) with the run-time check
-    attached. The predicates see `x` through `stop_gradient`: they add nothing to derivatives.
+    only at run time, under jit/vmap). Returns `on` (default `x`; any PyTree) with the run-time
+    check attached. The predicates see `x` through `stop_gradient`: they add nothing to
+    derivatives.
 
     The NumPy path also keeps eager derivatives free of `error_if`: each of its run-time checks
     evaluated op by op compiles a new executable with its own host callbacks, which a long
@@ -201,7 +209,7 @@ def validate(
     Returns `on` (default `x`), to which the run-time check is attached: use the returned value
     (an unused check is removed with the dead code). For a check made only on concrete values
     (e.g. where traced callers expect NaN), guard the call with `is_concrete(x)`."""
-    return validate_all(x, [Check(bad, message, detail, hint)], on)
+    return validate_all(x, [Check(bad, message, detail, hint)], x if on is None else on)
 
 
 def _got(v: np.ndarray) -> str:

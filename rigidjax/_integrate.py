@@ -16,7 +16,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, PyTree
 
-from ._checks import attach_check, check_positive, concrete_value, is_concrete
+from ._checks import attach_check, concrete_value, is_concrete, validate
 from ._custom_types import Frame, RealScalarLike
 from ._modes import both_modes
 from ._tolerances import default_tolerances, warn_unattainable
@@ -132,6 +132,11 @@ def raise_failure(
     return attach_check(ys, result != diffrax.RESULTS.successful, index, messages)
 
 
+def _check_positive(value: Array, name: str) -> Array:
+    """A traced tolerance or step, checked to be positive (see `SolveOptions`)."""
+    return validate(value, lambda xp, v: ~(v > 0), f"{name} must be a positive number")
+
+
 class SolveKwargs(TypedDict, total=False):
     """The keyword shorthand for the fields of `SolveOptions` (`simulate(..., rtol=1e-8)`)."""
 
@@ -156,8 +161,9 @@ class SolveOptions(eqx.Module):
       `diffrax.ConstantStepSize()` with `dt0`.
     - `rtol`, `atol`: default `default_tolerances(dtype)` (1e-10 in float64, 1e-6 in float32).
     - `dt0`: the (initial) step; default Diffrax's initial-step heuristic for adaptive steps.
-    - `rtol`, `atol` and `dt0` are positive finite numbers (checked when the program runs if
-      traced); they set the discretisation, so derivatives with respect to them are zero.
+    - `rtol`, `atol` (finite) and `dt0` (`inf`: one step per output interval) are positive
+      numbers, checked when the program runs if traced; they set the discretisation, so
+      derivatives with respect to them are zero.
     - `max_steps`: bound on the steps of each output interval.
     - `adjoint`: default `diffrax.RecursiveCheckpointAdjoint()` (reverse mode: `jax.grad`,
       `jax.jacrev`); `diffrax.ForwardMode()` for `jax.jacfwd` and `jax.jvp`.
@@ -183,8 +189,9 @@ class SolveOptions(eqx.Module):
         for name in ("rtol", "atol", "dt0"):
             value = getattr(self, name)
             v = None if value is None else concrete_value(value)
-            if v is not None and not (v.ndim == 0 and v > 0 and np.isfinite(v)):
-                raise ValueError(f"{name} must be a positive finite number, got {value}")
+            # (dt0 = inf: one step per output interval, as `ExactFreeBody` takes by default)
+            if v is not None and not (v.ndim == 0 and v > 0 and (name == "dt0" or np.isfinite(v))):
+                raise ValueError(f"{name} must be a positive number, got {value}")
         if not (isinstance(self.max_steps, int) and self.max_steps > 0):
             raise ValueError(f"max_steps must be a positive integer, got {self.max_steps!r}")
 
@@ -217,7 +224,7 @@ class SolveOptions(eqx.Module):
             value = getattr(options, name)
             if not is_concrete(value):
                 value = jax.lax.stop_gradient(value)
-                traced[name] = value if is_concrete(value) else check_positive(value, name)
+                traced[name] = value if is_concrete(value) else _check_positive(value, name)
         return dataclasses.replace(options, **traced) if traced else options
 
 

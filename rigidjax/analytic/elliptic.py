@@ -94,8 +94,11 @@ def _ellipj_reduced(u: Array, m: Array, m1: Array) -> tuple[Array, Array, Array,
     near = jnp.abs(r) <= 0.5 * K
     s, c, d = _ellipj_doubling(jnp.where(near, r, K - jnp.abs(r)), m, m1)
     k1 = jnp.sqrt(m1)
-    sr = jnp.where(near, s, jnp.sign(r) * c / d)
-    return j, sr, jnp.where(near, c, k1 * s / d), jnp.where(near, d, k1 / d)
+    cr = jnp.where(near, c, k1 * s / d)
+    # sn(K − v) = cd v, as √(1 − cn²(K − v)): the same value (cn ≤ cn(K/2) ≈ m1^¼ there), and
+    # derivatives without the cancellation of (c/d)' = −s (d² − m c²)/d², d² − m c² = m1
+    far = jnp.sign(r) * jnp.sqrt(jnp.where(near, 0.5, (1 - cr) * (1 + cr)))
+    return j, jnp.where(near, s, far), cr, jnp.where(near, d, k1 / d)
 
 
 def _ellipj(u: Array, m: Array, m1: Array) -> tuple[Array, Array, Array, Array]:

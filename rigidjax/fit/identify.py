@@ -10,14 +10,17 @@ a constraint, planar bodies included), one initial state per experiment, and the
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Callable, Sequence
+from typing import cast
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from .._checks import check_frame, is_concrete, validate
+from .._checks import Check, check_frame, is_concrete, validate, validate_all
 from .._compile import quick_compile_jit
 from .._custom_types import Frame, RealLike
 from ..mechanics.inertia import as_tensor, check_inertia, principal_axes
@@ -98,8 +101,8 @@ def identify_inertia(
     atol: float | None = None,
     solver_rtol: float = 1e-10,
     solver_atol: float = 1e-14,
-    max_steps: int = 256,
-    sim_max_steps: int = 10_000,
+    max_steps: int | np.integer = 256,
+    sim_max_steps: int | np.integer = 1_000_000,
 ) -> InertiaEstimate:
     """Fit the inertia tensor, the initial state of each experiment and the gyro errors to gyro
     data `omega_obs` (body angular velocity), attitude data `quat_obs` (scalar first), or both.
@@ -143,14 +146,17 @@ def identify_inertia(
     dtype = data.ts.dtype
     if trace is not None and not isinstance(trace, int | float) and is_concrete(trace):
         trace = float(trace)  # a NumPy or JAX scalar
-    if trace is not None and not (isinstance(trace, int | float) and 0 < trace < math.inf):
+    if trace is not None and not (
+        isinstance(trace, int | float) and not isinstance(trace, bool) and 0 < trace < math.inf
+    ):
         raise ValueError(
             f"trace must be positive (and finite), got {trace!r}: it is the trace the inertia "
             "tensor is normalised to (a Python number; the fit is compiled for it)"
         )
     for name, n in (("max_steps", max_steps), ("sim_max_steps", sim_max_steps)):
-        if not (isinstance(n, int) and not isinstance(n, bool) and n >= 1):
+        if not (isinstance(n, numbers.Integral) and not isinstance(n, bool) and n >= 1):
             raise ValueError(f"{name} must be a positive integer, got {n!r}")
+    max_steps, sim_max_steps = int(max_steps), int(sim_max_steps)
     if torque is None and trace is None:
         trace = 1.0
     scale = (
@@ -211,19 +217,23 @@ def identify_inertia(
         scale,
     )
     # an RK4 step count capped by sim_max_steps would make the model inaccurate: a wrong fit
-    num_steps = validate(
+    # (the check goes with every output, so that it runs whatever a jitted caller keeps)
+    est = validate_all(
         needed,
-        lambda xp, n: n > sim_max_steps,
-        f"the model's simulation reached sim_max_steps = {sim_max_steps} RK4 steps in a sample "
-        "interval",
-        lambda n: (
-            f" (it needs {int(n)}: each step turns the body by at most {step_angle:g} rad "
-            "at the data's largest angular rate)"
-        ),
-        hint="; raise sim_max_steps, give samples closer together, or loosen rtol/atol",
-        on=est.num_steps,
+        [
+            Check(
+                lambda xp, n: n > sim_max_steps,
+                f"the model's simulation reached sim_max_steps = {sim_max_steps} RK4 steps in "
+                "a sample interval",
+                lambda n: (
+                    f" (it needs {int(n)}: each step turns the body by at most {step_angle:g} rad "
+                    "at the data's largest angular rate)"
+                ),
+                hint="; raise sim_max_steps, give samples closer together, or loosen rtol/atol",
+            )
+        ],
+        on=cast(InertiaEstimate, est),
     )
-    est = eqx.tree_at(lambda e: e.num_steps, est, num_steps)
     identifiable = validate(
         est.identifiable,
         lambda xp, ok: ~ok,

@@ -346,9 +346,7 @@ def check_inertia(
     tol = inertia_rtol(I.dtype) if rtol is None else float(rtol)
     if not is_concrete(I):
         finite, _, _, _, _, bad_sym, bad_pd, bad_tri = _violations(I, tol, jnp, diagonal)
-        fails = jnp.stack(
-            [~jnp.all(finite), jnp.any(bad_sym), jnp.any(bad_pd), jnp.any(bad_tri)]
-        )
+        fails = jnp.stack([~jnp.all(finite), jnp.any(bad_sym), jnp.any(bad_pd), jnp.any(bad_tri)])
         msgs = [
             f"{name} has non-finite entries (NaN or inf); give finite moments",
             f"{name} is not symmetric (|I - I^T| > rtol*max|I|, rtol={tol:g}); "

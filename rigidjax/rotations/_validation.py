@@ -56,7 +56,7 @@ def _finite_and(name: str, rank: int, what: str, check: Check) -> list[Check]:
 
 def check_quat(q: Quat, name: str, on: Array | None = None) -> Array:
     """`q` (or `on`), checked to be a finite, non-zero quaternion (one run-time check)."""
-    return validate_all(q, quat_checks(name), on)
+    return validate_all(q, quat_checks(name), q if on is None else on)
 
 
 def det(xp: Any, P: Any) -> Any:

@@ -95,6 +95,17 @@ def test_ellipk_ellipkinc_match_scipy(rng):
     np.testing.assert_allclose(analytic.am(analytic.ellipkinc(phi, mm), mm), phi, atol=1e-13)
 
 
+def test_sn_derivative_in_m_close_to_one():
+    """∂sn/∂m near u = ±K (where sn is the reflected cd) for m → 1, against mpmath
+    (`mp.diff` of `ellipfun('sn', u, m)` at 50 digits, m the given doubles): d(cd v) lost
+    eps/(1 − m) to cancellation (1.2e-4 and 3e-8 relative)."""
+    u = jnp.array([-14.0, 10.0])
+    m = jnp.array([1 - 1e-12, 1 - 1e-8])
+    ref = np.array([0.22740273326242747, -0.17419292392457459])
+    got = jax.vmap(jax.grad(analytic.sn, 1))(u, m)
+    np.testing.assert_allclose(got, ref, rtol=1e-9)
+
+
 def test_elliptic_derivatives(rng):
     """d sn/du = cn dn, d am/du = dn, dF/dφ = 1/√(1 − m sin²φ); d/dm against central differences of
     SciPy (m in [0, 1)); dK/dm against (E − (1 − m)K)/(2m(1 − m)) and π/8 at m = 0."""

@@ -13,6 +13,7 @@ from rigidjax.fit.identify import inertia_from_params, params_from_inertia
 from rigidjax.fit.parameters import feasibility, project
 from rigidjax.mechanics.inertia import check_inertia
 from tests.helpers import fd_jacobian, rigid_body_dop853
+from tests.rotations.test_bad_input import raises_in_jit
 
 TS = np.linspace(0.0, 8.0, 81)
 R = Rotation.from_rotvec([0.3, -0.5, 0.2]).as_matrix()
@@ -181,12 +182,8 @@ def test_bad_input():
         identify_inertia(TS)
     with pytest.raises(ValueError, match=r"omega_obs must have shape \(81, 3\)"):
         identify_inertia(TS, omega_obs=OMEGA[:10])
-    for trace in (
-        -1.0,
-        0.0,
-        np.inf,
-        np.nan,
-    ):  # -1 gave a negative-definite tensor, 0 "not identifiable"
+    # -1 gave a negative-definite tensor, 0 "not identifiable"
+    for trace in (-1.0, 0.0, np.inf, np.nan):
         with pytest.raises(ValueError, match=r"trace must be positive \(and finite\), got"):
             identify_inertia(TS, omega_obs=OMEGA, trace=trace)
     for name in ("max_steps", "sim_max_steps"):
@@ -202,7 +199,11 @@ def test_step_limits():
         ValueError, match=r"reached sim_max_steps = 1 .* \(it needs \d+: .*raise sim"
     ):
         identify_inertia(TS, omega_obs=OMEGA, sim_max_steps=1)
-    est = identify_inertia(TS, omega_obs=OMEGA, max_steps=1)
+    # under jit the check goes with every output (it was on num_steps only: dropped with it)
+    with raises_in_jit("the model.s simulation reached sim_max_steps = 1 "):
+        jax.jit(lambda w: identify_inertia(TS, omega_obs=w, sim_max_steps=1).inertia)(OMEGA)
+    # NumPy integers are integers
+    est = identify_inertia(TS, omega_obs=OMEGA, max_steps=np.int64(1))
     assert not bool(est.converged) and int(est.num_steps) == 1
 
 

@@ -82,8 +82,9 @@ def test_bad_options_are_clear_errors():
         rj.simulate(BODY, W0, None, TS, options={"rtol": 1e-6})
     for field in ("rtol", "atol", "dt0"):
         # arrays and NumPy scalars too (they ran: a negative dt0 stepped backwards)
-        for bad in (0.0, -1e-3, np.inf, np.nan, jnp.array(-1e-3), np.float32(-1e-3)):
-            with pytest.raises(ValueError, match=f"{field} must be a positive finite number"):
+        infinite = () if field == "dt0" else (np.inf,)  # dt0 = inf: one step per interval
+        for bad in (0.0, -1e-3, np.nan, jnp.array(-1e-3), np.float32(-1e-3), *infinite):
+            with pytest.raises(ValueError, match=f"{field} must be a positive number"):
                 rj.SolveOptions(**{field: bad})
     with pytest.raises(ValueError, match="max_steps must be a positive integer"):
         rj.SolveOptions(max_steps=0)
@@ -100,9 +101,9 @@ def test_traced_step_and_tolerances():
     def end(dt0):
         return rj.simulate(BODY, W0, None, TS, dt0=dt0, **fixed).omega[-1, 0]
 
-    with raises_in_jit("dt0 must be positive and finite"):
+    with raises_in_jit("dt0 must be a positive number"):
         jax.jit(end)(-0.1).block_until_ready()
-    with raises_in_jit("rtol must be positive and finite"):
+    with raises_in_jit("rtol must be a positive number"):
         jax.jit(lambda r: rj.simulate(BODY, W0, None, TS, rtol=r).omega)(-1e-8).block_until_ready()
     assert float(jax.grad(end)(0.1)) == 0.0
     assert float(jax.jit(jax.grad(end))(0.1)) == 0.0
