@@ -187,7 +187,9 @@ def free_rigid_body_attitude(
     point, only those along it; and close to it the derivatives lose accuracy, as `u0` and
     `am(u0 + λt)` grow sensitive in opposite ways (I = (1, 2, 3), Ω0 = (ε, 1.5, ε), t ≤ 3,
     against Richardson-extrapolated central differences: relative errors 2e-8 at ε = 1e-4,
-    6e-7 at 1e-6, 1e-4 at 1e-8, 6e-3 at 1e-10, of order 1 at 1e-12).
+    6e-7 at 1e-6, 1e-4 at 1e-8, 6e-3 at 1e-10, of order 1 at 1e-12). Close to a sphere
+    (moments g apart) the derivatives with respect to the moments lose accuracy as about
+    eps/g (I = (1, 1 + g, 1 + 2g): 1e-9 at g = 1e-7, 1e-3 at 1e-13); at a sphere they are exact.
     """
     inertia, omega0, ts = _body_inputs(inertia, omega0, ts, check)
     dtype = ts.dtype
