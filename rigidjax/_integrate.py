@@ -12,14 +12,19 @@ import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 import optimistix as optx
 from jaxtyping import Array, PyTree
 
-from ._checks import attach_check, concrete_value, is_concrete, validate
+from ._checks import attach_check, is_concrete
 from ._custom_types import Frame, RealScalarLike
 from ._modes import both_modes
-from ._tolerances import default_tolerances, warn_unattainable
+from ._tolerances import (
+    check_discretisation,
+    default_tolerances,
+    discretisation,
+    in_dtype,
+    warn_unattainable,
+)
 from .solvers.exact_free_body import AbstractFlowSolver
 from .solvers.explicit_rk import unrolled
 from .solvers.rkmk import RKMK, LieTerm
@@ -132,11 +137,6 @@ def raise_failure(
     return attach_check(ys, result != diffrax.RESULTS.successful, index, messages)
 
 
-def _check_positive(value: Array, name: str) -> Array:
-    """A traced tolerance or step, checked to be positive (see `SolveOptions`)."""
-    return validate(value, lambda xp, v: ~(v > 0), f"{name} must be a positive number")
-
-
 class SolveKwargs(TypedDict, total=False):
     """The keyword shorthand for the fields of `SolveOptions` (`simulate(..., rtol=1e-8)`)."""
 
@@ -187,11 +187,7 @@ class SolveOptions(eqx.Module):
 
     def __check_init__(self):
         for name in ("rtol", "atol", "dt0"):
-            value = getattr(self, name)
-            v = None if value is None else concrete_value(value)
-            # (dt0 = inf: one step per output interval, as `ExactFreeBody` takes by default)
-            if v is not None and not (v.ndim == 0 and v > 0 and (name == "dt0" or np.isfinite(v))):
-                raise ValueError(f"{name} must be a positive number, got {value}")
+            check_discretisation(getattr(self, name), name)
         if not (isinstance(self.max_steps, int) and self.max_steps > 0):
             raise ValueError(f"max_steps must be a positive integer, got {self.max_steps!r}")
 
@@ -216,16 +212,12 @@ class SolveOptions(eqx.Module):
                 f"{sorted(SolveKwargs.__annotations__)} (or options=rigidjax.SolveOptions(...))"
             )
         options = dataclasses.replace(options, **kwargs) if kwargs else options
-        # Tolerances and the step set the discretisation, not the motion: their derivatives are
-        # zero (fixed steps round to a whole number per interval); traced ones (under jit) are
-        # checked when the program runs.
-        traced = {}
-        for name in ("rtol", "atol", "dt0"):
-            value = getattr(options, name)
-            if not is_concrete(value):
-                value = jax.lax.stop_gradient(value)
-                traced[name] = value if is_concrete(value) else _check_positive(value, name)
-        return dataclasses.replace(options, **traced) if traced else options
+        given = {
+            name: discretisation(value, name)
+            for name in ("rtol", "atol", "dt0")
+            if (value := getattr(options, name)) is not None and type(value) is not float
+        }
+        return dataclasses.replace(options, **given) if given else options
 
 
 def solve_saved(
@@ -285,8 +277,8 @@ def solve_saved(
     if controller is None:
         d_rtol, d_atol = default_tolerances(ts.dtype, tight=tight)
         controller = diffrax.PIDController(
-            rtol=d_rtol if options.rtol is None else options.rtol,
-            atol=d_atol if options.atol is None else options.atol,
+            rtol=d_rtol if options.rtol is None else in_dtype(options.rtol, ts.dtype),
+            atol=d_atol if options.atol is None else in_dtype(options.atol, ts.dtype),
             norm=optx.rms_norm if norm is None else norm,  # Diffrax's default norm
         )
     adaptive = isinstance(controller, diffrax.AbstractAdaptiveStepSizeController)

@@ -1,12 +1,17 @@
-"""The integrators' tolerances: their defaults per dtype and the warning for unreachable ones."""
+"""The integrators' tolerances and step: their defaults per dtype, the warning for unreachable
+ones, and their checks (`rtol`, `atol`: positive finite numbers; `dt0`: a positive number,
+`inf` for one step per output interval, as `ExactFreeBody` takes by default)."""
 
 from __future__ import annotations
 
 import warnings
 
+import jax
 import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array
 
-from ._checks import concrete_value
+from ._checks import concrete_value, validate
 from ._custom_types import RealScalarLike
 
 
@@ -31,3 +36,37 @@ def warn_unattainable(dtype, rtol: RealScalarLike | None, atol: RealScalarLike |
                 "True) and float64 inputs)",
                 stacklevel=4,
             )
+
+
+def _bad(name: str, xp, v):
+    """Not a valid `name` (see the module docstring): the predicate of both checks."""
+    ok = (v > 0) if name == "dt0" else (v > 0) & xp.isfinite(v)
+    return ~ok
+
+
+def check_discretisation(value: RealScalarLike | None, name: str) -> None:
+    """A ValueError if a known `rtol`, `atol` or `dt0` is not valid (traced: `discretisation`)."""
+    v = None if value is None else concrete_value(value)
+    if v is not None and (v.ndim != 0 or v.dtype == bool or _bad(name, np, v)):
+        raise ValueError(f"{name} must be a positive number, got {value}")
+
+
+def discretisation(value: RealScalarLike, name: str) -> float | Array:
+    """`rtol`, `atol` or `dt0` as the solvers take it: a known value as a Python float (weakly
+    typed: a float64 value must not promote a float32 solve), a traced one checked when the
+    program runs. They set the discretisation, not the motion: their derivatives are zero (fixed
+    steps round to a whole number per interval)."""
+    if jnp.ndim(value) != 0:
+        raise ValueError(f"{name} must be a number, got shape {jnp.shape(value)}")
+    known = concrete_value(value)
+    if known is not None:
+        return float(known)
+    bad = lambda xp, v: _bad(name, xp, v)  # noqa: E731
+    traced = jax.lax.stop_gradient(jnp.asarray(value))
+    return validate(traced, bad, f"{name} must be a positive number")
+
+
+def in_dtype(value: RealScalarLike, dtype) -> RealScalarLike:
+    """A traced tolerance in the solve's dtype (a float64 one would promote a float32 state in
+    Diffrax's controller); a Python float as it is."""
+    return value if type(value) is float else jnp.asarray(value, dtype)

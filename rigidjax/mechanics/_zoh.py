@@ -128,12 +128,14 @@ def held_solve(
     memory, log (log_size,))` and the commands returned are `(K, m + log_size)`: each command
     followed by its log."""
     value = concrete_value(period)
-    if times is None or value is None or value.ndim != 0:
+    if times is None or value is None:
         raise ValueError(
-            "with a controller, ts and control_period (a number) must be concrete (not traced "
-            "under jit): the sample grid is built from them; close over them instead of "
-            "passing them as traced arguments"
+            "with a controller, ts and control_period must be concrete (not traced under "
+            "jit): the sample grid is built from them; close over them instead of passing "
+            "them as traced arguments"
         )
+    if value.ndim != 0 or value.dtype == bool:
+        raise ValueError(f"control_period must be a number, got {period!r}")
     period = float(value)
     grid_np, sample_np, out, src = sample_grid(times, period)
     # the grid's values, with the derivatives of the times it is made of (an output time, or

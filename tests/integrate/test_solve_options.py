@@ -83,7 +83,7 @@ def test_bad_options_are_clear_errors():
     for field in ("rtol", "atol", "dt0"):
         # arrays and NumPy scalars too (they ran: a negative dt0 stepped backwards)
         infinite = () if field == "dt0" else (np.inf,)  # dt0 = inf: one step per interval
-        for bad in (0.0, -1e-3, np.nan, jnp.array(-1e-3), np.float32(-1e-3), *infinite):
+        for bad in (0.0, -1e-3, np.nan, jnp.array(-1e-3), np.float32(-1e-3), True, *infinite):
             with pytest.raises(ValueError, match=f"{field} must be a positive number"):
                 rj.SolveOptions(**{field: bad})
     with pytest.raises(ValueError, match="max_steps must be a positive integer"):
@@ -103,12 +103,32 @@ def test_traced_step_and_tolerances():
 
     with raises_in_jit("dt0 must be a positive number"):
         jax.jit(end)(-0.1).block_until_ready()
-    with raises_in_jit("rtol must be a positive number"):
-        jax.jit(lambda r: rj.simulate(BODY, W0, None, TS, rtol=r).omega)(-1e-8).block_until_ready()
+    for bad in (-1e-8, jnp.inf):  # (a traced inf ran into max_steps)
+        with raises_in_jit("rtol must be a positive number"):
+            jax.jit(lambda r: rj.simulate(BODY, W0, None, TS, rtol=r).omega)(
+                bad
+            ).block_until_ready()
+    # (with the jaxtyping import hook on, its TypeCheckError names dt0 and the shape first)
+    with pytest.raises((ValueError, TypeError), match=r"(?s)dt0.*(shape \(2,\)|f64\[2\])"):
+        jax.jit(end)(jnp.array([0.1, 0.2]))
     assert float(jax.grad(end)(0.1)) == 0.0
     assert float(jax.jit(jax.grad(end))(0.1)) == 0.0
     dts = jnp.array([0.1, 0.07])
     np.testing.assert_array_equal(jax.vmap(end)(dts), [end(dt) for dt in dts])
+
+
+def test_float64_tolerance_of_a_float32_solve():
+    """A float64 rtol (a NumPy scalar, or traced) leaves a float32 solve in float32 (it
+    promoted Diffrax's controller state: a TypeError), eagerly and under jit."""
+    f32 = np.float32
+    body, w0, ts = rj.RigidBody(np.array([1.0, 2.0, 3.0], f32)), W0.astype(f32), TS.astype(f32)
+
+    def omega(r):
+        return rj.simulate(body, w0, None, ts, kinematics="rotvec", rtol=r, atol=1e-6).omega
+
+    eager, traced = omega(np.float64(1e-5)), jax.jit(omega)(np.float64(1e-5))
+    assert eager.dtype == traced.dtype == np.float32
+    np.testing.assert_allclose(eager, traced, atol=1e-6)
 
 
 def test_default_tolerances_per_dtype():
