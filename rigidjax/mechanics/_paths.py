@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._checks import check_frame, vector
+from .._checks import vector
 from .._custom_types import Frame
 from .._integrate import SolveOptions, solve_saved
 from ..events import Event
@@ -37,9 +37,6 @@ class _Dynamics(eqx.Module):
     kin: AbstractKinematics | None  # None: RKMK, whose attitude is the rotation matrix itself
     torque: Torque | None
     torque_frame: str = eqx.field(static=True)
-
-    def __check_init__(self):
-        check_frame(self.torque_frame, "torque_frame")
 
     def _quat(self, att):
         if self.kin is None:  # the RKMK state: a rotation by construction
