@@ -79,7 +79,9 @@ def _ellipj_doubling(w: Array, m: Array, m1: Array) -> tuple[Array, Array, Array
     return s, c, jnp.sqrt(m1 + m * c * c)
 
 
-def _ellipj_reduced(u: Array, m: Array, m1: Array) -> tuple[Array, Array, Array, Array]:
+def _ellipj_reduced(
+    u: Array, m: Array, m1: Array, K: Array | None = None
+) -> tuple[Array, Array, Array, Array]:
     """`(j, s, c, d)` with `u = 2jK + r`, |r| ≤ K, `(s, c, d) = (sn, cn, dn)(r|m)` (c ≥ 0), so
     that `am u = jπ + atan2(s, c)`, `sn u = (−1)ʲ s`, `cn u = (−1)ʲ c`, `dn u = d`, for 0 ≤ m < 1.
     s and d are accurate to a few ulps relative and c to a few ulps of d (errors growing like
@@ -87,8 +89,8 @@ def _ellipj_reduced(u: Array, m: Array, m1: Array) -> tuple[Array, Array, Array,
     `dΠ/dφ ~ 1/dn` is large near `r = ±K` (an amplitude accurate only to ulps of π, as from the
     descending Landen algorithm, costs a factor `1/√m1` there). For |r| ≤ K/2 the duplication of
     `_ellipj_doubling`; beyond it the reflection `sn(K − v) = cd v`, `cn(K − v) = √m1 sd v`,
-    `dn(K − v) = √m1 nd v` (A&S 16.8) with `v = K − |r|` ∈ [0, K/2]."""
-    K = _ellipk(m, m1)
+    `dn(K − v) = √m1 nd v` (A&S 16.8) with `v = K − |r|` ∈ [0, K/2]. `K`: K(m) if known."""
+    K = _ellipk(m, m1) if K is None else K
     j = jnp.round(u / (2 * K))
     r = u - 2 * j * K
     near = jnp.abs(r) <= 0.5 * K

@@ -107,7 +107,7 @@ def _psi_exact(p: _Plan, t: Array) -> tuple[Array, Array]:
     u0 = 2 * j0 * p.K + f0[0]
     # one call for am(u0 + λt) and for (sn, cn, dn)(λt) of the addition theorems (`_omega`)
     vt = p.lam_p * t
-    j, s, c, d = _ellipj_reduced(jnp.stack([u0 + vt, vt]), p.m, p.m1)
+    j, s, c, d = _ellipj_reduced(jnp.stack([u0 + vt, vt]), p.m, p.m1, p.K)
     pi1 = _f_pi(-nu2, s[0], c[0], p.m, p.m1)[1]
     d_pi = 2 * (j[0] - j0) * pi0[1] + pi1 - pi0[0]
     psi = p.M / I1 * t - p.M * (I3 - I1) / (I1 * I3 * p.lam_p) * d_pi
