@@ -23,6 +23,7 @@ from ._tolerances import (
     default_tolerances,
     discretisation,
     in_dtype,
+    python_int,
     warn_unattainable,
 )
 from .solvers.exact_free_body import AbstractFlowSolver
@@ -180,7 +181,7 @@ class SolveOptions(eqx.Module):
     rtol: RealScalarLike | None = None
     atol: RealScalarLike | None = None
     dt0: RealScalarLike | None = None
-    max_steps: int = eqx.field(static=True, default=100_000)
+    max_steps: int = eqx.field(static=True, default=100_000, converter=python_int)
     adjoint: diffrax.AbstractAdjoint | None = None
     progress_meter: diffrax.AbstractProgressMeter | None = None
     throw: bool = eqx.field(static=True, default=True)
@@ -188,7 +189,8 @@ class SolveOptions(eqx.Module):
     def __check_init__(self):
         for name in ("rtol", "atol", "dt0"):
             check_discretisation(getattr(self, name), name)
-        if not (isinstance(self.max_steps, int) and self.max_steps > 0):
+        steps = self.max_steps
+        if not (isinstance(steps, int) and not isinstance(steps, bool) and steps > 0):
             raise ValueError(f"max_steps must be a positive integer, got {self.max_steps!r}")
 
     def rkmk(self, frame: Frame) -> RKMK:

@@ -15,6 +15,12 @@ from ._checks import concrete_value, validate
 from ._custom_types import RealScalarLike
 
 
+def python_int(value: object) -> object:
+    """A NumPy integer as a Python int, anything else unchanged (for static step counts such as
+    `SolveOptions.max_steps`: a static field is hashed and printed; its check follows)."""
+    return int(value) if isinstance(value, np.integer) else value
+
+
 def default_tolerances(dtype, *, tight: bool = False) -> tuple[float, float]:
     """The defaults of every integrator, per dtype, decided here only: `(rtol, atol)` = 1e-10 in
     float64 (1e-12 with `tight`, for orbits followed over many periods) and 1e-6 in float32."""

@@ -86,8 +86,11 @@ def test_bad_options_are_clear_errors():
         for bad in (0.0, -1e-3, np.nan, jnp.array(-1e-3), np.float32(-1e-3), True, *infinite):
             with pytest.raises(ValueError, match=f"{field} must be a positive number"):
                 rj.SolveOptions(**{field: bad})
-    with pytest.raises(ValueError, match="max_steps must be a positive integer"):
-        rj.SolveOptions(max_steps=0)
+    for bad in (0, -3, True, 2.0, np.int64(0)):
+        with pytest.raises(ValueError, match="max_steps must be a positive integer"):
+            rj.SolveOptions(max_steps=bad)
+    # a NumPy integer is an integer (it was refused); stored as a Python int, as a static field
+    assert type(rj.SolveOptions(max_steps=np.int64(7)).max_steps) is int
     with pytest.raises(ValueError, match="dt0"):
         rj.simulate(BODY, W0, None, TS, stepsize_controller=diffrax.ConstantStepSize())
 
