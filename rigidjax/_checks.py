@@ -313,6 +313,23 @@ def check_times(ts: Array, name: str = "ts") -> Float[Array, " T"]:
     )
 
 
+def broadcast_level(
+    shape: tuple[int, ...], target: tuple[int, ...], name: str, what: str, *, extend: bool = False
+) -> tuple[int, ...]:
+    """`shape` (a noise level's, say) broadcast against `target`, which it may enlarge only with
+    `extend`; where it does not, a ValueError naming `name`, the target (`what`) and the shape."""
+    try:
+        out = tuple(np.broadcast_shapes(shape, target))
+    except ValueError:
+        out = None
+    if out is None or (not extend and out != tuple(target)):
+        raise ValueError(
+            f"{name} must be a scalar or an array broadcasting {what}, e.g. (3,) per body axis; "
+            f"got shape {tuple(shape)}"
+        )
+    return out
+
+
 def broadcast_batch(**shapes: tuple[int, ...]) -> tuple[int, ...]:
     """The common batch shape of the arguments' batch shapes `name=shape` (NumPy broadcasting);
     a ValueError naming the arguments and their batch shapes if they do not broadcast."""

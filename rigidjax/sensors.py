@@ -43,7 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, PRNGKeyArray
 
-from ._checks import as_float, broadcast_batch, check_finite, validate, vector
+from ._checks import as_float, broadcast_batch, broadcast_level, check_finite, validate, vector
 from ._custom_types import RealLike
 from .rotations import quat
 
@@ -53,9 +53,9 @@ KeyLike = PRNGKeyArray | Array
 
 
 def keys_for(key: KeyLike, batch: tuple[int, ...], name: str = "key") -> tuple[Array, bool]:
-    """`(typed key array, per_run)`: one key (`()` typed, or raw `(2,)` uint32 from
-    `jax.random.PRNGKey`) for the whole batch, or one key per run of shape `batch` (typed
-    `batch`, or raw `(*batch, 2)`)."""
+    """`(typed key array, per_run)`: one key per run of shape `batch` (typed `batch`, or raw
+    `(*batch, 2)`; for a single run, `batch = ()`, its one key), or one key (`()` typed, or raw
+    `(2,)` uint32 from `jax.random.PRNGKey`) for the whole batch."""
     if not isinstance(key, jax.Array):
         key = jnp.asarray(key)
     if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
@@ -67,10 +67,10 @@ def keys_for(key: KeyLike, batch: tuple[int, ...], name: str = "key") -> tuple[A
             f"{name} must be a JAX PRNG key (jax.random.key(seed) or jax.random.PRNGKey(seed)) "
             f"or one per run, got dtype {key.dtype} and shape {tuple(key.shape)}"
         )
+    if typed.shape == tuple(batch):  # (first: a single run's one key is its own key)
+        return typed, True
     if typed.shape == ():
         return typed, False
-    if typed.shape == tuple(batch):
-        return typed, True
     raise ValueError(
         f"{name} must be one key or one key per run (batch shape {tuple(batch)}), got "
         f"{typed.shape} keys; e.g. jax.random.split(key, {tuple(batch) or 1})"
@@ -172,6 +172,9 @@ def gyro(
     # (the default zero bias takes the others' dtype: float32 inputs give float32 under x64)
     dtype = jnp.result_type(mean, dt, arw, rrw, *(() if bias0 is None else (b0,)))
     T1 = mean.shape[-2]
+    for name, level in (("arw", arw), ("rrw", rrw)):
+        shape = (*batch, T1, 3)
+        broadcast_level(level.shape, shape, name, f"to the rate's shape (..., T−1, 3) = {shape}")
     z = normals(key, batch, (T1, 3, 3), dtype)
     sdt = jnp.sqrt(dt)[..., None]
     step = rrw * sdt * z[..., 1]  # β_{k+1} − β_k
@@ -192,5 +195,7 @@ def star_tracker(
     `q.shape[:-1]`)."""
     q = quat.normalize(check_finite(vector(q, 4, "q"), "q"))
     sigma = _level(sigma, "sigma", "rad")
+    noise = (*q.shape[:-1], 3)
+    broadcast_level(sigma.shape, noise, "sigma", f"to the noise's shape (..., 3) = {noise}")
     n = normals(key, q.shape[:-1], (3,), q.dtype) * sigma
     return quat.mul(q, quat.from_rotvec(n))

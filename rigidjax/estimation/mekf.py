@@ -33,7 +33,15 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._checks import as_float, broadcast_batch, check_finite, is_concrete, validate, vector
+from .._checks import (
+    as_float,
+    broadcast_batch,
+    broadcast_level,
+    check_finite,
+    is_concrete,
+    validate,
+    vector,
+)
 from .._custom_types import RealLike
 from .._numerics import cofactors
 from ..rotations import _series, quat
@@ -295,7 +303,9 @@ def mekf(
         "P0": P.shape[:-2],
     }
     for name, x in (("arw", arw_), ("rrw", rrw_), ("sigma", sigma_)):
-        lead[name] = jnp.broadcast_shapes(x.shape, (3,))[:-1]
+        lead[name] = broadcast_level(
+            x.shape, (3,), name, "against (..., 3) (runs: (N, 1))", extend=True
+        )[:-1]
     batch = broadcast_batch(**lead)
     B = int(np.prod(batch))
 

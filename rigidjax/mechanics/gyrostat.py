@@ -158,14 +158,14 @@ def simulate_gyrostat(
     `rigidjax.estimation.estimated`: a law acting on an MEKF's estimate from simulated sensors)
     keeps its memory between samples, each body its own, started from `controller_key` or the
     controller's own `key` (`controller.with_key(key)`; one PRNG key, or one per body: the
-    batch shape of `omega0`/`q0`; one key is split over the bodies), and records its log
-    (`controller_log`). `event`: a `rigidjax.Event` on `(t, Ω, q)` as `simulate`'s (each body
-    its own solve; the held commands and wheels stop with a terminating event, and the
-    sample times after it repeat the last command). Options as `simulate`'s: fixed steps of
-    an explicit Runge–Kutta method run on the model's CPU kernel (a jump map it cannot take,
-    such as random draws, on the Diffrax path with the same steps). Other `kinematics` than
-    `"quat"` are taken for a constant `h` without controller (as the torque `−Ω × h` of
-    `simulate`)."""
+    batch shape of `omega0`/`q0`; one key is split over a batch, a single body's is its own),
+    and records its log (`controller_log`). `event`: a `rigidjax.Event` on `(t, Ω, q)` as
+    `simulate`'s (each body its own solve; the held commands and wheels stop with a terminating
+    event, and the sample times after it repeat the last command). Options as `simulate`'s:
+    fixed steps of an explicit Runge–Kutta method run on the model's CPU kernel (a jump map it
+    cannot take, such as random draws, on the Diffrax path with the same steps). Other
+    `kinematics` than `"quat"` are taken for a constant `h` without controller (as the torque
+    `−Ω × h` of `simulate`)."""
     options = SolveOptions.of(options, solve_kwargs)
     given = ts
     ts, omega0, q0 = initial_rotation(ts, omega0, q0, check)
@@ -319,8 +319,9 @@ def _omega_quat(y: tuple) -> tuple[Array, Array]:
 
 
 def _controller_keys(key: Any, batch: tuple[int, ...]) -> Array | None:
-    """The bodies' PRNG keys `(*batch,)` (typed) from `controller_key`: None; one key (split
-    over the bodies, so that each has its own draws); or one per body."""
+    """The bodies' PRNG keys `(*batch,)` (typed) from `controller_key`: None; one per body (a
+    single body's one key, so that it draws as at its place in a batch); or one key split over
+    the bodies, so that each has its own draws."""
     if key is None:
         return None
     from ..sensors import keys_for

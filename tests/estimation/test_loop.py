@@ -108,6 +108,24 @@ def test_closed_loop_errors_consistent_and_reproducible():
     np.testing.assert_array_equal(keyed.quat, tr.quat)
 
 
+def test_a_body_alone_draws_as_in_its_batch():
+    """A single body's one key is its own (it was split, as one key for a batch): run alone
+    with `keys[1]`, body 1 of a batch keyed `keys` has the same sensor draws and motion."""
+    sc, _, ctrl = _setup()
+    ts = jnp.linspace(0.0, 2.0, 5)
+    fixed = dict(solver=rj.RK4(), stepsize_controller=diffrax.ConstantStepSize(), dt0=0.25)
+    keys = jax.random.split(jax.random.key(9), 2)
+    batch = rj.simulate(
+        sc, jnp.zeros((2, 3)), None, ts, controller=ctrl.with_key(keys), control_period=0.5,
+        **fixed,
+    )  # fmt: skip
+    alone = rj.simulate(
+        sc, jnp.zeros(3), None, ts, controller=ctrl.with_key(keys[1]), control_period=0.5, **fixed
+    )
+    np.testing.assert_array_equal(alone.controller_log, batch.controller_log[1])
+    np.testing.assert_array_equal(alone.quat, batch.quat[1])
+
+
 @pytest.mark.slow  # ~40 s: the Diffrax path with jumps compiles slowly
 def test_kernel_and_diffrax_paths_agree():
     """The same loop on the Diffrax path (forced by `adjoint=DirectAdjoint()`) gives the same

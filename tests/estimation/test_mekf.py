@@ -234,6 +234,7 @@ def test_vmap_and_batch_agree():
     [
         (dict(sigma=-1e-4), "sigma must be positive"),
         (dict(arw=-1.0), "arw must be non-negative"),
+        (dict(rrw=jnp.ones(5)), r"rrw must be a scalar .* against \(\.\.\., 3\).*got shape \(5,\)"),
         (dict(P0=-jnp.eye(6)), "P0 must be positive definite"),
         (dict(P0=jnp.eye(6).at[0, 1].set(1e-3)), "P0 must be symmetric"),
         (dict(gyro=jnp.zeros((5, 3))), "gyro must have shape"),

@@ -100,6 +100,12 @@ def test_star_tracker_statistics():
         (dict(arw=-1e-3, rrw=0.0), "arw must be non-negative"),
         (dict(arw=0.0, rrw=jnp.nan), "rrw must be non-negative"),
         (dict(arw=0.0, rrw=0.0, bias0=jnp.ones(2)), "bias0 must have shape"),
+        # (a raw broadcasting TypeError that named no argument)
+        (
+            dict(arw=jnp.ones(2), rrw=0.0),
+            r"arw must be a scalar or an array broadcasting to.*\(2,\)",
+        ),
+        (dict(arw=0.0, rrw=jnp.ones((5, 1, 1))), r"rrw must be .*\(4, 3\).*got shape \(5, 1, 1\)"),
     ],
 )
 def test_gyro_errors(kwargs, needle):
@@ -119,3 +125,5 @@ def test_sensor_argument_errors():
         sensors.star_tracker(jax.random.split(jax.random.key(0), 3), jnp.ones((2, 4)), 1e-4)
     with pytest.raises(ValueError, match="sigma must be non-negative"):
         sensors.star_tracker(jax.random.key(0), jnp.array([1.0, 0, 0, 0]), -1.0)
+    with pytest.raises(ValueError, match=r"sigma must be a scalar or an array broadcasting"):
+        sensors.star_tracker(jax.random.key(0), jnp.array([1.0, 0, 0, 0]), jnp.ones(2))
