@@ -5,6 +5,7 @@ ones, and their checks (`rtol`, `atol`: positive finite numbers; `dt0`: a positi
 from __future__ import annotations
 
 import warnings
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -15,7 +16,7 @@ from ._checks import concrete_value, validate
 from ._custom_types import RealScalarLike
 
 
-def python_int(value: object) -> object:
+def python_int(value: Any) -> Any:
     """A NumPy integer as a Python int, anything else unchanged (for static step counts such as
     `SolveOptions.max_steps`: a static field is hashed and printed; its check follows)."""
     return int(value) if isinstance(value, np.integer) else value
