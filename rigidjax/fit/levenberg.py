@@ -86,7 +86,7 @@ def levenberg_marquardt(
     def body(s):
         p, (r, J, a, Ja), cost, lam, stage, k, _ = s
         H, g = J.T @ J, J.T @ r
-        M = H + lam * (jnp.diag(jnp.diag(H)) + mu * jnp.eye(p.shape[0]))
+        M = H + lam * (jnp.diag(jnp.diag(H)) + mu * jnp.eye(p.shape[0], dtype=dtype))
         if constraint is None:
             dp = -jnp.linalg.solve(M, g)
         else:  # the step's model minimised subject to the linearised constraint c + nᵀδ ≥ 0

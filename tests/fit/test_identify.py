@@ -63,6 +63,20 @@ def test_gyro_data_full_tensor():
     np.testing.assert_allclose(est.principal_moments, np.array([1.0, 2.0, 2.6]) / 5.6, atol=2e-3)
 
 
+def test_float32_data_give_a_float32_fit():
+    """float32 data under x64: a float32 estimate, as the float64 fit to float32 precision
+    (the step's damping took a float64 identity and the fit's loop failed to trace)."""
+    rng = np.random.default_rng(0)
+    data = OMEGA + 1e-3 * rng.normal(size=OMEGA.shape)
+    ref = identify_inertia(TS, omega_obs=data)
+    est = identify_inertia(TS.astype(np.float32), omega_obs=data.astype(np.float32))
+    assert bool(est.converged)
+    for name in ("inertia", "inertia_std", "omega0"):
+        assert getattr(est, name).dtype == jnp.float32, name
+    np.testing.assert_allclose(est.inertia, ref.inertia, atol=2e-5)
+    np.testing.assert_allclose(est.inertia_std, ref.inertia_std, rtol=1e-2)
+
+
 @pytest.mark.slow  # ~35 s: compiling the attitude-only fit
 def test_attitude_data_only():
     rng = np.random.default_rng(1)
