@@ -44,7 +44,9 @@ class Event(eqx.Module):
 
     The event is detected where the condition's sign differs between two step ends (a crossing
     and back within one step is not seen), then located to the solver's tolerance. A
-    condition that is zero at the initial time itself does not count as a crossing there. The
+    condition exactly zero at the initial time counts as crossing there once it leaves zero
+    (upward for `+1`, either way for `None`, never for `−1`: zero is on the ≤ 0 side), as in
+    Diffrax: offset such a condition by a margin where the start must not count. The
     attitude `q` is a unit quaternion whose sign depends on the kinematics: use conditions
     that are even in `q` (as every function of the attitude is). Differentiable: `jax.grad`
     of `event_t` (implicit differentiation of the root find) with respect to the initial
@@ -146,6 +148,9 @@ class _Active(eqx.Module):
     def __call__(self, t, y, args, **kwargs):
         del args, kwargs
         value = self.condition(t, y)
+        # in the default float dtype: Diffrax's root find selects it against a Python 0.0, a
+        # float64 under x64 (a float32 condition was a type error there)
+        value = value.astype(jnp.result_type(float))
         return jnp.where(self.on, value, jnp.ones_like(value))
 
 

@@ -78,6 +78,25 @@ def test_direction_filters_the_crossings():
         BODY, w0, ts=ts, event=rj.Event(_sin_plus_half, direction=1), options=TIGHT
     )
     np.testing.assert_allclose(_event_t(rising), 11 * np.pi / 6, atol=1e-9)
+    # zero at t0 is on the ≤ 0 side (as Diffrax's events): leaving it upward is a rising
+    # crossing at t0 (the docstring said it did not count); the kernel and Diffrax agree
+    for kinematics in ("quat", "matrix"):
+        at_start = rj.simulate(
+            BODY, w0, ts=ts, event=rj.Event(lambda t, w, q: t, direction=1), kinematics=kinematics
+        )
+        np.testing.assert_allclose(_event_t(at_start), 0.0, atol=1e-12)
+        np.testing.assert_array_equal(at_start.omega, jnp.broadcast_to(w0, (3, 3)))
+
+
+def test_float32_event_on_the_diffrax_path():
+    """float32 under x64 on the Diffrax path (another chart): Diffrax's root find selected the
+    float32 condition against a float64 zero, a type error; now float32, as the kernel's."""
+    f32 = jnp.float32
+    body, w = rj.RigidBody(BODY.inertia.astype(f32)), W[0].astype(f32)
+    traj = rj.simulate(body, w, ts=TS.astype(f32), kinematics="matrix", event=flip_event(w))
+    exact = rj.analytic.time_of_first_flip(BODY.inertia.diagonal(), W[0])
+    assert traj.event_t.dtype == f32 and traj.omega.dtype == f32
+    np.testing.assert_allclose(traj.event_t, exact, rtol=1e-5)
 
 
 @pytest.mark.slow
