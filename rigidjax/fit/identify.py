@@ -118,8 +118,10 @@ def identify_inertia(
     data) q(0) of each experiment, the gyro bias b with `gyro_bias=True`, the per-axis gyro
     scale-factor error s with `gyro_scale=True` (with both data kinds, the gyro residuals are
     fitted first, then everything). Start: `inertia_guess` (moments or a tensor, checked as
-    `RigidBody`'s: finite, positive definite, triangle inequality), else the linear least-squares
-    estimate from Euler's equations (`rigidjax.fit.initial`). The estimate is physical: the
+    `RigidBody`'s: finite, positive definite, triangle inequality), else two starts, the linear
+    least-squares estimate from Euler's equations (`rigidjax.fit.initial`) and a sphere of its
+    trace, keeping the converged fit of lower cost (from noisy data, the linear estimate alone
+    could lead to a degenerate rod). The estimate is physical: the
     fit keeps the second-moment matrix `Σ = tr(I)/2 E − I ⪰ 0` as a constraint
     (`rigidjax.fit.parameters`), so a planar body (`I3 = I1 + I2`) is reached and identified
     like any other; where the constraint is active, the std is that of the unconstrained
@@ -307,9 +309,13 @@ def _fit(
     E, T = data.shape
     I_guess, w_guess, q_guess = guesses
     w_guess, q_ref = initial_states(data, w_guess, q_guess)
-    if I_guess is None:  # the linear least-squares estimate (rigidjax.fit.initial)
-        I_guess = _linear_guess(data, q_ref, model)
-    p0 = layout.pack(params_from_inertia(I_guess), w_guess)
+    if I_guess is None:  # the linear least-squares estimate (rigidjax.fit.initial), and a
+        # sphere of its trace: the fit runs from both and keeps the better (see below)
+        I_lin = _linear_guess(data, q_ref, model)
+        starts = jnp.stack([I_lin, jnp.trace(I_lin) / 3 * jnp.eye(3, dtype=I_lin.dtype)])
+    else:
+        starts = I_guess[None]
+    p0s = jax.vmap(lambda I: layout.pack(params_from_inertia(I), w_guess))(starts)
     needed = substeps_for(data.ts, 1.25 * angular_rate(data), opts.step_angle, 2**31 - 1)
     substeps = jnp.minimum(needed, opts.sim_max_steps)
 
@@ -345,16 +351,23 @@ def _fit(
         z = jnp.concatenate(z)
         return model.loss.transform(z), z
 
-    sol = levenberg_marquardt(
-        residuals,
-        p0,
-        stages=stages,
-        rtol=opts.rtol,
-        atol=opts.atol,
-        max_steps=opts.max_steps,
-        constraint=layout.constraint,
-        project=layout.project,
-    )
+    def solve(p0):
+        return levenberg_marquardt(
+            residuals,
+            p0,
+            stages=stages,
+            rtol=opts.rtol,
+            atol=opts.atol,
+            max_steps=opts.max_steps,
+            constraint=layout.constraint,
+            project=layout.project,
+        )
+
+    # the better of the starts: converged, then the lower cost (from noisy data, the linear
+    # estimate can start the fit in the basin of a degenerate body, which a sphere avoids)
+    sols = jax.vmap(solve)(p0s)
+    best = jnp.lexsort((sols.cost, ~sols.converged))[0]
+    sol = jax.tree.map(lambda x: x[best], sols)
     p, z, Jz = sol.params, sol.aux, sol.aux_jacobian
     gauge = layout.gauge(p, model.trace)
     cov = covariance(z, Jz, model.loss, opts.covariance, gauge)
