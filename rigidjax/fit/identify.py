@@ -29,7 +29,7 @@ from .covariance import METHODS, covariance
 from .experiments import Experiments, angular_rate, experiments, guess, initial_states
 from .flow import flow, substeps_for, torque_rows
 from .initial import linear_inertia
-from .levenberg import levenberg_marquardt
+from .levenberg import LMResult, levenberg_marquardt
 from .losses import Loss, make_loss
 from .parameters import Layout, inertia_from_params, params_from_inertia
 
@@ -118,10 +118,10 @@ def identify_inertia(
     data) q(0) of each experiment, the gyro bias b with `gyro_bias=True`, the per-axis gyro
     scale-factor error s with `gyro_scale=True` (with both data kinds, the gyro residuals are
     fitted first, then everything). Start: `inertia_guess` (moments or a tensor, checked as
-    `RigidBody`'s: finite, positive definite, triangle inequality), else two starts, the linear
-    least-squares estimate from Euler's equations (`rigidjax.fit.initial`) and a sphere of its
-    trace, keeping the converged fit of lower cost (from noisy data, the linear estimate alone
-    could lead to a degenerate rod). The estimate is physical: the
+    `RigidBody`'s: finite, positive definite, triangle inequality), else the linear
+    least-squares estimate from Euler's equations (`rigidjax.fit.initial`), and where the fit
+    from it fails (not converged, not identifiable, or a degenerate rod, as noisy attitude data
+    can lead to) a sphere of its trace, keeping the better fit. The estimate is physical: the
     fit keeps the second-moment matrix `Σ = tr(I)/2 E − I ⪰ 0` as a constraint
     (`rigidjax.fit.parameters`), so a planar body (`I3 = I1 + I2`) is reached and identified
     like any other; where the constraint is active, the std is that of the unconstrained
@@ -363,17 +363,45 @@ def _fit(
             project=layout.project,
         )
 
-    # the better of the starts: converged, then the lower cost (from noisy data, the linear
-    # estimate can start the fit in the basin of a degenerate body, which a sphere avoids)
-    sols = jax.vmap(solve)(p0s)
-    best = jnp.lexsort((sols.cost, ~sols.converged))[0]
-    sol = jax.tree.map(lambda x: x[best], sols)
+    eps = jnp.finfo(p0s.dtype).eps
+    free = p0s.shape[1] - (model.trace is not None)  # every parameter but the scale gauge
+
+    def rank(J):  # of the (weighted) Jacobian
+        sv = jnp.linalg.svd(J, compute_uv=False)
+        return jnp.sum(sv > jnp.sqrt(eps) * sv[0])
+
+    def good(sol):  # converged, identifiable, and not a degenerate body (a rod: I_min = 0)
+        I = layout.inertia(sol.params, model.trace)
+        thick = jnp.linalg.eigvalsh(I)[0] > jnp.sqrt(eps) * jnp.trace(I)
+        return sol.converged & (rank(sol.aux_jacobian) >= free) & thick
+
+    def attempt(state):  # the fit from the next start, kept if better (converged, lower cost)
+        k, best = state
+        sol = solve(p0s[k])
+        better = (sol.converged & ~best.converged) | (
+            (sol.converged == best.converged) & (sol.cost < best.cost)
+        )
+        return k + 1, jax.tree.map(lambda a, b: jnp.where(better, a, b), sol, best)
+
+    # the starts in turn until a good fit: the second (a sphere) runs only where the first
+    # fails, as from noisy data, where the linear estimate can lead to a degenerate body
+    r0, a0 = jax.eval_shape(residuals, p0s[0], jnp.asarray(0))
+    n = p0s.shape[1]
+    none = LMResult(
+        *(jnp.zeros(shape, p0s.dtype) for shape in ((n,), r0.shape, (*r0.shape, n))),
+        *(jnp.zeros(shape, p0s.dtype) for shape in (a0.shape, (*a0.shape, n))),
+        cost=jnp.asarray(jnp.inf, p0s.dtype),
+        num_steps=jnp.asarray(0),
+        converged=jnp.asarray(False),
+    )
+
+    def more(state):
+        return (state[0] < p0s.shape[0]) & ~good(state[1])
+
+    _, sol = jax.lax.while_loop(more, attempt, (jnp.asarray(0), none))
     p, z, Jz = sol.params, sol.aux, sol.aux_jacobian
     gauge = layout.gauge(p, model.trace)
     cov = covariance(z, Jz, model.loss, opts.covariance, gauge)
-    # rank of the (weighted) Jacobian: every parameter but the scale gauge must be fixed
-    sv = jnp.linalg.svd(Jz, compute_uv=False)
-    rank = jnp.sum(sv > jnp.sqrt(jnp.finfo(p.dtype).eps) * sv[0])
     I = layout.inertia(p, model.trace)
     JI = jax.jacfwd(lambda x: inertia_from_params(x, model.trace))(p[:6]).reshape(9, 6)
     cov_I = JI @ cov[:6, :6] @ JI.T
@@ -400,7 +428,7 @@ def _fit(
         cost=jnp.sum(model.loss.rho(z)),
         covariance=cov,
         converged=sol.converged,
-        identifiable=rank >= p.shape[0] - (model.trace is not None),
+        identifiable=rank(Jz) >= free,
         num_steps=sol.num_steps,
         scale=scale,
         loss=model.loss.name,

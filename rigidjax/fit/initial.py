@@ -7,9 +7,9 @@ the least-squares sense: torque-free, `θ` is the right singular vector of the s
 value (the scale is free); with a known torque, `θ = A⁺K`. This is the classical linear
 estimate of spacecraft inertia (e.g. Tanygin & Williams, "Mass property estimation using
 coasting maneuvers", J. Guidance 1997); the nonlinear fit starts from it, which keeps
-Levenberg–Marquardt away from the local minima that an isotropic start can fall into, and
-also from a sphere, which escapes those of a linear estimate spoiled by noise (attitude data
-differenced twice). The
+Levenberg–Marquardt away from the local minima that an isotropic start can fall into; where
+that fit fails, from a sphere, which escapes those of a linear estimate spoiled by noise
+(attitude data differenced twice). The
 estimate is made physical by clipping the eigenvalues of `Σ = tr(I)/2 E − I` at 1% of the
 largest (`rigidjax.fit.parameters`).
 """

@@ -95,8 +95,8 @@ def test_attitude_data_only():
 def test_noisy_attitude_data_reach_the_right_minimum():
     """0.01 rad star-tracker noise at 10 Hz on a tumbling body near its intermediate axis: the
     linear start (from twice-differenced attitudes) led the fit to a degenerate rod
-    (I_min = 0): "not identifiable", or a converged wrong tensor. The fit also starts from a
-    sphere and keeps the better minimum: both noise draws (of 20, the two that failed) fit."""
+    (I_min = 0): "not identifiable", or a converged wrong tensor. Where the fit from the linear
+    start fails, it runs from a sphere: both noise draws (of 20, the two that failed) fit."""
     Rm = Rotation.from_rotvec([0.2, -0.3, 0.4]).as_matrix()
     I = Rm @ np.diag([1.0, 2.0, 2.6]) @ Rm.T
     I = I / np.trace(I)
