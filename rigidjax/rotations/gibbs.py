@@ -94,8 +94,9 @@ def to_matrix(g: Vec3Like) -> Mat33:
 
 
 def rotate(g: Vec3Like, r: Vec3Like) -> Vec3:
-    """`r' = r + θ_G × (r + ½ θ_G × r)/(1 + θ_G²/4)` (Borisov–Mamaev (001); THEORY §3)."""
-    g = vector(g, 3, "g")
+    """`r' = r + θ_G × (r + ½ θ_G × r)/(1 + θ_G²/4)` (Borisov–Mamaev (001); THEORY §3); `g`
+    must be finite."""
+    g = _validation.check_finite(vector(g, 3, "g"), "g", 1)
     r = vector(r, 3, "r")
     g = jnp.broadcast_to(g, jnp.broadcast_shapes(g.shape, r.shape))
     c = 1 / (1 + jnp.sum(g * g, axis=-1, keepdims=True) / 4)
@@ -104,9 +105,10 @@ def rotate(g: Vec3Like, r: Vec3Like) -> Vec3:
 
 def compose(g1: Vec3Like, g2: Vec3Like) -> Vec3:
     """Gibbs vector of `P(g1) P(g2)`: `(g1 + g2 + ½ g1 × g2)/(1 − g1·g2/4)` (from the Hamilton
-    product divided by λ0(1) λ0(2)). Raises if the product is a 180° rotation."""
-    g1 = vector(g1, 3, "g1")
-    g2 = vector(g2, 3, "g2")
+    product divided by λ0(1) λ0(2)). `g1`, `g2` must be finite; raises if the product is a
+    180° rotation."""
+    g1 = _validation.check_finite(vector(g1, 3, "g1"), "g1", 1)
+    g2 = _validation.check_finite(vector(g2, 3, "g2"), "g2", 1)
     num = g1 + g2 + 0.5 * jnp.cross(g1, g2)
     return _finite(
         num / (1 - jnp.sum(g1 * g2, axis=-1, keepdims=True) / 4), "the product P(g1) P(g2)"

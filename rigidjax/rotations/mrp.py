@@ -40,7 +40,11 @@ def _to_quat(p: Vec3) -> Quat:
 
 def to_quat(p: Vec3Like) -> Quat:
     """`(1 − p², 2p)/(1 + p²)`, for any finite `p` (a shadow `|p| > 1` gives λ0 < 0)."""
-    return _to_quat(_validation.check_finite(vector(p, 3, "p"), "p", 1))
+    return _to_quat(_finite(p, "p"))
+
+
+def _finite(p: Vec3Like, name: str) -> Vec3:
+    return _validation.check_finite(vector(p, 3, name), name, 1)
 
 
 def from_matrix(P: Mat33Like) -> Vec3:
@@ -62,13 +66,13 @@ def to_matrix(p: Vec3Like) -> Mat33:
 
 
 def rotate(p: Vec3Like, r: Vec3Like) -> Vec3:
-    """`P(p) r`."""
-    return quat.rotate(_to_quat(vector(p, 3, "p")), r)
+    """`P(p) r`; `p` must be finite."""
+    return quat.rotate(_to_quat(_finite(p, "p")), r)
 
 
 def compose(p1: Vec3Like, p2: Vec3Like) -> Vec3:
-    """MRP (`|p| ≤ 1`) of `P(p1) P(p2)`, through the Hamilton product."""
-    q = quat.mul(_to_quat(vector(p1, 3, "p1")), _to_quat(vector(p2, 3, "p2")))
+    """MRP (`|p| ≤ 1`) of `P(p1) P(p2)`, through the Hamilton product; `p1`, `p2` finite."""
+    q = quat.mul(_to_quat(_finite(p1, "p1")), _to_quat(_finite(p2, "p2")))
     return _from_unit_quat(q / jnp.sqrt(quat.norm2(q))[..., None])
 
 

@@ -104,6 +104,11 @@ NONFINITE = {
     "gibbs.to_matrix": (gibbs.to_matrix, ([np.inf, 0, 0],), "g must be finite"),
     "mrp.to_quat": (mrp.to_quat, ([NAN, 0, 0],), "p must be finite"),
     "mrp.to_matrix": (mrp.to_matrix, ([np.inf, 0, 0],), "p must be finite"),
+    # (these named an internal quaternion q, or a half turn, or returned NaN)
+    "mrp.rotate": (mrp.rotate, ([NAN, 0, 0], V), "p must be finite"),
+    "mrp.compose p2": (mrp.compose, (V, [np.inf, 0, 0]), "p2 must be finite"),
+    "gibbs.rotate": (gibbs.rotate, ([NAN, 0, 0], V), "g must be finite"),
+    "gibbs.compose g1": (gibbs.compose, ([NAN, 0, 0], V), "g1 must be finite"),
     "andoyer.to_andoyer M_body": (andoyer.to_andoyer, ([NAN, 1, 0], E), "M_body must be finite"),
     # angles
     "euler.to_quat": (euler.to_quat, ([0.1, NAN, 0.3],), "angles must be finite"),
