@@ -108,6 +108,7 @@ def test_closed_loop_errors_consistent_and_reproducible():
     np.testing.assert_array_equal(keyed.quat, tr.quat)
 
 
+@pytest.mark.slow  # ~16 s: the loop's kernel, for a batch and for one body
 def test_a_body_alone_draws_as_in_its_batch():
     """A single body's one key is its own (it was split, as one key for a batch): run alone
     with `keys[1]`, body 1 of a batch keyed `keys` has the same sensor draws and motion."""
