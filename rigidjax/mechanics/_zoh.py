@@ -138,11 +138,13 @@ def held_solve(
         raise ValueError(f"control_period must be a number, got {period!r}")
     period = float(value)
     grid_np, sample_np, out, src = sample_grid(times, period)
-    # the grid's values, with the derivatives of the times it is made of (an output time, or
-    # ts[0] + k period): differentiating ts moves the outputs and the samples with it
-    ts_of = np.maximum(src, 0)
-    steps = jnp.asarray(period * (-1 - np.minimum(src, -1)), ts.dtype)  # (a NumPy float64)
-    made_of = jnp.where(src >= 0, ts[ts_of], ts[0] + steps)
+    # the grid's values, with the derivatives of the times it is made of: a sample's, ts[0] +
+    # k period (also where it is an output time), else the output time's; differentiating ts
+    # moves the outputs and the samples with it
+    last = np.arange(grid_np.shape[0]) == grid_np.shape[0] - 1  # (no jump there)
+    at_sample = sample_np & ~last
+    steps = jnp.asarray(period * np.rint((grid_np - times[0]) / period), ts.dtype)
+    made_of = jnp.where(at_sample, ts[0] + steps, ts[np.maximum(src, 0)])
     grid = jnp.asarray(grid_np, ts.dtype) + (made_of - jax.lax.stop_gradient(made_of))
     inner = dataclasses.replace(options, throw=False)
     keep = np.zeros(grid_np.shape[0], bool)
@@ -162,6 +164,20 @@ def held_solve(
     )  # fmt: skip
     commands = stats.pop("recorded")
     control_ts = grid[np.flatnonzero(sample_np[:-1])]
+    # an output time that is also a sample: its grid point moves with the sample, so the
+    # output's own derivative is added, the field's just after the sample (with its command)
+    merged = np.flatnonzero(at_sample[out] & (np.arange(len(out)) > 0))
+    if merged.size:
+        g = out[merged]
+        k = np.cumsum(sample_np)[g] - 1  # (the samples' commands, in grid order)
+        moved = ts[merged] - grid[g]
+        moved = moved - jax.lax.stop_gradient(moved)  # (zero: a derivative only)
+        cmd = commands[k, :m]
+        state = jax.tree_util.tree_map(lambda y: y[merged], ys)
+        rate = jax.vmap(lambda t, y, u: vf(t, y, (*args, u)))(grid[g], state, cmd)
+        ys = jax.tree_util.tree_map(
+            lambda y, r: y.at[merged].add(r * moved.reshape(-1, *[1] * (r.ndim - 1))), ys, rate
+        )
     if options.throw:
 
         def probe(k: int) -> str | None:

@@ -236,6 +236,31 @@ def test_derivatives_wrt_the_output_times_of_a_closed_loop(solver):
     assert float(jnp.abs(fd).min()) > 1e-3  # (a zero derivative would fail)
 
 
+@pytest.mark.slow  # ~20 s: the compiles of jax.jacrev
+@pytest.mark.parametrize("fixed", [False, True], ids=["adaptive", "kernel"])
+def test_derivatives_wrt_an_output_time_that_is_a_sample(fixed):
+    """An output time on a sample (1.5 = 5 × 0.3) is one grid point: its derivative moved the
+    sample with the output time (d ω(2)/d ts[3] was 4.6e-7, not 0, and d ω(2)/dT off by 3e-7).
+    The sample follows ts[0] + k period; the output's own derivative is the field just after
+    the sample, the right-sided difference."""
+    g = rj.Gyrostat(np.array([2.0, 3.0, 4.0]))
+    w0 = jnp.array([0.5, 0.1, 0.0])
+    opts = dict(FIXED, solver=rj.RK4()) if fixed else {}
+
+    def omega(times):
+        law = lambda t, w, q, p: -w + jnp.array([0.1 * t, 0.0, 0.0])  # noqa: E731
+        return rj.simulate(g, w0, None, times, controller=law, control_period=0.3, **opts).omega
+
+    ts = jnp.array([0.0, 0.5, 1.0, 1.5, 2.0])
+    h, e = 1e-6, jnp.eye(5)
+    jac = jax.jacrev(lambda t: omega(t)[-1, 0])(ts)
+    fd = [(omega(ts + h * e[i])[-1, 0] - omega(ts - h * e[i])[-1, 0]) / (2 * h) for i in range(5)]
+    np.testing.assert_allclose(jac, fd, rtol=0, atol=1e-8)
+    own = jax.jacrev(lambda t: omega(t)[3])(ts)[:, 3]
+    right = (omega(ts + 1e-7 * e[3])[3] - omega(ts)[3]) / 1e-7
+    np.testing.assert_allclose(own, right, rtol=0, atol=1e-6)
+
+
 def test_float32_and_an_array_period():
     """float32 inputs give a float32 closed loop in a float64 process (the sample grid's
     offsets were NumPy float64 and promoted the state); a concrete array period is a period
