@@ -26,7 +26,7 @@ from ._tolerances import (
     python_int,
     warn_unattainable,
 )
-from .solvers.exact_free_body import AbstractFlowSolver
+from .solvers.exact_free_body import AbstractFlowSolver, RigidBodyField
 from .solvers.explicit_rk import unrolled
 from .solvers.rkmk import RKMK, LieTerm
 from .solvers.step_end_map import StepEndMap
@@ -166,8 +166,8 @@ class SolveOptions(eqx.Module):
       numbers, checked when the program runs if traced; they set the discretisation, so
       derivatives with respect to them are zero.
     - `max_steps`: bound on the steps of each output interval.
-    - `adjoint`: default `diffrax.RecursiveCheckpointAdjoint()` (reverse mode: `jax.grad`,
-      `jax.jacrev`); `diffrax.ForwardMode()` for `jax.jacfwd` and `jax.jvp`.
+    - `adjoint`: default every mode (`jax.grad`, `jax.jacrev` by Diffrax's checkpointed
+      adjoint; `jax.jacfwd`, `jax.jvp`, `jax.hessian` by forward mode); one given is used as is.
     - `progress_meter`: default none; e.g. `diffrax.TqdmProgressMeter()`.
     - `throw`: raise `IntegrationError` when the solve fails (default); with `False` the
       trajectory comes back with its `result` set to the first failure
@@ -301,12 +301,11 @@ def solve_saved(
         rooted = event.rooted(controller, given, default_tolerances(ts.dtype, tight=tight))
     steps = (controller, options.max_steps, meter)
     try:
-        # (the flow solvers read their `RigidBodyField` from the term: left as given)
-        flows = isinstance(method, AbstractFlowSolver)
-        if options.adjoint is None and type(term) in (diffrax.ODETerm, LieTerm) and not flows:
+        flows = isinstance(method, AbstractFlowSolver)  # (they read a `RigidBodyField`)
+        if options.adjoint is None and type(term) in (diffrax.ODETerm, LieTerm):
             one_field = cast(diffrax.ODETerm | LieTerm, term)  # (not a subclass: rebuilt)
             (ys, event_t), stats, result = _in_every_mode(
-                one_field, solver_for, steps, ts, y0, args, dt0, rooted
+                one_field, solver_for, steps, ts, y0, args, dt0, rooted, flows
             )
         else:
             (ys, event_t), stats, result = _solve_intervals(
@@ -335,15 +334,24 @@ def _in_every_mode(
     args,
     dt0,
     event: RootedEvent | None,
+    flows: bool,
 ):
     """`_solve_intervals` with the default adjoint, differentiable in every mode and order
     (`_modes.both_modes`): Diffrax's checkpointed reverse mode, forward mode by `ForwardMode`,
     higher orders by `DirectAdjoint`. The field's (and the event condition's) closed-over
     tracers (a torque's gain under `jax.grad`) become explicit inputs
-    (`equinox.filter_closure_convert`), as a custom rule needs."""
+    (`equinox.filter_closure_convert`), as a custom rule needs; for a flow solver (`flows`)
+    the field stays a `RigidBodyField`, its torque converted."""
     controller, max_steps, meter = steps
     kind = type(term)  # a term of one vector field: an `ODETerm`, or a `LieTerm` (RKMK)
-    field = eqx.filter_closure_convert(term.vf, ts[0], y0, args)
+    if flows:
+        field = cast(RigidBodyField, term.vector_field)
+        if field.torque is not None:  # (one body's torque(t, Ω, q))
+            one = (jnp.zeros(3, ts.dtype), jnp.zeros(4, ts.dtype))
+            torque = eqx.filter_closure_convert(field.torque, ts[0], *one)
+            field = eqx.tree_at(lambda f: f.torque, field, torque)
+    else:
+        field = eqx.filter_closure_convert(term.vf, ts[0], y0, args)
     if event is not None:
         condition = eqx.filter_closure_convert(event.condition, ts[0], y0)
         event = dataclasses.replace(event, condition=condition)

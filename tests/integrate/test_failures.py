@@ -54,12 +54,15 @@ def _final_quat(w, **kw):
     return rj.simulate(BODY, w, None, TS, **kw).quat[-1]
 
 
-def test_forward_mode_through_a_flow_solver_names_the_remedy():
-    """Forward mode works with the default adjoint everywhere (tests/models/test_every_mode.py)
-    but through the exact-flow solvers, which read their field from the term: there the
-    error names `adjoint=diffrax.ForwardMode()`."""
+def test_forward_mode_through_a_reverse_only_adjoint_names_the_remedy():
+    """Forward mode works with the default adjoint everywhere (tests/models/test_every_mode.py,
+    the flow solvers in tests/solvers/test_splitting.py); with a reverse-mode adjoint given
+    explicitly, the error names `adjoint=diffrax.ForwardMode()`."""
+    reverse = diffrax.RecursiveCheckpointAdjoint()
     with pytest.raises(TypeError, match=r"adjoint=diffrax\.ForwardMode\(\)"):
-        jax.jacfwd(lambda w: _final_quat(w, solver=rj.ExactFreeBody(), dt0=0.5))(W0)
+        jax.jacfwd(lambda w: _final_quat(w, solver=rj.ExactFreeBody(), dt0=0.5, adjoint=reverse))(
+            W0
+        )
 
 
 @pytest.mark.slow  # ~40 s: compiles forward and reverse mode through the solve

@@ -6,6 +6,7 @@ The quick tests share one compilation (one top, the same output-time shape; dt0 
 time are traced values)."""
 
 import diffrax
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -118,6 +119,33 @@ def test_torques_that_read_omega():
     assert reads_omega(lambda t, w, q: q[1:] * jnp.sum(w * w), 0.0, jnp.float64)
     assert not reads_omega(lambda t, w, q: jnp.cross(q[1:], jnp.ones(3)), 0.0, jnp.float64)
     assert not reads_omega(lambda t, w, q: jnp.zeros_like(w) + jnp.sin(t), 0.0, jnp.float64)
+
+
+@pytest.mark.slow  # ~40 s: the compiles of forward mode through both flow solvers
+def test_forward_mode_with_the_default_adjoint():
+    """`jax.jacfwd` and `jax.jvp` through the flow solvers with default options (they asked
+    for `adjoint=diffrax.ForwardMode()`): equal to central differences, with respect to Ω0 and
+    the centre of mass that the torque closes over, and for `ExactFreeBody` on Diffrax's
+    steps."""
+    ts = jnp.linspace(0.0, 1.0, 3)
+
+    def top_end(x):
+        top = rj.HeavyTop(I_TOP, MASS, x[3:], G)
+        split = LiePoissonSplitting()
+        return rj.simulate_heavy_top(top, x[:3], None, ts, q0=Q0, solver=split, dt0=0.1).omega[-1]
+
+    def free_end(w):
+        body = rj.RigidBody(I_TOP)
+        return rj.simulate(body, w, Q0, ts, solver=ExactFreeBody(), dt0=0.5).quat[-1]
+
+    x, h = jnp.concatenate([jnp.asarray(W0), jnp.asarray(COM)]), 1e-6
+    top = jax.jit(top_end)  # (the differences: one compile)
+    fd = jnp.stack([(top(x + h * e) - top(x - h * e)) / (2 * h) for e in jnp.eye(6)], 1)
+    np.testing.assert_allclose(jax.jacfwd(top_end)(x), fd, atol=1e-8)
+    w, dw = jnp.asarray(W0), jnp.array([0.3, -0.2, 0.5])
+    free = jax.jit(free_end)
+    fd = (free(w + h * dw) - free(w - h * dw)) / (2 * h)
+    np.testing.assert_allclose(jax.jvp(free_end, (w,), (dw,))[1], fd, atol=1e-8)
 
 
 @pytest.mark.slow
