@@ -58,9 +58,9 @@ class QuaternionPD(eqx.Module):
         omega, q = jnp.asarray(omega), jnp.asarray(q)
         kp, kd = _gain(params, "kp", self.kp), _gain(params, "kd", self.kd)
         qe = quat.mul(quat.conj(self.q_target), q)
-        sign = jnp.where(qe[0] < 0, -1.0, 1.0)
-        u = -kp * sign * qe[1:] - kd * omega
-        return u if self.allocation is None else self.allocation @ u
+        sign = jnp.where(qe[..., :1] < 0, -1.0, 1.0)  # (any leading batch dimensions)
+        u = -kp * sign * qe[..., 1:] - kd * omega
+        return u if self.allocation is None else u @ self.allocation.T
 
 
 def quaternion_pd(

@@ -154,7 +154,9 @@ def simulate_gyrostat(
     `ts[0] + k control_period` and held until the next sample (zero-order hold), a body torque
     `(3,)` or, with wheels, the motor torques `(n,)` (clipped to `wheel_torque_max`); the solve
     then steps from sample to sample (and to each output time), so that fixed steps never
-    straddle a switch. A `rigidjax.control.StatefulController` (e.g.
+    straddle a switch; the sample grid is built from the values of `ts` and `control_period`,
+    which must therefore be concrete (under `jax.jit`, close over them; derivatives with
+    respect to `ts` go through). A `rigidjax.control.StatefulController` (e.g.
     `rigidjax.estimation.estimated`: a law acting on an MEKF's estimate from simulated sensors)
     keeps its memory between samples, each body its own, started from `controller_key` or the
     controller's own `key` (`controller.with_key(key)`; one PRNG key, or one per body: the

@@ -286,6 +286,22 @@ def test_negative_gains_are_refused():
     assert float(rj.control.bdot(0.0).gain) == 0.0  # zero: no control, allowed
 
 
+def test_laws_take_batches():
+    """The laws map leading batch dimensions, as every public function (quaternion_pd indexed
+    the quaternion's first axis: a batch was a TypeError); each row as the law of one body."""
+    rng = np.random.default_rng(4)
+    w, q = rng.normal(size=(5, 3)), rng.normal(size=(5, 4))
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    laws = (
+        rj.control.quaternion_pd(2.0, jnp.array([1.0, 2.0, 3.0]), Q_T),
+        rj.control.quaternion_pd(2.0, 3.0, Q_T, wheel_axes=AXES),
+        rj.control.bdot(2.0),
+    )
+    for law in laws:
+        rows = np.stack([law(0.0, w[i], q[i]) for i in range(5)])
+        np.testing.assert_allclose(law(0.0, w, q), rows, rtol=1e-14, atol=1e-15)
+
+
 def test_bdot():
     """The B-dot torque `k (Ω × B) × B` (B the space field in body axes) matches its formula, and
     held at T_c = 0.05 it removes kinetic energy from a tumbling body (down to the rotation
