@@ -72,8 +72,8 @@ class AbstractKinematics(eqx.Module):
         continuous)."""
         return quat.from_matrix(self.to_matrix(y), assume_valid=True)  # a state, not user input
 
-    def step_end(self, y: Array) -> tuple[Array, Bool[Array, ""]]:
-        """Map applied to the state after each solver step: `(y', changed_chart)`."""
+    def step_end(self, y: Array) -> tuple[Array, Bool[Array, "*#batch"]]:
+        """Map applied to the state after each solver step: `(y', changed_chart)` (per state)."""
         return y, jnp.array(False)
 
 
@@ -111,10 +111,10 @@ class RotationVector(AbstractKinematics):
 
     def vector_field(self, y: Vec3, w: Vec3) -> Vec3:
         # Zᵀ(θ) = Z(−θ)
-        return so3.Z(y if self.frame == "space" else -y) @ w
+        return jnp.einsum("...ij,...j->...i", so3.Z(y if self.frame == "space" else -y), w)
 
-    def step_end(self, y: Vec3) -> tuple[Vec3, Bool[Array, ""]]:
-        return so3.shadow(y), jnp.sum(y * y) > jnp.pi**2
+    def step_end(self, y: Vec3) -> tuple[Vec3, Bool[Array, "*#batch"]]:
+        return so3.shadow(y), jnp.sum(y * y, axis=-1) > jnp.pi**2
 
 
 class Quaternion(AbstractKinematics):
@@ -138,7 +138,7 @@ class Quaternion(AbstractKinematics):
         pure = jnp.concatenate([jnp.zeros_like(w[..., :1]), w], axis=-1)
         return 0.5 * (quat.mul(pure, y) if self.frame == "space" else quat.mul(y, pure))
 
-    def step_end(self, y: Quat) -> tuple[Quat, Bool[Array, ""]]:
+    def step_end(self, y: Quat) -> tuple[Quat, Bool[Array, "*#batch"]]:
         return y * jax.lax.rsqrt(jnp.sum(y * y, axis=-1, keepdims=True)), jnp.array(False)
 
 
@@ -253,7 +253,7 @@ class EulerAngles(AbstractKinematics):
         rates = jnp.einsum("...ij,...j->...i", adj, w) / det[..., None]
         return jnp.concatenate([rates, jnp.zeros_like(y[..., 3:])], axis=-1)
 
-    def step_end(self, y: EulerState) -> tuple[EulerState, Bool[Array, ""]]:
+    def step_end(self, y: EulerState) -> tuple[EulerState, Bool[Array, "*#batch"]]:
         """Change chart when the current margin is below `switch` (converting the angles through
         the quaternion, same sign); otherwise wrap the first and third angles by 4π beyond ±3π."""
         a, in_b = self._split(y)
@@ -287,9 +287,9 @@ class CayleyKlein(AbstractKinematics):
     as real `(2, 2, 2)` = (Re U, Im U) so any real Diffrax solver applies; it is renormalised to
     det U = 1 after each step like the quaternion."""
 
-    def from_matrix(self, P: Mat33Like) -> Float[Array, "2 *batch 2 2"]:
+    def from_matrix(self, P: Mat33Like) -> Float[Array, "*batch 2 2 2"]:
         U = quat.to_cayley_klein(quat.from_matrix(P))
-        return jnp.stack([jnp.real(U), jnp.imag(U)])
+        return jnp.stack([jnp.real(U), jnp.imag(U)], axis=-3)
 
     def to_matrix(self, y: Float[Array, "*#batch 2 2 2"]) -> Mat33:
         return quat.to_matrix(self._quat(y))
@@ -303,16 +303,21 @@ class CayleyKlein(AbstractKinematics):
         re, im = y[..., 0, :, :], y[..., 1, :, :]
         return jnp.stack([re[..., 0, 0], im[..., 0, 1], -re[..., 0, 1], im[..., 0, 0]], axis=-1)
 
-    def vector_field(self, y: Float[Array, "2 2 2"], w: Float[Array, "3"]) -> Float[Array, "2 2 2"]:
-        U = y[0] + 1j * y[1]
-        w1, w2, w3 = w[0], w[1], w[2]
-        S = jnp.stack([jnp.stack([w3, w1 + 1j * w2]), jnp.stack([w1 - 1j * w2, -w3])])
+    def vector_field(
+        self, y: Float[Array, "*#batch 2 2 2"], w: Float[Array, "*#batch 3"]
+    ) -> Float[Array, "*batch 2 2 2"]:
+        U = y[..., 0, :, :] + 1j * y[..., 1, :, :]
+        w1, w2, w3 = w[..., 0], w[..., 1], w[..., 2]
+        rows = [jnp.stack([w3, w1 + 1j * w2], -1), jnp.stack([w1 - 1j * w2, -w3], -1)]
+        S = jnp.stack(rows, -2)
         dU = 0.5j * (S @ U if self.frame == "space" else U @ S)
-        return jnp.stack([jnp.real(dU), jnp.imag(dU)]).astype(y.dtype)
+        return jnp.stack([jnp.real(dU), jnp.imag(dU)], axis=-3).astype(y.dtype)
 
-    def step_end(self, y: Float[Array, "2 2 2"]) -> tuple[Float[Array, "2 2 2"], Bool[Array, ""]]:
-        q = self._quat(y)
-        return y / jnp.linalg.norm(q), jnp.array(False)
+    def step_end(
+        self, y: Float[Array, "*#batch 2 2 2"]
+    ) -> tuple[Float[Array, "*batch 2 2 2"], Bool[Array, "*#batch"]]:
+        norm = jnp.linalg.norm(self._quat(y), axis=-1)  # (each state its own)
+        return y / norm[..., None, None, None], jnp.array(False)
 
 
 METHODS: dict[str, type[AbstractKinematics]] = {
