@@ -28,13 +28,15 @@ import math
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float, PRNGKeyArray
 
-from .._checks import as_float, check_finite, vector
+from .._checks import as_float, check_finite, concrete_value, vector
 from .._compile import quick_compile_jit
 from .._custom_types import RealLike
 from ..mechanics.inertia import as_tensor, check_inertia
 from ..rotations import quat
+from ..rotations._quat_core import _unit
 from .flow import flow
 
 __all__ = [
@@ -173,15 +175,27 @@ def design_excitation(
     I = check_inertia(as_tensor(inertia))
     dtype = I.dtype
     w0 = check_finite(vector(omega0, 3, "omega0").astype(dtype), "omega0")
-    for name, x in (("duration", duration), ("torque_bound", torque_bound)):
-        if not (isinstance(x, int | float) and x > 0 and math.isfinite(x)):
-            raise ValueError(f"{name} must be a positive number, got {x!r}")
-    for name, x in (("n_segments", n_segments), ("samples_per_segment", samples_per_segment)):
-        if not (isinstance(x, int) and x >= 1):
-            raise ValueError(f"{name} must be a positive integer, got {x!r}")
-    if not (isinstance(steps, int) and steps >= 0):
-        raise ValueError(f"steps must be a non-negative integer, got {steps!r}")
-    q = None if q0 is None else quat.normalize(vector(q0, 4, "q0").astype(dtype))
+    for name, x in (("inertia", I), ("omega0", w0)):
+        if concrete_value(x) is None:
+            raise ValueError(
+                f"{name} must be concrete (not traced under jax.jit or jax.vmap): the design's "
+                "RK4 step count comes from the prior's rates; close over it, one design per prior"
+            )
+    duration = _positive(duration, "duration")
+    torque_bound = _positive(torque_bound, "torque_bound")
+    step_angle = _positive(step_angle, "step_angle")
+    n_segments, samples_per_segment, steps = (
+        _count(x, name, low)
+        for name, x, low in (
+            ("n_segments", n_segments, 1), ("samples_per_segment", samples_per_segment, 1),
+            ("steps", steps, 0),
+        )
+    )  # fmt: skip
+    for name, x in (("sigma_omega", sigma_omega), ("sigma_angle", sigma_angle)):
+        v = None if x is None else concrete_value(x)
+        if v is not None and not (v.ndim == 0 and v > 0 and math.isfinite(v)):
+            raise ValueError(f"{name} must be a positive number (a noise level), got {x!r}")
+    q = None if q0 is None else _unit(vector(q0, 4, "q0").astype(dtype), "q0")
     S = n_segments
     ts = jnp.linspace(0.0, duration, S * samples_per_segment + 1, dtype=dtype)
     if init is None:
@@ -210,6 +224,19 @@ def design_excitation(
         steps,
         substeps,
     )
+
+
+def _positive(x: object, name: str) -> float:
+    v = concrete_value(x)
+    if v is None or v.ndim != 0 or v.dtype == bool or not (v > 0 and math.isfinite(v)):
+        raise ValueError(f"{name} must be a positive number (concrete), got {x!r}")
+    return float(v)
+
+
+def _count(x: object, name: str, low: int) -> int:
+    if not (isinstance(x, int | np.integer) and not isinstance(x, bool) and x >= low):
+        raise ValueError(f"{name} must be an integer ≥ {low}, got {x!r}")
+    return int(x)
 
 
 @quick_compile_jit

@@ -71,3 +71,17 @@ def test_bad_design_input():
         design_excitation(I_PRIOR, W0, 10.0, torque_bound=0.0)
     with pytest.raises(ValueError, match=r"init must have shape \(8, 3\)"):
         design_excitation(I_PRIOR, W0, 10.0, torque_bound=0.1, init=np.zeros((4, 3)))
+    # (a zero or NaN noise level gave a NaN design silently; step_angle = 0 a ZeroDivisionError;
+    # q0 was named q; a traced prior a ConcretizationTypeError)
+    bad = [
+        (dict(sigma_omega=0.0), "sigma_omega must be a positive number"),
+        (dict(sigma_angle=np.nan), "sigma_angle must be a positive number"),
+        (dict(step_angle=0.0), "step_angle must be a positive number"),
+        (dict(n_segments=0), "n_segments must be an integer ≥ 1"),
+        (dict(q0=np.zeros(4)), "q0 is a zero quaternion"),
+    ]
+    for kw, needle in bad:
+        with pytest.raises(ValueError, match=needle):
+            design_excitation(I_PRIOR, W0, 10.0, torque_bound=0.1, **kw)
+    with pytest.raises(ValueError, match="inertia must be concrete"):
+        jax.jit(lambda I: design_excitation(I, W0, 10.0, torque_bound=0.1).log_det)(I_PRIOR)
