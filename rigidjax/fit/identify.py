@@ -309,8 +309,8 @@ def _fit(
     E, T = data.shape
     I_guess, w_guess, q_guess = guesses
     w_guess, q_ref = initial_states(data, w_guess, q_guess)
-    if I_guess is None:  # the linear least-squares estimate (rigidjax.fit.initial), and a
-        # sphere of its trace: the fit runs from both and keeps the better (see below)
+    if I_guess is None:  # the linear least-squares estimate (rigidjax.fit.initial), then a
+        # sphere of its trace where the fit from it fails (see below)
         I_lin = _linear_guess(data, q_ref, model)
         starts = jnp.stack([I_lin, jnp.trace(I_lin) / 3 * jnp.eye(3, dtype=I_lin.dtype)])
     else:
