@@ -3,6 +3,7 @@ ValueError on concrete input and an `equinox.error_if` under tracing, with the s
 
 from __future__ import annotations
 
+import numbers
 from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple, TypeVar, overload
 
@@ -311,6 +312,15 @@ def check_times(ts: Array, name: str = "ts") -> Float[Array, " T"]:
         f"{name} must be strictly increasing and finite",
         detail,
     )
+
+
+def integer(x: object, name: str, low: int = 1) -> int:
+    """`x` as a Python int: an integer (Python or NumPy, not a bool) of at least `low`, else a
+    ValueError naming `name`."""
+    if not (isinstance(x, numbers.Integral) and not isinstance(x, bool) and int(x) >= low):
+        kind = {0: "a non-negative integer", 1: "a positive integer"}.get(low, f"≥ {low}")
+        raise ValueError(f"{name} must be {kind}, got {x!r}")
+    return int(x)
 
 
 def broadcast_level(

@@ -28,10 +28,9 @@ import math
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, Float, PRNGKeyArray
 
-from .._checks import as_float, check_finite, concrete_value, vector
+from .._checks import as_float, check_finite, concrete_value, integer, vector
 from .._compile import quick_compile_jit
 from .._custom_types import RealLike
 from ..mechanics.inertia import as_tensor, check_inertia
@@ -184,17 +183,12 @@ def design_excitation(
     duration = _positive(duration, "duration")
     torque_bound = _positive(torque_bound, "torque_bound")
     step_angle = _positive(step_angle, "step_angle")
-    n_segments, samples_per_segment, steps = (
-        _count(x, name, low)
-        for name, x, low in (
-            ("n_segments", n_segments, 1), ("samples_per_segment", samples_per_segment, 1),
-            ("steps", steps, 0),
-        )
-    )  # fmt: skip
     for name, x in (("sigma_omega", sigma_omega), ("sigma_angle", sigma_angle)):
-        v = None if x is None else concrete_value(x)
-        if v is not None and not (v.ndim == 0 and v > 0 and math.isfinite(v)):
-            raise ValueError(f"{name} must be a positive number (a noise level), got {x!r}")
+        if x is not None:
+            _positive(x, name, traced=True)  # (noise levels: traced ones go through)
+    n_segments = integer(n_segments, "n_segments")
+    samples_per_segment = integer(samples_per_segment, "samples_per_segment")
+    steps = integer(steps, "steps", 0)
     q = None if q0 is None else _unit(vector(q0, 4, "q0").astype(dtype), "q0")
     S = n_segments
     ts = jnp.linspace(0.0, duration, S * samples_per_segment + 1, dtype=dtype)
@@ -226,17 +220,15 @@ def design_excitation(
     )
 
 
-def _positive(x: object, name: str) -> float:
+def _positive(x: object, name: str, *, traced: bool = False) -> float:
+    """`x` as a float: a positive finite number, known now (or, with `traced`, unchecked
+    while traced, returned as NaN: its value is not used here)."""
     v = concrete_value(x)
+    if v is None and traced:
+        return math.nan
     if v is None or v.ndim != 0 or v.dtype == bool or not (v > 0 and math.isfinite(v)):
-        raise ValueError(f"{name} must be a positive number (concrete), got {x!r}")
+        raise ValueError(f"{name} must be a positive number (known when called), got {x!r}")
     return float(v)
-
-
-def _count(x: object, name: str, low: int) -> int:
-    if not (isinstance(x, int | np.integer) and not isinstance(x, bool) and x >= low):
-        raise ValueError(f"{name} must be an integer ≥ {low}, got {x!r}")
-    return int(x)
 
 
 @quick_compile_jit

@@ -10,7 +10,6 @@ a constraint, planar bodies included), one initial state per experiment, and the
 from __future__ import annotations
 
 import math
-import numbers
 from collections.abc import Callable, Sequence
 from typing import cast
 
@@ -20,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from .._checks import Check, check_frame, is_concrete, validate, validate_all
+from .._checks import Check, check_frame, integer, is_concrete, validate, validate_all
 from .._compile import quick_compile_jit
 from .._custom_types import Frame, RealLike
 from ..mechanics.inertia import as_tensor, check_inertia, principal_axes
@@ -155,10 +154,10 @@ def identify_inertia(
             f"trace must be positive (and finite), got {trace!r}: it is the trace the inertia "
             "tensor is normalised to (a Python number; the fit is compiled for it)"
         )
-    for name, n in (("max_steps", max_steps), ("sim_max_steps", sim_max_steps)):
-        if not (isinstance(n, numbers.Integral) and not isinstance(n, bool) and n >= 1):
-            raise ValueError(f"{name} must be a positive integer, got {n!r}")
-    max_steps, sim_max_steps = int(max_steps), int(sim_max_steps)
+    max_steps, sim_max_steps = (
+        integer(max_steps, "max_steps"),
+        integer(sim_max_steps, "sim_max_steps"),
+    )
     if torque is None and trace is None:
         trace = 1.0
     scale = (

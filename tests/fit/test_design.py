@@ -77,7 +77,7 @@ def test_bad_design_input():
         (dict(sigma_omega=0.0), "sigma_omega must be a positive number"),
         (dict(sigma_angle=np.nan), "sigma_angle must be a positive number"),
         (dict(step_angle=0.0), "step_angle must be a positive number"),
-        (dict(n_segments=0), "n_segments must be an integer ≥ 1"),
+        (dict(n_segments=0), "n_segments must be a positive integer"),
         (dict(q0=np.zeros(4)), "q0 is a zero quaternion"),
     ]
     for kw, needle in bad:
