@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
+from scipy.spatial.transform import Rotation
 
 import rigidjax as rj
 from rigidjax.mechanics._zoh import sample_grid
@@ -300,6 +301,12 @@ def test_laws_take_batches():
     for law in laws:
         rows = np.stack([law(0.0, w[i], q[i]) for i in range(5)])
         np.testing.assert_allclose(law(0.0, w, q), rows, rtol=1e-14, atol=1e-15)
+    # the PD law against its formula, the error quaternion from SciPy: q_e = q_target⁻¹ ∘ q
+    qe = Rotation.from_quat(Q_T, scalar_first=True).inv() * Rotation.from_quat(q, scalar_first=True)
+    qe = qe.as_quat(scalar_first=True, canonical=False)
+    kp, kd = 2.0, np.array([1.0, 2.0, 3.0])
+    u = -kp * np.sign(qe[:, :1]) * qe[:, 1:] - kd * w
+    np.testing.assert_allclose(laws[0](0.0, w, q), u, rtol=1e-12, atol=1e-14)
 
 
 def test_bdot():
