@@ -148,6 +148,24 @@ def validate_all(x: Array, checks: Sequence[Check], on: Any = None) -> Any:
     return attach_check(out, jnp.any(fails), jnp.argmax(fails), msgs)
 
 
+def _library_check(x: Any, pred: Array, index: Array, msgs: tuple[str, ...]) -> Any:
+    """`equinox.branched_error_if` under a name of the library's own, which the kernels' scalar
+    programs (`kernels/_scalar.py`) recognise: they drop the library's checks of a model's field
+    (its state is a unit quaternion by construction) and leave a user's to the Diffrax path."""
+    return eqx.branched_error_if(x, pred, index, msgs)
+
+
+LIBRARY_CHECK = _library_check.__name__
+"""The name of the library's run-time checks in a jaxpr (a `jit` equation's `name`)."""
+_marked = jax.jit(_library_check, static_argnames="msgs")
+
+
+def error_if(x: Any, pred: Array, msg: str) -> Any:
+    """`x` with the library's run-time check that raises `msg` where `pred` (any shape) is true:
+    `equinox.error_if`, marked as the library's (`_library_check`)."""
+    return attach_check(x, jnp.any(pred), jnp.zeros((), jnp.int32), [msg])
+
+
 def attach_check(out: Any, pred: Array, index: Array, msgs: Sequence[str]) -> Any:
     """`out` (a PyTree) with `equinox.branched_error_if(pred, index, msgs)` attached through a
     scalar: the check's branch passes the scalar, not `out`, which it would copy whole (under
@@ -164,14 +182,17 @@ def attach_check(out: Any, pred: Array, index: Array, msgs: Sequence[str]) -> An
         for a in leaves
     ]
     if not any(floating):
-        return eqx.branched_error_if(out, pred, index, msgs)  # nothing to carry a scalar
-    flag = eqx.branched_error_if(jnp.zeros((), jnp.int32), pred, index, msgs)
+        return _marked(out, pred, index, msgs=tuple(msgs))  # nothing to carry a scalar
+    flag = _marked(jnp.zeros((), jnp.int32), pred, index, msgs=tuple(msgs))
 
     def depend(a: Any, f: bool) -> Any:
         if not f:
             return a
         zero = jnp.zeros((), a.dtype) * flag.astype(a.dtype)
-        return a.at[(0,) * a.ndim].add(zero) if a.ndim else a + zero
+        if not a.ndim:
+            return a + zero
+        at = (0,) * a.ndim  # (an update in place, not a scatter: the kernels unroll it)
+        return jax.lax.dynamic_update_slice(a, a[(slice(0, 1),) * a.ndim] + zero, at)
 
     return jax.tree_util.tree_unflatten(
         tree, [depend(a, f) for a, f in zip(leaves, floating, strict=True)]

@@ -13,12 +13,12 @@ carries that arithmetic out:
   bodies with no gathers or stacks; the GPU kernel: one `(128,)` register vector per
   component).
 
-Runtime checks inside the field (`equinox.error_if`, e.g. of `quat.to_matrix`) are dropped:
-their host callbacks cost ~10× the arithmetic of an attitude torque, and the state they check
-is a unit quaternion by construction; a non-finite state still fails the solve (a check on the
-field's own parameters is dropped too: validate them where they are built). A primitive
-with no scalar form (`while`, `scan`, a host callback, a data-dependent index, ...) raises
-`Unsupported` naming it, and the caller falls back to evaluating the field as it is."""
+The library's run-time checks in the field (`_checks.LIBRARY_CHECK`, e.g. `quat.to_matrix`'s)
+are dropped: their host callbacks cost ~10× an attitude torque's arithmetic, and the state is a
+unit quaternion by construction (a non-finite state still fails the solve; validate parameters
+where they are built). A primitive with no scalar form (`while`, `scan`, a host callback, a
+data-dependent index, ...), a user's `equinox.error_if` and an effect (`jax.debug.print`) raise
+`Unsupported` naming it: the caller falls back to the field as it is, where they run."""
 
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from jax.extend import core as jex_core
 
-from .._checks import is_concrete
+from .._checks import LIBRARY_CHECK, is_concrete
 
 Scalar = Any
 """A backend's scalar: a C++ expression (`CEmitter`) or an array (`Components`), or a Python
@@ -230,17 +230,13 @@ class _Unroller:
                 read_literal(v) if isinstance(v, jex_core.Literal) else next(leaves)
                 for v in inner.outvars
             ]
+        if p.get("name") == "branched_error_if_impl":  # a user's check: the field runs it
+            raise Unsupported("equinox.error_if")
         for key in _CALLS:
             if key in p and name not in ("cond", "while", "scan"):
                 closed = p[key]
-                inner, consts = (
-                    (closed.jaxpr, closed.consts)
-                    if hasattr(closed, "consts")
-                    else (
-                        closed,
-                        [],
-                    )
-                )
+                closed_form = hasattr(closed, "consts")
+                inner, consts = (closed.jaxpr, closed.consts) if closed_form else (closed, [])
                 consts = [np.asarray(c, dtype=object) for c in map(_const_array, consts)]
                 return self.run(inner, consts, ins)
         if name in ("unstack", "split"):
@@ -260,10 +256,10 @@ class _Unroller:
 
 
 def _checked(eqn) -> int:
-    """How many trailing operands of an `equinox.error_if` check `(x..., pred[, index]) -> x...`
+    """How many trailing operands of one of the library's checks `(x..., pred[, index]) -> x...`
     only feed the check (its predicate, and its message index unless constant); 0 for any other
     equation (a differentiated check's tangent part is an identity call, unrolled as any)."""
-    if not (eqn.primitive.name == "jit" and eqn.params.get("name") == "branched_error_if_impl"):
+    if not (eqn.primitive.name == "jit" and eqn.params.get("name") == LIBRARY_CHECK):
         return 0
     kinds = [np.dtype(v.aval.dtype) for v in eqn.invars[-2:]]
     if len(kinds) == 2 and kinds[0] == np.bool_ and np.issubdtype(kinds[1], np.integer):
@@ -273,10 +269,13 @@ def _checked(eqn) -> int:
 
 def _live(jaxpr) -> list:
     """The equations that the outputs need; a runtime check needs only the values it passes
-    through (its predicate and message index, and what computes them, are dropped)."""
+    through (its predicate and message index, and what computes them, are dropped). An effect
+    (`jax.debug.print`, ...) is `Unsupported`: dropping it would change what the field does."""
     live = {v for v in jaxpr.outvars if not isinstance(v, jex_core.Literal)}
     keep = []
     for eqn in reversed(jaxpr.eqns):
+        if eqn.effects:
+            raise Unsupported(eqn.primitive.name)
         if not any(v in live for v in eqn.outvars):
             continue
         keep.append(eqn)

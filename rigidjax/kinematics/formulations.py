@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from .._checks import check_frame, matrix, vector
+from .._checks import check_frame, error_if, matrix, vector
 from .._custom_types import EulerSeq, Frame, Mat33, Mat33Like, Quat, Vec3, Vec3Like
 from ..rotations import euler, quat, so3
 from . import euler_atlas
@@ -241,7 +241,7 @@ class EulerAngles(AbstractKinematics):
         det = jnp.sum(c1 * adj[..., 0, :], -1)
         tol = self.gimbal_tol
         if self.switch == 0:  # one chart: the classical formulas, singular at lock
-            det = eqx.error_if(
+            det = error_if(
                 det,
                 ~(jnp.abs(det) >= tol),
                 f"gimbal lock: middle angle of seq={self.seq!r} within |det J| < {tol} of its "
@@ -332,7 +332,7 @@ METHODS: dict[str, type[AbstractKinematics]] = {
 def check_omega(w: Vec3Like) -> Vec3:
     """Angular velocity with a clear runtime error if it is not finite."""
     w = vector(w, 3, "omega(t)")
-    return eqx.error_if(w, ~jnp.all(jnp.isfinite(w)), "omega(t) returned a non-finite value")
+    return error_if(w, ~jnp.all(jnp.isfinite(w)), "omega(t) returned a non-finite value")
 
 
 def lookup(

@@ -6,6 +6,7 @@ import shutil
 import warnings
 
 import diffrax
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -211,3 +212,31 @@ def test_unsupported_torque_falls_back_with_one_warning():
     )
     np.testing.assert_allclose(fast.omega, ref.omega, rtol=0, atol=1e-14)
     assert not np.allclose(slow.omega, ref.omega)
+
+
+@pytest.mark.parametrize("options", [dict(solver=rj.RK4(), **FIXED), {}], ids=["fixed", "tol"])
+def test_a_users_check_and_callback_run_on_the_diffrax_path(options):
+    """A user's `equinox.error_if` and `jax.debug.callback` inside the torque are not dropped:
+    the torque runs on the Diffrax path (one warning naming them), where the check raises its
+    message and the callback runs. The library's own checks (`quat.to_matrix`'s) keep the
+    fast path."""
+    seen = []
+
+    def checked(t, w, q):
+        return -0.1 * eqx.error_if(w, t > 0.5, "the torque's own check: t > 0.5")
+
+    def printing(t, w, q):
+        jax.debug.callback(lambda t: seen.append(float(t)), t)
+        return -0.1 * w
+
+    w, q = _inputs(2)
+    body = rj.RigidBody(jnp.array([1.0, 2.0, 3.0]))
+    with pytest.warns(RuntimeWarning, match="equinox.error_if"):
+        with pytest.raises(eqx.EquinoxRuntimeError, match="the torque's own check"):
+            rj.simulate(body, w, q, TS, torque=checked, **options)
+    with pytest.warns(RuntimeWarning, match="debug_callback"):
+        rj.simulate(body, w, q, TS, torque=printing, **options)
+    assert max(seen) == TS[-1]  # the field evaluated at the last output time
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rj.simulate(body, w, q, TS, torque=gravity_gradient, **options)
