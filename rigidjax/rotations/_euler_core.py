@@ -69,6 +69,11 @@ def _wrap(x: Scalar) -> Scalar:
     return lax.select(x < -jnp.pi, x + two_pi, lax.select(x > jnp.pi, x - two_pi, x))
 
 
+_SNAP = 8
+"""`sin λ = n3 · (n1 × n2)` within this many ulps of 0 is 0: for n3 = ±n1 (proper Euler axes)
+its rounding's sign would flip the middle axis, and the angles out of their range (SciPy's)."""
+
+
 def _angles(q: Quat, n1: Axis, n2: Axis, n3: Axis, intrinsic: bool) -> Vec3:
     """Bernardes & Viollet (2022) for `q = Q(ψ3 n3) Q(ψ2 n2) Q(ψ1 n1)` (extrinsic order n1, n2, n3,
     unit axes with n2 ⟂ n1, n3). Returns `(ψ1, ψ2, ψ3)`, or `(ψ3, ψ2, ψ1)` if `intrinsic`.
@@ -82,7 +87,9 @@ def _angles(q: Quat, n1: Axis, n2: Axis, n3: Axis, intrinsic: bool) -> Vec3:
         lam, flip, (a, b, c, d) = _fixed_axes(q, n1, n2, n3)
     else:
         n12 = jnp.cross(n1, n2)
-        lam = jnp.arctan2(jnp.sum(n3 * n12, -1), jnp.sum(n3 * n1, -1))
+        sin = jnp.sum(n3 * n12, -1)  # 0 but for rounding where n3 = ±n1 (snapped: see below)
+        sin = jnp.where(jnp.abs(sin) <= _SNAP * jnp.finfo(sin.dtype).eps, 0.0, sin)
+        lam = jnp.arctan2(sin, jnp.sum(n3 * n1, -1))
         flip = lam < 0
         n2 = jnp.where(flip[..., None], -n2, n2)
         n12 = jnp.where(flip[..., None], -n12, n12)
@@ -124,7 +131,9 @@ def _fixed_axes(q: Quat, n1: np.ndarray, n2: np.ndarray, n3: np.ndarray) -> tupl
     `Q(λ n2)` and the projections computed in NumPy, so that only the products with q's
     components are traced (a basis axis picks a component: no cross products or sums)."""
     n12 = np.cross(n1, n2)
-    lam = float(np.arctan2(n3 @ n12, n3 @ n1))
+    sin = float(n3 @ n12)
+    eps = np.finfo(np.result_type(n3.dtype, np.float16)).eps  # (basis axes: exact)
+    lam = float(np.arctan2(0.0 if abs(sin) <= _SNAP * eps else sin, n3 @ n1))
     flip = lam < 0
     n2, n12, lam = (-n2, -n12, -lam) if flip else (n2, n12, lam)
     qs: list[Array | None] = list(jnp.unstack(q, axis=-1))

@@ -365,6 +365,21 @@ def test_davenport_classical_and_traced_axes(rng):
         jax.block_until_ready(f(a, np.array([[0, 0, 1.0], [0, 0, -3.0]])))
 
 
+def test_davenport_classical_about_any_axes_matches_scipy(rng):
+    """m = n along a general direction (not a basis axis): sin λ = n · (m × e) is zero but for
+    rounding, whose sign must not flip e (the middle angle left [0, π], unlike SciPy's)."""
+    traced = jax.jit(euler.davenport_from_matrix)
+    for _ in range(8):
+        m = rng.normal(size=3)
+        m /= np.linalg.norm(m)
+        e = np.cross(m, rng.normal(size=3))
+        axes = np.stack([m, e / np.linalg.norm(e), m])
+        a = random_angles(rng, N, "ZXZ")  # the middle angle in [0, π]
+        P = Rotation.from_davenport(axes, "intrinsic", a).as_matrix()
+        for got in (euler.davenport_from_matrix(P, axes), traced(P, jnp.asarray(axes))):
+            np.testing.assert_allclose(got, a, atol=1e-10)
+
+
 def test_davenport_bad_axes_raise():
     z, x = [0, 0, 1.0], [1.0, 0, 0]
     with pytest.raises(ValueError, match="middle axis undefined"):
