@@ -18,7 +18,7 @@ from .._custom_types import Quat, QuatLike, RealLike
 from . import _validation as _v
 from ._quat_core import _from_rotvec, _to_rotvec, _unit, conj, mul
 
-__all__ = ["Slerp", "key_frames"]
+__all__ = ["Slerp", "key_frames", "with_last_sign"]
 
 
 def key_frames(ts: RealLike, q: QuatLike) -> tuple[Float[Array, " N"], Float[Array, "N 4"]]:
@@ -66,6 +66,13 @@ def key_frames(ts: RealLike, q: QuatLike) -> tuple[Float[Array, " N"], Float[Arr
     return validate_all(ts, [check]), _unit(q, "q")
 
 
+def with_last_sign(q: Array, t: Array, times: Array, keys: Array, end: Array) -> Array:
+    """`q (..., 4)` at times `t` with the last key's sign from its time on: the last segment,
+    from `keys[-2]`, ends at `end`, which is ±`keys[-1]` (the shorter arc)."""
+    flip = (t >= times[-1]) & (jnp.sum(end * keys[-1], -1) < 0)
+    return jnp.where(flip[..., None], -q, q)
+
+
 class Slerp(eqx.Module):
     """Spherical linear interpolation between consecutive key attitudes (SciPy's `Slerp`).
 
@@ -110,6 +117,8 @@ class Slerp(eqx.Module):
             on=t,
         )
         n = self.times.shape[0]
-        idx = jnp.clip(jnp.searchsorted(self.times, t, side="left") - 1, 0, n - 2)
+        idx = jnp.clip(jnp.searchsorted(self.times, t, side="right") - 1, 0, n - 2)
         alpha = (t - self.times[idx]) / (self.times[idx + 1] - self.times[idx])
-        return mul(self.keys[idx], _from_rotvec(alpha[..., None] * self.rotvecs[idx]))
+        q = mul(self.keys[idx], _from_rotvec(alpha[..., None] * self.rotvecs[idx]))
+        end = mul(self.keys[-2], _from_rotvec(self.rotvecs[-1]))
+        return with_last_sign(q, t, self.times, self.keys, end)

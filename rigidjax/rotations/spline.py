@@ -37,7 +37,7 @@ from .._numerics import inv3, poly
 from . import _series
 from . import _validation as _v
 from ._quat_core import _from_rotvec, _to_rotvec, conj, mul
-from .slerp import key_frames
+from .slerp import key_frames, with_last_sign
 
 __all__ = ["RotationSpline"]
 
@@ -171,8 +171,9 @@ class RotationSpline(eqx.Module):
     `RotationSpline(ts, q)`: key times `ts (N,)`, strictly increasing (a repeated time is a
     ValueError naming it, a run-time error under `jit`), key attitudes `q (N, 4)` (scalar-first,
     treated as unit), N ≥ 2. `spline(t, order=0)` at times `t` of any shape: the attitude as a
-    unit quaternion `t.shape + (4,)` (key k keeps its sign at `t_k`); `order=1` the angular rate
-    and `order=2` the angular acceleration, both in the body frame (SciPy's), `t.shape + (3,)`.
+    unit quaternion `t.shape + (4,)` (key k's sign on `[t_k, t_k+1)`, the last key's from its
+    time on); `order=1` the angular rate and `order=2` the angular acceleration, both in the body
+    frame (SciPy's), `t.shape + (3,)`.
     Times outside `[ts[0], ts[-1]]` extrapolate the end segments' cubics (as SciPy). An equinox
     Module: `jit`, `vmap` and `grad` with respect to `ts`, `q` and `t` (the fixed-point sweeps
     are differentiated as computed).
@@ -215,8 +216,12 @@ class RotationSpline(eqx.Module):
         idx, tau = self._segment(t)
         a, b, w = self.coeffs[0][idx], self.coeffs[1][idx], self.coeffs[2][idx]
         theta = ((a * tau + b) * tau + w) * tau
-        if order == 0:
-            return mul(self.keys[idx], _from_rotvec(theta))
+        if order == 0:  # the sign of key k on [t_k, t_k+1), of the last key from t_N−1 on
+            q = mul(self.keys[idx], _from_rotvec(theta))
+            d = self.times[-1] - self.times[-2]
+            a1, b1, w1 = self.coeffs[:, -1]
+            end = mul(self.keys[-2], _from_rotvec(((a1 * d + b1) * d + w1) * d))
+            return with_last_sign(q, t, self.times, self.keys, end)
         theta_dot = (3 * a * tau + 2 * b) * tau + w
         rate_part = _rotvec_dot_to_rate(theta)
         if order == 1:

@@ -78,6 +78,20 @@ def test_spline_interpolates_and_is_c2():
     assert np.abs(acc[lo] - acc[hi]).max() > 1e-4
 
 
+def test_every_key_keeps_its_sign():
+    """Each key's sign at its time, the last too (its segment ends at ±q[-1]: from the last
+    key's time on the spline takes q[-1]'s sign, continuously), whatever the keys' signs."""
+    ts, r = keys(2)
+    q = r.as_quat(scalar_first=True) * np.array([1, -1, -1, 1, -1, 1, -1])[:, None]
+    after = ts[-1] + np.array([1e-9, 0.1])
+    qs = SLERP(ts, q, ts)  # Slerp too
+    np.testing.assert_allclose(qs, q, atol=1e-14)
+    spline = RotationSpline(ts, q)
+    np.testing.assert_allclose(spline(ts), q, atol=1e-14)
+    out = spline(np.concatenate([ts[-1:], after]))
+    assert np.abs(out[1] - out[0]).max() < 1e-8 and np.sum(out[2] * out[0]) > 0.9
+
+
 @pytest.mark.slow
 def test_converged_spline_is_c2():
     """Iterated to the fixed point the angular acceleration is continuous at the inner keys."""
