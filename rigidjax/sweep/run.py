@@ -47,7 +47,19 @@ def _check_design(design: Design) -> Design:
 
 
 def _point_struct(design: Design) -> dict[str, jax.ShapeDtypeStruct]:
+    """One point's factors, in the default float dtype; a value finite only in float64 (the
+    design's) is a ValueError here."""
     dtype = jnp.asarray(0.0).dtype  # float64 with jax_enable_x64, else float32
+    for name, v in design.points.items():
+        with np.errstate(over="ignore"):
+            bad = ~np.isfinite(v.astype(dtype))
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            raise ValueError(
+                f"design factor {name!r} overflows {np.dtype(dtype).name}, the points' dtype: "
+                f"point {k} has {v[k]}; rescale the factor, or enable float64 "
+                '(jax.config.update("jax_enable_x64", True))'
+            )
     return {name: jax.ShapeDtypeStruct((), dtype) for name in design.points}
 
 

@@ -186,6 +186,18 @@ def test_bad_arguments_before_any_computation(kwargs, match):
         sweep.run(model, design(), progress=False, **kwargs)
 
 
+def test_a_factor_that_overflows_float32_is_refused_before_any_computation():
+    """Without x64 the points are float32: 1e39 (finite in the design's float64) would reach
+    the model as inf."""
+
+    def never(point):
+        raise AssertionError("the model was called")
+
+    with jax.enable_x64(False):
+        with pytest.raises(ValueError, match="'I2' overflows float32.*point 1 has 1e"):
+            sweep.run(never, sweep.grid(I2=np.array([2.0, 1e39])), progress=False)
+
+
 def test_bad_models_and_stores(tmp_path):
     (tmp_path / "file").write_text("")
     with pytest.raises(ValueError, match="is a file"):
