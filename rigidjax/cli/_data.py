@@ -49,8 +49,14 @@ def read(path: Path, *, attitude: bool) -> dict[str, np.ndarray]:
             f"{path}: line 1: no column {', '.join(missing)}; the header must name "
             f"{', '.join(GYRO)} (and optionally {', '.join(ATTITUDE)}), got {', '.join(first)}"
         )
+    unknown = [v for v, n in zip(first, names, strict=True) if n not in GYRO + ATTITUDE]
+    if unknown:
+        raise UsageError(
+            f"{path}: line 1: unknown column {unknown[0].strip()!r}; the columns are "
+            f"{', '.join(GYRO)} and optionally {', '.join(ATTITUDE)}: remove the others"
+        )
     has_q = all(c in names for c in ATTITUDE)
-    if attitude and not has_q and any(c in names for c in ATTITUDE):
+    if not has_q and any(c in names for c in ATTITUDE):
         raise UsageError(f"{path}: line 1: give all four of {', '.join(ATTITUDE)} or none")
     if len(body) < 2:
         raise UsageError(f"{path}: needs at least 2 rows of data, got {len(body)}")

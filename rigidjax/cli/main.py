@@ -16,6 +16,7 @@ else is a bug and keeps its traceback.
 from __future__ import annotations
 
 import argparse
+import difflib
 import importlib
 from collections.abc import Sequence
 from typing import Any
@@ -95,6 +96,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     import sys
 
     argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and not argv[0].startswith("-") and argv[0] not in COMMANDS:  # simulate: no operands
+        close = difflib.get_close_matches(argv[0], COMMANDS, n=1)
+        hint = f"did you mean {close[0]!r}? " if close else ""
+        error(f"unknown command {argv[0]!r}: {hint}the commands are {', '.join(COMMANDS)}")
+        return 2
     try:
         args = _parser().parse_args(_with_command(argv))
     except SystemExit as e:  # argparse's own errors (status 2), --help and --version (0)

@@ -169,6 +169,18 @@ def test_malformed_command_lines(capsys, no_jax_work, argv):
     assert re.match(r"rigidjax( simulate)?: error: ", err.strip().splitlines()[-1])
 
 
+@pytest.mark.parametrize(
+    ("argv", "hint"), [(["simulat"], "did you mean 'simulate'? "), (["foo", "x.toml"], "")]
+)
+def test_unknown_command(capsys, no_jax_work, argv, hint):
+    """A mistyped command is named, with the commands (it was "unrecognized arguments")."""
+    assert main(argv) == 2
+    assert capsys.readouterr().err == (
+        f"rigidjax: error: unknown command {argv[0]!r}: {hint}the commands are simulate, sweep, "
+        "identify, darboux, bench\n"
+    )
+
+
 def test_bugs_keep_their_traceback(tmp_path, monkeypatch):
     """A ValueError after the inputs were checked is a bug, not a user error: not swallowed."""
 
