@@ -18,7 +18,7 @@ from .._custom_types import Quat, QuatLike, RealLike
 from . import _validation as _v
 from ._quat_core import _from_rotvec, _to_rotvec, _unit, conj, mul
 
-__all__ = ["Slerp", "key_frames", "with_last_sign"]
+__all__ = ["Slerp", "key_frames"]
 
 
 def key_frames(ts: RealLike, q: QuatLike) -> tuple[Float[Array, " N"], Float[Array, "N 4"]]:
@@ -66,7 +66,7 @@ def key_frames(ts: RealLike, q: QuatLike) -> tuple[Float[Array, " N"], Float[Arr
     return validate_all(ts, [check]), _unit(q, "q")
 
 
-def with_last_sign(q: Array, t: Array, times: Array, keys: Array, end: Array) -> Array:
+def _with_last_sign(q: Array, t: Array, times: Array, keys: Array, end: Array) -> Array:
     """`q (..., 4)` at times `t` with the last key's sign from its time on: the last segment,
     from `keys[-2]`, ends at `end`, which is ±`keys[-1]` (the shorter arc)."""
     flip = (t >= times[-1]) & (jnp.sum(end * keys[-1], -1) < 0)
@@ -121,4 +121,4 @@ class Slerp(eqx.Module):
         alpha = (t - self.times[idx]) / (self.times[idx + 1] - self.times[idx])
         q = mul(self.keys[idx], _from_rotvec(alpha[..., None] * self.rotvecs[idx]))
         end = mul(self.keys[-2], _from_rotvec(self.rotvecs[-1]))
-        return with_last_sign(q, t, self.times, self.keys, end)
+        return _with_last_sign(q, t, self.times, self.keys, end)

@@ -37,7 +37,7 @@ from .._numerics import inv3, poly
 from . import _series
 from . import _validation as _v
 from ._quat_core import _from_rotvec, _to_rotvec, conj, mul
-from .slerp import key_frames, with_last_sign
+from .slerp import _with_last_sign, key_frames
 
 __all__ = ["RotationSpline"]
 
@@ -221,7 +221,7 @@ class RotationSpline(eqx.Module):
             d = self.times[-1] - self.times[-2]
             a1, b1, w1 = self.coeffs[:, -1]
             end = mul(self.keys[-2], _from_rotvec(((a1 * d + b1) * d + w1) * d))
-            return with_last_sign(q, t, self.times, self.keys, end)
+            return _with_last_sign(q, t, self.times, self.keys, end)
         theta_dot = (3 * a * tau + 2 * b) * tau + w
         rate_part = _rotvec_dot_to_rate(theta)
         if order == 1:

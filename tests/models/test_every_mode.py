@@ -139,7 +139,9 @@ def test_fallback_equals_its_twin(primitive):
 
 
 def _omega(t, a):
-    return rj.euler.to_matrix(jnp.stack([t, 0.2, 0.3]), "ZXZ") @ a
+    """ω(t) through an indexed update (a scatter: no scalar form, so no kernel)."""
+    angles = jnp.array([0.0, 0.2, 0.3]).at[0].set(t)
+    return rj.euler.to_matrix(angles, "ZXZ") @ a
 
 
 @pytest.mark.parametrize(
@@ -147,8 +149,8 @@ def _omega(t, a):
     ["quat", *(pytest.param(m, marks=pytest.mark.slow) for m in ("rotvec", "matrix"))],
 )
 def test_fallback_without_parameters(method):
-    """`darboux` with `ω(t)` built by `euler.to_matrix` (an indexed update: no kernel, and a
-    model without parameters) at fixed steps: one warning per solve, and the attitude of an
+    """`darboux` with `ω(t)` built through an indexed update (no kernel, and a model without
+    parameters) at fixed steps: one warning per solve, and the attitude of an
     adaptive solve at tight tolerances (itself a fallback, with its own warning)."""
     a0 = jnp.array([0.1, 0.2, 0.3])
     with pytest.warns(RuntimeWarning, match="scatter") as fixed_warnings:
