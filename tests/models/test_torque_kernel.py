@@ -214,7 +214,11 @@ def test_unsupported_torque_falls_back_with_one_warning():
     assert not np.allclose(slow.omega, ref.omega)
 
 
-@pytest.mark.parametrize("options", [dict(solver=rj.RK4(), **FIXED), {}], ids=["fixed", "tol"])
+@pytest.mark.parametrize(
+    "options",
+    [dict(solver=rj.RK4(), **FIXED), pytest.param({}, marks=pytest.mark.slow)],
+    ids=["fixed", "tol"],
+)
 def test_a_users_check_and_callback_run_on_the_diffrax_path(options):
     """A user's `equinox.error_if` and `jax.debug.callback` inside the torque are not dropped:
     the torque runs on the Diffrax path (one warning naming them), where the check raises its
