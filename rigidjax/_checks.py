@@ -160,12 +160,6 @@ LIBRARY_CHECK = _library_check.__name__
 _marked = jax.jit(_library_check, static_argnames="msgs")
 
 
-def error_if(x: Any, pred: Array, msg: str) -> Any:
-    """`x` with the library's run-time check that raises `msg` where `pred` (any shape) is true:
-    `equinox.error_if`, marked as the library's (`_library_check`)."""
-    return attach_check(x, jnp.any(pred), jnp.zeros((), jnp.int32), [msg])
-
-
 def attach_check(out: Any, pred: Array, index: Array, msgs: Sequence[str]) -> Any:
     """`out` (a PyTree) with `equinox.branched_error_if(pred, index, msgs)` attached through a
     scalar: the check's branch passes the scalar, not `out`, which it would copy whole (under

@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from .._checks import check_frame, error_if, matrix, vector
+from .._checks import check_frame, matrix, validate, vector
 from .._custom_types import EulerSeq, Frame, Mat33, Mat33Like, Quat, Vec3, Vec3Like
 from ..rotations import euler, quat, so3
 from . import euler_atlas
@@ -241,9 +241,9 @@ class EulerAngles(AbstractKinematics):
         det = jnp.sum(c1 * adj[..., 0, :], -1)
         tol = self.gimbal_tol
         if self.switch == 0:  # one chart: the classical formulas, singular at lock
-            det = error_if(
+            det = validate(
                 det,
-                ~(jnp.abs(det) >= tol),
+                lambda xp, d: ~(xp.abs(d) >= tol),
                 f"gimbal lock: middle angle of seq={self.seq!r} within |det J| < {tol} of its "
                 "singular value (0/π proper Euler, ±π/2 Tait–Bryan) with the atlas off "
                 "(switch=0): use switch > 0 (the default) or quaternion/rotation-vector kinematics",
@@ -332,7 +332,7 @@ METHODS: dict[str, type[AbstractKinematics]] = {
 def check_omega(w: Vec3Like) -> Vec3:
     """Angular velocity with a clear runtime error if it is not finite."""
     w = vector(w, 3, "omega(t)")
-    return error_if(w, ~jnp.all(jnp.isfinite(w)), "omega(t) returned a non-finite value")
+    return validate(w, lambda xp, w: ~xp.isfinite(w), "omega(t) returned a non-finite value")
 
 
 def lookup(

@@ -50,7 +50,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Complex, Float, Int
 
-from .._checks import as_float, check_shape, error_if, is_concrete, matrix
+from .._checks import as_float, check_shape, is_concrete, matrix, validate
 from .._custom_types import (
     AxisLike,
     InertiaLike,
@@ -104,7 +104,7 @@ def _axis(axis: AxisLike) -> Int[Array, "*#batch"]:
         if not bool(jnp.all((a >= 0) & (a <= 2))):
             raise ValueError(f"axis must be 0, 1 or 2 (a principal axis), got {np.asarray(a)}")
         return a
-    return error_if(a, (a < 0) | (a > 2), "axis must be 0, 1 or 2")
+    return validate(a, lambda xp, a: (a < 0) | (a > 2), "axis must be 0, 1 or 2")
 
 
 def _core(tensor: bool) -> str:

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import DTypeLike
 
-from .._checks import as_float, error_if, matrix, vector
+from .._checks import as_float, matrix, validate, vector
 from .._custom_types import DavenportAxesLike, Mat33, Mat33Like, Quat, QuatLike, Vec3, Vec3Like
 from . import _quat_core
 from ._euler_core import _angles, _angles_arg, _compose
@@ -66,7 +66,8 @@ def _davenport_axes(axes: DavenportAxesLike, dtype: DTypeLike) -> tuple[Vec3, Ve
         e = unit[..., 1, :]
     if concrete is None:  # traced axes: runtime check (NaN from m ∥ n in the (m, n) form fails it)
         ok = (jnp.abs(jnp.sum(m * e, -1)) <= 1e-6) & (jnp.abs(jnp.sum(e * n, -1)) <= 1e-6)
-        e = error_if(e, ~ok, "axes: the middle axis e must be perpendicular to m and n (and m ∦ n)")
+        msg = "axes: the middle axis e must be perpendicular to m and n (and m ∦ n)"
+        e = validate(ok, lambda xp, ok: ~ok, msg, on=e)
     return m, e, n
 
 
