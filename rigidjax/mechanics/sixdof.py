@@ -148,8 +148,7 @@ def point_velocity(state: RigidState, point: RealLike) -> Vec3:
     """Space velocity of a body point: `v = V + Ω × r` (004 (11.3)), i.e.
     `V + P (Ω × r_body)` with Ω and r in body axes."""
     r = vector(point, 3, "point")
-    omega, r = jnp.broadcast_arrays(state.omega, jnp.broadcast_to(r, state.omega.shape))
-    return state.V + quat.rotate(state.q, jnp.cross(omega, r))
+    return state.V + quat.rotate(state.q, jnp.cross(state.omega, r))
 
 
 def linear_momentum(body: RigidBody, state: RigidState) -> Vec3:

@@ -143,6 +143,18 @@ def test_point_velocity_matches_finite_differences():
     assert np.max(np.abs(v - np.asarray(tr.V).reshape(3, 5, 3)[:, 2])) > 0.1
 
 
+def test_point_helpers_take_several_points():
+    """Points `(N, 3)` on one state broadcast as in point_position: V + P(Ω × r) per point."""
+    q = Rotation.from_rotvec([0.2, 0.9, -0.3]).as_quat(scalar_first=True)
+    V, W = np.array([1.0, -0.5, 0.2]), np.array([0.3, 0.0, 1.1])
+    state = sixdof.RigidState(jnp.zeros(3), jnp.asarray(V), jnp.asarray(q), jnp.asarray(W))
+    points = np.array([[1.0, 0.0, 0.0], [0.0, 2.0, -1.0], [0.5, 0.5, 0.5]])
+    P = Rotation.from_quat(q, scalar_first=True).as_matrix()
+    np.testing.assert_allclose(sixdof.point_position(state, points), points @ P.T, atol=1e-15)
+    want = V + np.cross(W, points) @ P.T
+    np.testing.assert_allclose(sixdof.point_velocity(state, points), want, atol=1e-15)
+
+
 def test_wrench_helpers():
     q = Rotation.from_rotvec([0.2, 0.9, -0.3]).as_quat(scalar_first=True)
     P = Rotation.from_quat(q, scalar_first=True).as_matrix()
