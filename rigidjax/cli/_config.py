@@ -68,7 +68,7 @@ SECTIONS: dict[str, dict[str, str]] = {
         "gyro_arw": "the gyro's angle random walk [rad/√s] (needs [control]: the estimator "
         "in the loop)",
         "gyro_rrw": "the gyro's rate random walk [rad/s^1.5]",
-        "gyro_bias": "1σ of the gyro's initial bias per axis [rad/s] (the filter's prior too)",
+        "gyro_bias": "1σ of the gyro's initial bias per axis [rad/s] (the filter's prior too: > 0)",
         "star_tracker": "the star tracker's 1σ noise per body axis [rad]: a number or [x, y, z]",
         "knowledge0": "1σ of the initial knowledge error per axis [rad] (default 1e-3)",
         "seed": "the noise seed: each point's key is folded from it and the point's factor "
@@ -332,7 +332,7 @@ def _sensors(path: Path, raw: dict, control: dict | None) -> dict | None:
     return dict(
         arw=level("gyro_arw"),
         rrw=level("gyro_rrw"),
-        bias=level("gyro_bias"),
+        bias=_number(path, "[sensors] gyro_bias", table["gyro_bias"], positive=True),
         star_tracker=np.array(sigma),
         knowledge0=_number(
             path, "[sensors] knowledge0", table.get("knowledge0", 1e-3), positive=True

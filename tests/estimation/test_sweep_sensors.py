@@ -34,6 +34,8 @@ def sweep(config: Path, out: Path) -> tuple[int, str]:
     [
         ("gyro_arw = 5e-6", "", ("[sensors] gyro_arw", "missing")),
         ("gyro_rrw = 5e-8", "gyro_rrw = -5e-8", ("[sensors] gyro_rrw", "≥ 0")),
+        # the filter's prior on the bias: zero would make P0 singular
+        ("gyro_bias = 5e-5", "gyro_bias = 0.0", ("[sensors] gyro_bias", "positive")),
         (
             "star_tracker = [2.5e-5, 2.5e-5, 1.5e-4]",
             "star_tracker = [1e-5, 1e-5]",
