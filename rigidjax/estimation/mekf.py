@@ -34,12 +34,14 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._checks import (
+    Check,
     as_float,
     broadcast_batch,
     broadcast_level,
     check_finite,
     is_concrete,
     validate,
+    validate_all,
     vector,
 )
 from .._custom_types import RealLike
@@ -247,9 +249,10 @@ def mekf(
     (default `diag(0.1² I, (1e-3)² I)`) at `ts[0]`, updates with `q_meas[0]`, then for each
     `k ≥ 1` propagates from `ts[k−1]` to `ts[k]` with the gyro's mean rate `gyro[k−1]`
     (`(..., T−1, 3)`, rad/s) and updates with the star tracker's `q_meas[k]` (`(..., T, 4)`; a
-    row with a NaN: no update). Noise levels (scalars, or broadcasting against `(..., 3)`:
-    `(3,)` per body axis): the gyro's angle random walk `arw` (rad/√s) and rate random walk
-    `rrw` (rad/s^1.5), as in `rigidjax.sensors.gyro`, and the star tracker's `sigma` (rad).
+    row with a NaN: no update; an infinite entry is an error). Noise levels (scalars, or
+    broadcasting against `(..., 3)`: `(3,)` per body axis): the gyro's angle random walk
+    `arw` (rad/√s) and rate random walk `rrw` (rad/s^1.5), as in `rigidjax.sensors.gyro`,
+    and the star tracker's `sigma` (rad).
 
     A `jax.lax.scan` over the steps, vmapped over the runs: `jit`, `vmap` and `grad` (with
     respect to `arw`, `rrw`, `sigma`, `q0`, `P0` and the data) go through; returns an `MEKF`."""
@@ -278,12 +281,26 @@ def mekf(
     def zero_row(xp: Any, q: Any) -> Any:  # (|q|² may underflow to 0 for a tiny row)
         return xp.all(xp.isfinite(q), axis=-1) & (xp.sum(q * q, axis=-1) == 0)
 
-    qm = validate(
+    def infinite(xp: Any, q: Any) -> Any:  # (an overflow, not a missing measurement)
+        return xp.any(xp.isinf(q), axis=-1)
+
+    no_meas = "; give a row of NaN where there is no measurement"
+    qm = validate_all(
         qm,
-        zero_row,
-        "q_meas has a row of zeros, which is no attitude",
-        lambda q: f": row {np.argwhere(zero_row(np, q))[0].tolist()}",
-        hint="; give a row of NaN where there is no measurement",
+        [
+            Check(
+                zero_row,
+                "q_meas has a row of zeros, which is no attitude",
+                lambda q: f": row {np.argwhere(zero_row(np, q))[0].tolist()}",
+                no_meas,
+            ),
+            Check(
+                infinite,
+                "q_meas has an infinite entry",
+                lambda q: f": row {np.argwhere(infinite(np, q))[0].tolist()}",
+                no_meas,
+            ),
+        ],
     )
     q0_ = _unit(check_finite(vector(q0, 4, "q0"), "q0"), "q0")
     b0 = jnp.zeros(3) if bias0 is None else check_finite(vector(bias0, 3, "bias0"), "bias0")

@@ -240,6 +240,7 @@ def test_vmap_and_batch_agree():
         (dict(gyro=jnp.zeros((5, 3))), "gyro must have shape"),
         (dict(q_meas=jnp.ones((4, 4))), "q_meas must have shape"),
         (dict(q_meas=jnp.ones((5, 4)).at[2].set(0.0)), r"row of zeros.*row \[2\].*row of NaN"),
+        (dict(q_meas=jnp.ones((5, 4)).at[3, 1].set(-jnp.inf)), r"infinite.*row \[3\].*row of NaN"),
     ],
 )
 def test_errors_name_the_argument(change, needle):
