@@ -113,11 +113,15 @@ def test_so3_exp_of_a_nan_vector():
 
 
 def test_messages_without_runtime_type_checks():
-    """`so3.log(None)` and `energy(array, ω)`: the tests run with jaxtyping's type checks, which
-    catch these first; a user's process has none, so the messages are checked in one."""
+    """`so3.log(None)`, `energy(array, ω)`, `simulate(array, ...)` and `simulate_heavy_top` of
+    a RigidBody: the tests run with jaxtyping's type checks, which catch these first; a user's
+    process has none, so the messages are checked in one."""
     code = (
         "import numpy as np, rigidjax as rj\n"
-        "for f in (lambda: rj.so3.log(None), lambda: rj.energy(np.ones(3), np.ones(3))):\n"
+        "for f in (lambda: rj.so3.log(None), lambda: rj.energy(np.ones(3), np.ones(3)),\n"
+        "          lambda: rj.simulate(np.ones(3), np.ones(3), None, [0.0, 1.0]),\n"
+        "          lambda: rj.simulate_heavy_top(rj.RigidBody(np.ones(3)), np.ones(3),\n"
+        "                                        [0.0, 0.0, 1.0], [0.0, 1.0])):\n"
         "    try:\n"
         "        f()\n"
         "    except TypeError as e:\n"
@@ -127,6 +131,8 @@ def test_messages_without_runtime_type_checks():
     lines = out.stdout.splitlines()
     assert lines[0] == "P must be an array (or a number), got None", out
     assert lines[1].startswith("body must be a rigidjax.RigidBody, got ndarray: wrap"), out
+    assert lines[2].startswith("body must be a rigidjax.RigidBody or Gyrostat, got ndarray"), out
+    assert lines[3].startswith("top must be a rigidjax.HeavyTop, got RigidBody"), out
 
 
 @pytest.mark.parametrize("A", [np.zeros((3, 3)), np.outer([1.0, 2.0, 0.0], [0.0, 1.0, 1.0])])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array
 
 from .._checks import as_float, check_positive
@@ -37,6 +38,16 @@ class RigidBody(eqx.Module):
         )
         I = as_tensor(inertia)
         m = as_float(mass, "mass").astype(I.dtype)
+        batch = I.shape[:-2]
+        try:
+            fits = np.broadcast_shapes(m.shape, batch) == batch
+        except ValueError:
+            fits = False
+        if not fits:
+            raise ValueError(
+                f"mass must be a scalar or broadcast to the inertia's batch shape {batch} (one "
+                f"mass per body), got shape {m.shape}"
+            )
         if check:
             I = check_inertia(I, "inertia", diagonal=self.diagonal)
             m = check_positive(m, "mass")

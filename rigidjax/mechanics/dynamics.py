@@ -122,6 +122,11 @@ def simulate(
             torque_frame=torque_frame, event=event, options=options, check=check,
             **solve_kwargs,
         )  # fmt: skip
+    if not isinstance(body, RigidBody):
+        raise TypeError(
+            f"body must be a rigidjax.RigidBody or Gyrostat, got {type(body).__name__}: wrap "
+            "the inertia, e.g. simulate(RigidBody(inertia), omega0, ...)"
+        )
     gyro = dict(
         wheel_speed0=wheel_speed0,
         h_rate=h_rate,

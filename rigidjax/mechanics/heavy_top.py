@@ -408,6 +408,11 @@ def simulate_heavy_top(
     in float32); the dtype is that of `ts`. One top per call: `jax.vmap` for batches.
     """
     options = SolveOptions.of(options, solve_kwargs)
+    if not isinstance(top, HeavyTop):
+        raise TypeError(
+            f"top must be a rigidjax.HeavyTop, got {type(top).__name__}: e.g. "
+            "simulate_heavy_top(HeavyTop(inertia, mass, com, g), omega0, ...)"
+        )
     if ts is None:
         raise ValueError("ts (the output times) is required")
     ts = check_times(as_float(ts, "ts"))

@@ -45,6 +45,7 @@ from ..kinematics.formulations import Quaternion
 from ..models.solve import solve_tree
 from ..rotations import quat
 from .body import RigidBody, euler_rhs
+from .invariants import _batched_inertia
 
 __all__ = [
     "RigidState",
@@ -151,21 +152,31 @@ def point_velocity(state: RigidState, point: RealLike) -> Vec3:
     return state.V + quat.rotate(state.q, jnp.cross(state.omega, r))
 
 
+def _mass(body: RigidBody, V: Array) -> Array:
+    """The mass `(...,)` broadcast against `V (..., [T,] 3)` (the time axis inserted, as
+    `_batched_inertia` does for the inertia)."""
+    m = jnp.broadcast_to(body.mass, body.batch_shape)
+    return m.reshape(m.shape + (1,) * max(V.ndim - 1 - m.ndim, 0))
+
+
 def linear_momentum(body: RigidBody, state: RigidState) -> Vec3:
     """`P = m V` (space axes)."""
-    return body.mass[..., None] * state.V
+    return _mass(body, state.V)[..., None] * state.V
 
 
 def angular_momentum(body: RigidBody, state: RigidState, *, frame: Frame = "space") -> Vec3:
     """Angular momentum about the COM: `M = I Ω` in body axes, `P I Ω` in space axes."""
-    M = jnp.einsum("...ij,...j->...i", body.inertia, state.omega)
+    check_frame(frame)
+    M = jnp.einsum("...ij,...j->...i", _batched_inertia(body, state.omega), state.omega)
     return quat.rotate(state.q, M) if frame == "space" else M
 
 
 def kinetic_energy(body: RigidBody, state: RigidState) -> Array:
     """`T = ½ m V² + ½ Ω·IΩ` (004 (11.8): translation of the COM plus rotation about it)."""
-    M = jnp.einsum("...ij,...j->...i", body.inertia, state.omega)
-    return 0.5 * body.mass * jnp.sum(state.V**2, axis=-1) + 0.5 * jnp.sum(state.omega * M, axis=-1)
+    M = angular_momentum(body, state, frame="body")
+    return 0.5 * _mass(body, state.V) * jnp.sum(state.V**2, axis=-1) + 0.5 * jnp.sum(
+        state.omega * M, axis=-1
+    )
 
 
 WrenchFn = Callable[[Array, RigidState], "Wrench | tuple[ArrayLike, ArrayLike]"]

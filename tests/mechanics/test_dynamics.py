@@ -208,6 +208,9 @@ def test_bad_input():
         RigidBody([1.0, -1.0, 1.0])
     with pytest.raises(ValueError, match="mass must be positive"):
         RigidBody(I_DIAG, mass=-1.0)
+    for inertia, mass in [(np.stack([I_DIAG] * 2), np.ones(5)), (I_DIAG, np.ones(2))]:
+        with pytest.raises(ValueError, match=r"mass must be a scalar or broadcast to .* batch"):
+            RigidBody(inertia, mass=mass)
     body = RigidBody(I_DIAG)
     with pytest.raises(ValueError, match="strictly increasing"):
         simulate(body, W0, Q0, jnp.array([0.0, 1.0, 1.0]))

@@ -155,6 +155,29 @@ def test_point_helpers_take_several_points():
     np.testing.assert_allclose(sixdof.point_velocity(state, points), want, atol=1e-15)
 
 
+def test_momenta_and_energy_of_a_batch_of_bodies_along_time():
+    """Bodies `(2,)` with states `(2, T, ...)` (as `jax.vmap(simulate_6dof)` gives): each body's
+    own values, as `rigidjax.energy` takes the same layout; `frame` is checked."""
+    bodies = RigidBody(np.stack([I_TENSOR, 2 * I_TENSOR]), np.array([MASS, 1.0]))
+    rng = np.random.default_rng(4)
+    q = Rotation.random(10, random_state=5).as_quat(scalar_first=True).reshape(2, 5, 4)
+    state = sixdof.RigidState(*(jnp.asarray(rng.normal(size=(2, 5, 3))) for _ in range(2)),
+                              jnp.asarray(q), jnp.asarray(rng.normal(size=(2, 5, 3))))  # fmt: skip
+    for k in range(2):
+        one = RigidBody(np.asarray(bodies.inertia[k]), float(bodies.mass[k]))
+        st = jax.tree.map(lambda a, k=k: a[k], state)
+        for f in (sixdof.kinetic_energy, sixdof.linear_momentum, sixdof.angular_momentum):
+            np.testing.assert_allclose(f(bodies, state)[k], f(one, st), rtol=1e-14)
+        P = Rotation.from_quat(q[k], scalar_first=True).as_matrix()
+        M = P @ (np.asarray(one.inertia) @ np.asarray(st.omega)[..., None])
+        np.testing.assert_allclose(sixdof.angular_momentum(one, st), M[..., 0], rtol=1e-13)
+        V, W = np.asarray(st.V), np.asarray(st.omega)
+        T = 0.5 * one.mass * np.sum(V**2, -1) + 0.5 * np.einsum("ti,ij,tj->t", W, one.inertia, W)
+        np.testing.assert_allclose(sixdof.kinetic_energy(one, st), T, rtol=1e-13)
+    with pytest.raises(ValueError, match="frame must be 'space' or 'body'"):
+        sixdof.angular_momentum(bodies, state, frame="spcae")
+
+
 def test_wrench_helpers():
     q = Rotation.from_rotvec([0.2, 0.9, -0.3]).as_quat(scalar_first=True)
     P = Rotation.from_quat(q, scalar_first=True).as_matrix()
