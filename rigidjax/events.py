@@ -229,6 +229,7 @@ def settling_event(
             "settling_event takes one target attitude q_target (4,) (a unit quaternion) and a "
             f"scalar tolerance (radians), got shapes {q_target.shape} and {tolerance.shape}"
         )
+    q_target = _quat_core._unit(q_target, "q_target")  # (a zero or non-finite one: an error)
     after = jnp.asarray(after)
     dtype = after.dtype if jnp.issubdtype(after.dtype, jnp.floating) else float
     batch = after.shape  # (a per-body event: every leaf leads with the batch)

@@ -24,11 +24,12 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from ._checks import vector
 from ._custom_types import QuatLike, Scalar
 from .events import flip_event
 from .mechanics import RigidBody, Trajectory, angular_momentum, energy
 from .mechanics.gyrostat import GyrostatTrajectory
-from .rotations import quat
+from .rotations import _quat_core, quat
 
 __all__ = [
     "energy_drift",
@@ -144,8 +145,10 @@ def pointing_error(traj: Trajectory, q_target: QuatLike) -> Float[Array, "*batch
     (unit, body → space) at each sample: the rotation angle of the error quaternion
     `q_e = q_target⁻¹ ∘ q` (Wie, *Space Vehicle Dynamics and Control*, §7.3),
     `2 atan2(|q_e,1:3|, |q_e0|)` (the shorter way round; accurate near 0 and π). Finite
-    gradients at 0 (the double-`where` trick on the norm)."""
-    qe = quat.mul(quat.conj(jnp.asarray(q_target, traj.quat.dtype)), traj.quat)
+    gradients at 0 (the double-`where` trick on the norm). A non-unit `q_target` is normalised;
+    a zero or non-finite one is an error."""
+    target = _quat_core._unit(vector(q_target, 4, "q_target"), "q_target")
+    qe = quat.mul(quat.conj(target.astype(traj.quat.dtype)), traj.quat)
     return 2 * jnp.arctan2(_safe_norm(qe[..., 1:]), jnp.abs(qe[..., 0]))
 
 

@@ -244,3 +244,5 @@ def test_settling_event_refuses_a_batch_of_targets():
         settling_event(np.tile(Q_T, (2, 1)), TOL)
     with pytest.raises(ValueError, match="scalar tolerance"):
         settling_event(Q_T, [TOL, TOL])
+    with pytest.raises(ValueError, match="q_target is a zero quaternion"):
+        settling_event(np.zeros(4), TOL)

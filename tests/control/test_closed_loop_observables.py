@@ -40,6 +40,12 @@ def test_pointing_error_matches_scipy(loop):
     want = (target.inv() * Rotation.from_quat(q[:, [1, 2, 3, 0]])).magnitude()
     np.testing.assert_allclose(got.ravel(), want, rtol=0, atol=1e-12)
     assert got.shape == (3, TS.shape[0])
+    # a non-unit target is normalised; a zero one is refused (its error quaternion was 0 and
+    # the pointing perfect)
+    np.testing.assert_allclose(obs.pointing_error(loop, 3 * Q_T), got, rtol=0, atol=1e-15)
+    for f in (obs.pointing_error, lambda tr, q: obs.settling_time(tr, q, 0.01)):
+        with pytest.raises(ValueError, match="q_target is a zero quaternion"):
+            f(loop, np.zeros(4))
 
 
 @pytest.mark.parametrize("tolerance", [np.radians(0.5), np.radians(5.0), 1e-9])
