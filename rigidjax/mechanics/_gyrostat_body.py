@@ -74,12 +74,7 @@ class Gyrostat(eqx.Module):
         self.wheel_torque_max = (
             None
             if wheel_torque_max is None
-            else check_positive(
-                jnp.broadcast_to(as_float(wheel_torque_max, "wheel_torque_max"), (n,)).astype(
-                    dtype
-                ),
-                "wheel_torque_max",
-            )
+            else check_positive(_per_wheel(wheel_torque_max, n, dtype), "wheel_torque_max")
         )
 
     @property
@@ -98,6 +93,17 @@ class Gyrostat(eqx.Module):
         if self.wheel_torque_max is None:
             return u
         return jnp.minimum(jnp.maximum(u, -self.wheel_torque_max), self.wheel_torque_max)
+
+
+def _per_wheel(x: RealLike, n: int, dtype) -> Array:
+    """The motor-torque bound: one for every wheel (a scalar) or one per wheel `(n,)`."""
+    x = as_float(x, "wheel_torque_max").astype(dtype)
+    if x.shape not in ((), (n,)):
+        raise ValueError(
+            f"wheel_torque_max must be a scalar or have shape ({n},) (one bound per wheel), got "
+            f"{x.shape}"
+        )
+    return jnp.broadcast_to(x, (n,))
 
 
 def _exact(x: RealLike, shape: tuple[int, ...], name: str, dtype) -> Array:

@@ -48,6 +48,7 @@ from ..control.stateful import StatefulController
 from ..kinematics.formulations import Quaternion
 from ..models.solve import solve_tree
 from ..rotations import quat
+from ..solvers.exact_free_body import AbstractFlowSolver
 from . import _per_body as _pb
 from ._gyrostat_body import Gyrostat
 from ._initial import initial_rotation
@@ -169,6 +170,12 @@ def simulate_gyrostat(
     `kinematics` than `"quat"` are taken for a constant `h` without controller (as the torque
     `−Ω × h` of `simulate`)."""
     options = SolveOptions.of(options, solve_kwargs)
+    if isinstance(options.solver, AbstractFlowSolver):  # ExactFreeBody, LiePoissonSplitting
+        raise ValueError(
+            f"{type(options.solver).__name__} integrates a rigid body, not a gyrostat: give "
+            "rigidjax.RigidBody(inertia) as the body, or a Runge–Kutta solver (the default "
+            "Tsit5, rigidjax.RK4(), ...) for the gyrostat"
+        )
     given = ts
     ts, omega0, q0 = initial_rotation(ts, omega0, q0, check)
     dtype = ts.dtype

@@ -181,6 +181,12 @@ def test_clear_errors():
         rj.Gyrostat(np.ones(3), wheel_axes=np.eye(3), wheel_inertia=np.full(3, 1.5))
     with pytest.raises(ValueError, match="give both wheel_axes"):
         rj.Gyrostat(np.ones(3), wheel_axes=np.eye(3))
+    with pytest.raises(ValueError, match=r"wheel_torque_max must be a scalar or .*\(3,\)"):
+        rj.Gyrostat(np.ones(3), wheel_axes=np.eye(3), wheel_inertia=np.full(3, 0.1),
+                    wheel_torque_max=[0.1, 0.2])  # fmt: skip
+    for solver in (rj.ExactFreeBody(), rj.LiePoissonSplitting()):
+        with pytest.raises(ValueError, match="integrates a rigid body, not a gyrostat"):
+            rj.simulate(rj.Gyrostat(np.ones(3), h=[0.0, 0.0, 0.1]), W0, None, TS, solver=solver)
     with pytest.raises(ValueError, match="wheel_speed0"):
         rj.simulate(rj.Gyrostat(np.ones(3)), W0, None, TS, wheel_speed0=np.zeros(3))
     with pytest.raises(ValueError, match="apply to a gyrostat"):
