@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._checks import as_float, check_finite, floats, vector
+from .._checks import as_float, check_finite, floats, validate, vector
 from .._custom_types import (
     Quat,
     QuatLike,
@@ -167,7 +167,11 @@ def fixed_axis_rotation(
     with `θ(t) = ∫₀ᵗ ω`. `angle`: a callable `θ(t)` (vectorised over `ts`, θ(0) = 0 expected) or a
     constant rate ω (then θ = ω t). `axis` `(..., 3)` is normalised. Returns quaternions
     `(..., T, 4)`, λ0 ≥ 0; the body angular velocity is `Ω = θ̇ P(t)ᵀ n`."""
-    axis = vector(axis, 3, "axis")
+    axis = validate(
+        vector(axis, 3, "axis"),
+        lambda xp, a: ~(xp.sum(a * a, axis=-1) > 0) | ~xp.all(xp.isfinite(a), axis=-1),
+        "axis must be a finite non-zero vector (the direction of the fixed axis)",
+    )
     ts = jnp.atleast_1d(as_float(ts, "ts"))
     dtype = jnp.result_type(axis, ts)
     axis, ts = axis.astype(dtype), ts.astype(dtype)

@@ -149,6 +149,9 @@ def darboux(
         w = source.evaluate
     else:
         w = source
+    shape = jnp.shape(jax.eval_shape(w, jax.ShapeDtypeStruct((), ts.dtype)))
+    if shape != (3,):  # (one body: a batch of ω would be a batch of problems)
+        raise ValueError(f"omega_fn(t) must return shape (3,) (vmap for batches), got {shape}")
 
     if method == "geometric":
         solver = options.rkmk(frame)

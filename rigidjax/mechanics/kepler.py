@@ -333,6 +333,12 @@ def _field_args(alpha, potential, dtype):
     if potential is not None:
         if not callable(potential):
             raise TypeError(f"potential must be a callable U(r) of the distance, got {potential!r}")
+        out = jax.eval_shape(potential, jax.ShapeDtypeStruct((), dtype))
+        if jnp.shape(out) != ():
+            raise ValueError(
+                "potential must return a scalar U(r) of the scalar distance r, got shape "
+                f"{jnp.shape(out)}"
+            )
         return None
     alpha = as_float(alpha, "alpha").astype(dtype)
     if alpha.shape != ():

@@ -98,7 +98,17 @@ def gravity_gradient_torque(mu: RealLike, R: RealLike, q: RealLike, inertia: Rea
     """`K = (3μ/R³) n × (I n)` in body axes, `n = Pᵀ R/R` the Earth→satellite direction in body
     axes, `R` the satellite position in space axes, `q` the attitude (body → space) and `inertia`
     the tensor `(3, 3)` (or principal moments `(3,)` along the body axes) about the COM."""
-    R = vector(R, 3, "R")
+    R = validate(
+        vector(R, 3, "R"),
+        lambda xp, R: ~(xp.sum(R * R, axis=-1) > 0) | ~xp.all(xp.isfinite(R), axis=-1),
+        "R must be a finite non-zero position (the gradient falls off as 1/|R|³)",
+    )
+    return _gravity_gradient(mu, R, q, inertia)
+
+
+def _gravity_gradient(mu: RealLike, R: Array, q: RealLike, inertia: RealLike) -> Vec3:
+    """`gravity_gradient_torque` without the check of `R` (the models' fields: the orbit's
+    `R` is non-zero by construction, and a check there would run at every step)."""
     I = as_float(inertia, "inertia")
     if I.shape[-1:] == (3,) and I.shape[-2:] != (3, 3):
         I = I[..., :, None] * jnp.eye(3, dtype=I.dtype)
@@ -112,8 +122,18 @@ def lvlh_matrix(R: RealLike, V: RealLike) -> Float[Array, "*batch 3 3"]:
     """LVLH frame as a rotation `L` (columns: along-track x, negative orbit normal y, nadir z, in
     space axes), so `L` maps LVLH → space components."""
     R, V = vector(R, 3, "R"), vector(V, 3, "V")
-    z = -R / jnp.linalg.norm(R, axis=-1, keepdims=True)
     h = jnp.cross(R, V)
+    # |R × V| against |R||V|: no frame for R = 0, V = 0 or V along R (a radial or no orbit)
+    h = validate(
+        jnp.stack(
+            jnp.broadcast_arrays(jnp.sum(h * h, -1), jnp.sum(R * R, -1) * jnp.sum(V * V, -1))
+        ),
+        lambda xp, s: ~(s[0] > (64 * xp.finfo(s.dtype).eps) ** 2 * s[1]),
+        "the LVLH frame needs R and V finite, non-zero and not parallel (an orbit with an "
+        "angular momentum R × V ≠ 0)",
+        on=h,
+    )
+    z = -R / jnp.linalg.norm(R, axis=-1, keepdims=True)
     y = -h / jnp.linalg.norm(h, axis=-1, keepdims=True)
     x = jnp.cross(y, z)
     return jnp.stack([x, y, z], axis=-1)
@@ -224,7 +244,7 @@ class _SatelliteLoads(eqx.Module):
         r2 = jnp.sum(R * R)
         F = -(self.mu * self.mass / r2**1.5) * R  # one division, not one per component
         if self.gravity_gradient:
-            K = gravity_gradient_torque(self.mu, R, state.q, self.inertia)
+            K = _gravity_gradient(self.mu, R, state.q, self.inertia)
         else:
             K = jnp.zeros_like(R)
         return Wrench(F, K)
@@ -243,7 +263,7 @@ class _SplitSatellite(RigidBodyField):
         omega, q, (R, V) = y
         r2 = jnp.sum(R * R, -1, keepdims=True)
         if self.gravity_gradient:
-            domega = gravity_gradient_torque(self.mu, R, q, args) / args
+            domega = _gravity_gradient(self.mu, R, q, args) / args
         else:
             domega = jnp.zeros_like(omega)
         return domega, (jnp.zeros_like(R), -self.mu * R / r2**1.5)

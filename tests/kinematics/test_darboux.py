@@ -224,6 +224,9 @@ def test_bad_input():
         darboux(SPACE, TS, P0=1.05 * jnp.eye(3))
     with pytest.raises(ValueError, match="method must be one of"):
         darboux(omega_fn=SPACE, ts=TS, method="bogus")  # (API.md's argument names)
+    for shape in [(2,), (3, 3), ()]:
+        with pytest.raises(ValueError, match=rf"omega_fn\(t\) must return shape \(3,\).*{shape}"):
+            darboux(lambda t, shape=shape: jnp.ones(shape) * t, TS)
     with pytest.raises(Exception, match="non-finite"):
         darboux(lambda t: jnp.array([jnp.nan, 0.0, 0.0]) * t, TS)
     with pytest.raises(Exception, match="maximum number of solver steps"):

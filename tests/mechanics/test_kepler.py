@@ -237,6 +237,8 @@ def test_bad_input():
         kepler.elements([0.0, 0.0, 0.0], V0, 1.0, 1.0)
     with pytest.raises(TypeError, match="potential must be a callable"):
         kepler.simulate_central(R0, V0, ts, potential=3.0)
+    with pytest.raises(ValueError, match=r"potential must return a scalar .* got shape \(3,\)"):
+        kepler.simulate_central(R0, V0, ts, potential=lambda r: -np.ones(3) / r)
 
 
 def test_jit_and_gradient_through_the_solver():

@@ -129,3 +129,9 @@ def test_bad_input():
         sat.pitch_frequency(RigidBody(np.array([[2.0, 0.1, 0], [0.1, 2.5, 0], [0, 0, 1.0]])), 1.0)
     with pytest.raises(TypeError, match="RigidBody"):
         sat.simulate_satellite(MOMENTS, R0, V0, None, [0.0, -1.0, 0.0], TS, 1.0)
+    # no LVLH frame for a radial velocity or R = 0; no gravity gradient at R = 0 (NaN before)
+    for R, V in [(R0, 2 * np.asarray(R0)), (np.zeros(3), V0)]:
+        with pytest.raises(ValueError, match="LVLH frame needs R and V .* not parallel"):
+            sat.lvlh_angles(R, V, [1.0, 0.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="R must be a finite non-zero position"):
+        sat.gravity_gradient_torque(1.0, np.zeros(3), [1.0, 0.0, 0.0, 0.0], MOMENTS)
