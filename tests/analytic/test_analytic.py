@@ -543,6 +543,7 @@ def test_gradients_match_finite_differences():
         assert np.all(np.isfinite(g)), (x, g)
 
 
+@pytest.mark.slow  # ~20 s: second derivatives of the whole closed form
 def test_derivatives_at_a_sphere():
     """At a sphere Ω is constant, but not its derivatives in the moments: moving them by εa
     (A = diag a) gives Ω = Ω0 + ε t b + ε² Ω2, b = AΩ0 × Ω0 / c, Ω2 = t²/(2c) (Ab × Ω0 +

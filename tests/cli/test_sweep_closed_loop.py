@@ -100,6 +100,7 @@ def library(Ixx: float, wy: float, tilt: float):
     )
 
 
+@pytest.mark.slow  # ~30 s: the sweep and the library compile the closed loop and its event
 def test_store_equals_the_library(tmp_path):
     config = tmp_path / "slew.toml"
     config.write_text(CONFIG)

@@ -120,6 +120,7 @@ def test_traced_step_and_tolerances():
     np.testing.assert_array_equal(jax.vmap(end)(dts), [end(dt) for dt in dts])
 
 
+@pytest.mark.slow  # ~13 s: the float32 solve eagerly and under jit
 def test_float64_tolerance_of_a_float32_solve():
     """A float64 rtol (a NumPy scalar, or traced) leaves a float32 solve in float32 (it
     promoted Diffrax's controller state: a TypeError), eagerly and under jit."""

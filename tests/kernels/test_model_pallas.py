@@ -57,7 +57,9 @@ def on_gpu_kernel(monkeypatch):
 
 
 @pytest.mark.parametrize(
-    "method", [rj.RK4, diffrax.Tsit5, diffrax.Dopri8], ids=lambda m: m.__name__
+    "method",
+    [rj.RK4, diffrax.Tsit5, pytest.param(diffrax.Dopri8, marks=pytest.mark.slow)],  # (~10 s)
+    ids=lambda m: m.__name__,
 )
 def test_kernel_equals_diffrax_path(method):
     """Every body of a full and a partial block (padded), per-body moments, three intervals of

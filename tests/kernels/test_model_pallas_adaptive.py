@@ -51,7 +51,7 @@ def _run(method, I, w, q, ts=TS, max_steps=4096, dtype=jnp.float64):
 
 @pytest.mark.parametrize(
     "method",
-    [diffrax.Tsit5, pytest.param(diffrax.Dopri5, marks=pytest.mark.slow)],  # ~8 s each
+    [pytest.param(m, marks=pytest.mark.slow) for m in (diffrax.Tsit5, diffrax.Dopri5)],  # ~15 s
     ids=lambda m: m.__name__,
 )
 def test_kernel_equals_cpu_kernel_and_diffrax_path(method):
@@ -237,6 +237,7 @@ def test_closed_loop_at_a_tolerance(on_gpu_adaptive):
     np.testing.assert_allclose(jax.grad(loss)(w0), want, rtol=1e-9, atol=1e-12)
 
 
+@pytest.mark.slow  # ~10 s
 def test_jump_map_lowers_to_triton_and_restarts_each_interval(triton_modules):
     """A model with a jump map (a held command, sampled at flagged intervals and recorded):
     lowered for CUDA, one Triton call with the jump's branch (`scf.if`) and the attempts'
@@ -390,7 +391,8 @@ def test_closed_loop_settling_event(monkeypatch):
     ("window", "solver"),
     [
         pytest.param(pab.WINDOW, ExplicitRK(diffrax.Tsit5()), marks=pytest.mark.slow),  # ~30 s
-        (4, None),  # ~10 s: the CPU kernel's reverse compiles in a third of the Diffrax path's
+        # ~15 s: the CPU kernel's reverse compiles in a third of the Diffrax path's
+        pytest.param(4, None, marks=pytest.mark.slow),
     ],
     ids=["one window, Diffrax path", "windows of 4, CPU kernel"],
 )

@@ -100,6 +100,7 @@ def test_fast_path_equals_diffrax_path_and_scipy(case):
         np.testing.assert_allclose(fast.quat[i], q_ref, atol=1e-6)
 
 
+@pytest.mark.slow  # ~18 s: both reverse modes and the forward runs for the differences
 def test_gradients_match_central_differences_and_the_diffrax_path():
     """Reverse mode through the kernel (its discrete adjoint): w.r.t. the moments, the torque's
     closed-over gain, the initial state and the output times, equal to the Diffrax path's
@@ -160,6 +161,7 @@ def test_vmap_over_a_traced_gain_is_a_loop():
     assert not np.allclose(mapped[0], mapped[2])
 
 
+@pytest.mark.slow  # ~14 s
 def test_nested_vmap_shares_unmapped_blocks():
     """Two nested `jax.vmap`s (gains outside, moments inside) over one-body solves: the kernel
     reads each parameter block, the steps and the initial state through its own leading

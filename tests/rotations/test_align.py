@@ -281,6 +281,7 @@ def same_angle(q, r: Rotation) -> float:
     return 2 * float(np.arcsin(min(1.0, np.linalg.norm(quat.mul(quat.conj(ref), q)[1:]))))
 
 
+@pytest.mark.slow  # ~15 s
 def test_dominant_weight_gradient_matches_finite_differences():
     """The optimum's derivative, with and without `refine` (SciPy's value is rounding noise at
     eps * 1e10 around the optimum: no finite differences of it)."""
