@@ -68,7 +68,8 @@ def quaternion_pd(
 ) -> QuaternionPD:
     """The `QuaternionPD` law `u = −kp sgn(q_e0) q_e,1:3 − kd Ω` towards the attitude
     `q_target (4,)` (unit; P body → space) with gains `kp`, `kd` ≥ 0 (scalars or `(3,)`), for a
-    body torque, or for the wheels with spin axes `wheel_axes (3, n)` (motor torques `−A⁺ u`)."""
+    body torque, or for the wheels with unit spin axes `wheel_axes (3, n)` (motor torques
+    `−A⁺ u`; the axes checked as `Gyrostat` checks them)."""
     qt = check_unit_norm(vector(q_target, 4, "q_target"), "q_target")
     if qt.shape != (4,):
         raise ValueError(f"q_target must be one quaternion, shape (4,), got {qt.shape}")
@@ -77,6 +78,7 @@ def quaternion_pd(
         A = as_float(wheel_axes, "wheel_axes")
         if A.ndim != 2 or A.shape[0] != 3:
             raise ValueError(f"wheel_axes must have shape (3, n), got {A.shape}")
+        A = check_unit_norm(A.T, "wheel_axes (columns)", "; give unit spin axes").T  # as Gyrostat
         allocation = -jnp.linalg.pinv(A / jnp.linalg.norm(A, axis=0))
     return QuaternionPD(
         _gain_arg(kp, "kp"),

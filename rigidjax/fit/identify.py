@@ -145,8 +145,8 @@ def identify_inertia(
     data = experiments(ts, omega_obs, quat_obs)
     E, T = data.shape
     dtype = data.ts.dtype
-    if trace is not None and not isinstance(trace, int | float) and is_concrete(trace):
-        trace = float(trace)  # a NumPy or JAX scalar
+    if trace is not None and type(trace) not in (int, float, bool) and is_concrete(trace):
+        trace = float(trace)  # a NumPy or JAX scalar (np.float64 too: a static field's float)
     if trace is not None and not (
         isinstance(trace, int | float) and not isinstance(trace, bool) and 0 < trace < math.inf
     ):

@@ -285,6 +285,10 @@ def test_negative_gains_are_refused():
     with pytest.raises(ValueError, match="kd must be non-negative, got min -0.5"):
         rj.control.quaternion_pd(2.0, jnp.array([1.0, -0.5, 1.0]), Q_T)
     assert float(rj.control.bdot(0.0).gain) == 0.0  # zero: no control, allowed
+    # a zero spin axis (NaN commands before) or a non-unit one: as the Gyrostat refuses them
+    for column in ([0.0, 0.0, 0.0], [0.0, 0.0, 2.0]):
+        with pytest.raises(ValueError, match=r"wheel_axes \(columns\) must be a unit vector"):
+            rj.control.quaternion_pd(1.0, 1.0, Q_T, wheel_axes=np.c_[np.eye(3)[:, :2], column])
 
 
 def test_laws_take_batches():
