@@ -22,7 +22,15 @@ def _batched_inertia(body: RigidBody, omega: Array) -> Mat33:
         )
     I = body.inertia
     extra = omega.ndim - 1 - (I.ndim - 2)
-    return I.reshape(I.shape[:-2] + (1,) * max(extra, 0) + (3, 3))
+    I = I.reshape(I.shape[:-2] + (1,) * max(extra, 0) + (3, 3))
+    try:
+        jnp.broadcast_shapes(I.shape[:-2], omega.shape[:-1])
+    except ValueError:
+        raise ValueError(
+            f"the body's batch {body.batch_shape} does not match omega's {omega.shape}: give "
+            "one ω (..., 3) or one trajectory (..., T, 3) per body, the bodies' batch leading"
+        ) from None
+    return I
 
 
 def angular_momentum(body: RigidBody, omega: Vec3Like, q: QuatLike | None = None) -> Vec3:

@@ -176,6 +176,9 @@ def test_momenta_and_energy_of_a_batch_of_bodies_along_time():
         np.testing.assert_allclose(sixdof.kinetic_energy(one, st), T, rtol=1e-13)
     with pytest.raises(ValueError, match="frame must be 'space' or 'body'"):
         sixdof.angular_momentum(bodies, state, frame="spcae")
+    # 5 samples for 2 bodies: named (an einsum's label error before)
+    with pytest.raises(ValueError, match=r"the body's batch \(2,\) does not match omega's"):
+        sixdof.kinetic_energy(bodies, jax.tree.map(lambda a: a[0], state))
 
 
 def test_wrench_helpers():
