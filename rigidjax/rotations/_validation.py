@@ -44,9 +44,26 @@ def quat_checks(name: str) -> list[Check]:
         k = first(zero(np, q))
         return f": {at(name, k)} = {fmt(q[k])}"
 
+    def out_of_range(xp: Any, q: Any) -> Any:  # |q|² overflows or is subnormal (flushed to 0)
+        n2 = xp.sum(q * q, axis=-1)
+        return (n2 > 0) & ~((n2 >= xp.finfo(q.dtype).tiny) & (n2 < xp.inf))
+
+    def size(q: np.ndarray) -> str:
+        k = first(out_of_range(np, q))
+        return f": {at(name, k)} = {fmt(q[k])}"
+
     message = f"{name} is a zero quaternion, which is no rotation"
     hint = f"; a rotation needs |{name}| > 0 (use rigidjax.quat.identity() for no rotation)"
-    return _finite_and(name, 1, "quaternion (w, x, y, z)", Check(zero, message, detail, hint))
+    scale = Check(
+        out_of_range,
+        f"|{name}|² is out of its float range (it overflows or underflows)",
+        size,
+        f"; scale {name} towards |{name}| = 1 (any positive multiple is the same rotation)",
+    )
+    return [
+        *_finite_and(name, 1, "quaternion (w, x, y, z)", Check(zero, message, detail, hint)),
+        scale,
+    ]
 
 
 def _finite_and(name: str, rank: int, what: str, check: Check) -> list[Check]:

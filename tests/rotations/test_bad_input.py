@@ -287,6 +287,18 @@ def test_zero_quaternion_is_a_value_error_naming_the_argument(fn):
         f(np.zeros(4))
 
 
+@pytest.mark.parametrize("fn", [k for k in TAKES_A_QUATERNION if k != "quat.mean"])
+def test_a_float32_quaternion_whose_square_norm_leaves_the_range(fn):
+    """Non-zero and finite, but |q|² overflows float32 (2e19) or is subnormal (1e-20), which XLA
+    flushes to 0: NaN, inf or the identity came back silently. A ValueError naming q (eagerly,
+    no compile). (`quat.mean`'s case stacks a float64 key: float64, in range.)"""
+    f, name = TAKES_A_QUATERNION[fn]
+    q = np.array([0.8, 0.2, -0.5, 0.26], np.float32)
+    for s in (2e19, 1e-20):
+        with pytest.raises(ValueError, match=rf"\|{name}\|² is out of its float range"):
+            f(np.float32(s) * q)
+
+
 def test_non_unit_quaternions_stand_for_their_direction():
     """Non-zero quaternions of any length are the rotation q/|q| (SciPy's convention): no error."""
     q = np.array([0.3, -1.0, 2.0, 0.5])
