@@ -169,8 +169,12 @@ def gyro(
         bias0=b0.shape[:-1],
         **({} if gain is None else {"scale_factor/misalignment": gain.shape[:-2]}),
     )
-    # (the default zero bias takes the others' dtype: float32 inputs give float32 under x64)
-    dtype = jnp.result_type(mean, dt, arw, rrw, *(() if bias0 is None else (b0,)))
+    # the data's dtype (the rates and times): the noise levels, bias and gains are cast to it,
+    # so float32 data give float32 under x64 whatever the levels' type (np.deg2rad(x) / 60 is a
+    # NumPy float64)
+    dtype = jnp.result_type(mean, dt)
+    arw, rrw = arw.astype(dtype), rrw.astype(dtype)
+    gain = None if gain is None else gain.astype(dtype)
     T1 = mean.shape[-2]
     for name, level in (("arw", arw), ("rrw", rrw)):
         shape = (*batch, T1, 3)
@@ -197,5 +201,5 @@ def star_tracker(
     sigma = _level(sigma, "sigma", "rad")
     noise = (*q.shape[:-1], 3)
     broadcast_level(sigma.shape, noise, "sigma", f"to the noise's shape (..., 3) = {noise}")
-    n = normals(key, q.shape[:-1], (3,), q.dtype) * sigma
+    n = normals(key, q.shape[:-1], (3,), q.dtype) * sigma.astype(q.dtype)  # (q's dtype)
     return quat.mul(q, quat.from_rotvec(n))

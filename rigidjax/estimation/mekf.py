@@ -306,10 +306,9 @@ def mekf(
     b0 = jnp.zeros(3) if bias0 is None else check_finite(vector(bias0, 3, "bias0"), "bias0")
     arw_, rrw_ = _level(arw, "arw", False), _level(rrw, "rrw", False)
     sigma_ = _level(sigma, "sigma", True)
-    # (the default zero bias takes the others' dtype: float32 inputs give float32 under x64)
-    dtype = jnp.result_type(
-        ts, gyro_, qm, q0_, arw_, rrw_, sigma_, *(() if bias0 is None else (b0,))
-    )
+    # the data's dtype (times, gyro, measurements, start): the noise levels, bias0 and P0 are
+    # cast to it, so float32 data give float32 under x64 (a NumPy float64 level did promote)
+    dtype = jnp.result_type(ts, gyro_, qm, q0_)
     P = default_P0(dtype) if P0 is None else check_P0(P0)
     lead = {
         "ts": ts.shape[:-1],

@@ -255,20 +255,22 @@ def test_errors_name_the_argument(change, needle):
 
 def test_float32_in_float32_out_with_the_defaults():
     """float32 data with the defaults (`bias0`, `P0`) stay float32 under x64 (a default zero
-    bias used to promote the gyro and the filter to float64), and the filter's attitude
+    bias used to promote the gyro and the filter to float64), with noise levels given as NumPy
+    float64 scalars (`np.deg2rad(x) / 60` is one: they promoted too), and the filter's attitude
     follows the float64 filter's on the same data."""
     f32 = jnp.float32
+    arw, rrw, sigma = np.float64(ARW), np.float64(RRW), np.float64(SIGMA)
     ts = jnp.arange(11, dtype=f32) * f32(DT)
     w = jnp.array([0.01, -0.02, 0.03], f32)
     q = quat.from_rotvec(ts[:, None] * w)
     k_gyro, k_st = jax.random.split(jax.random.PRNGKey(5))
-    rate, bias = sensors.gyro(k_gyro, ts, jnp.broadcast_to(w, (11, 3)), arw=ARW, rrw=RRW)
-    qm = sensors.star_tracker(k_st, q, SIGMA)
+    rate, bias = sensors.gyro(k_gyro, ts, jnp.broadcast_to(w, (11, 3)), arw=arw, rrw=rrw)
+    qm = sensors.star_tracker(k_st, q, sigma)
     assert (rate.dtype, bias.dtype, qm.dtype) == (f32, f32, f32)
     errors = dict(scale_factor=jnp.full(3, 1e-4, f32), misalignment=jnp.full((3, 3), 1e-4, f32))
-    imperfect = sensors.gyro(k_gyro, ts, jnp.broadcast_to(w, (11, 3)), arw=ARW, rrw=RRW, **errors)
+    imperfect = sensors.gyro(k_gyro, ts, jnp.broadcast_to(w, (11, 3)), arw=arw, rrw=rrw, **errors)
     assert {x.dtype for x in imperfect} == {np.dtype(f32)}
-    args = dict(arw=ARW, rrw=RRW, sigma=SIGMA)
+    args = dict(arw=arw, rrw=rrw, sigma=sigma)
     single = mekf(ts, rate, qm, q0=qm[0], **args)
     assert {x.dtype for x in (single.quat, single.bias, single.cov, single.log_likelihood)} == {
         np.dtype(f32)
