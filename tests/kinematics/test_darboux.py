@@ -224,6 +224,14 @@ def test_bad_input():
         darboux(SPACE, TS, P0=1.05 * jnp.eye(3))
     with pytest.raises(ValueError, match="method must be one of"):
         darboux(omega_fn=SPACE, ts=TS, method="bogus")  # (API.md's argument names)
+    # an instance carries its frame and sequence: a different one given was ignored (the
+    # instance's problem integrated: 0.73 off the body-frame solution)
+    with pytest.raises(ValueError, match="frame='body' disagrees with the method instance's"):
+        darboux(SPACE, TS, frame="body", method=RotationVector())
+    with pytest.raises(ValueError, match="seq='ZYX' disagrees with the method instance's"):
+        darboux(SPACE, TS, method=EulerAngles(seq="XYZ"), seq="ZYX")
+    with pytest.raises(ValueError, match="throw=False would return a failed solve's values"):
+        darboux(SPACE, TS, max_steps=3, throw=False)
     for shape in [(2,), (3, 3), ()]:
         with pytest.raises(ValueError, match=rf"omega_fn\(t\) must return shape \(3,\).*{shape}"):
             darboux(lambda t, shape=shape: jnp.ones(shape) * t, TS)
