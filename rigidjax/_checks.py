@@ -254,6 +254,11 @@ def check_finite(x: Array, name: str) -> Array:
     return validate(x, lambda xp, v: ~xp.isfinite(v), f"{name} must be finite", detail)
 
 
+def zero_vector(xp: Any, x: Any) -> Any:
+    """`validate` predicate: true where the vector `x (..., n)` (last axis) is zero or NaN."""
+    return ~(xp.sum(x * x, axis=-1) > 0)
+
+
 def check_positive(x: Array, name: str) -> Array:
     """`x`, checked to be positive and finite everywhere (see `validate`)."""
     return validate(

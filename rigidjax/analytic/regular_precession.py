@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._checks import as_float, check_finite, floats, validate, vector
+from .._checks import as_float, check_finite, floats, validate, vector, zero_vector
 from .._custom_types import (
     Quat,
     QuatLike,
@@ -168,9 +168,9 @@ def fixed_axis_rotation(
     constant rate ω (then θ = ω t). `axis` `(..., 3)` is normalised. Returns quaternions
     `(..., T, 4)`, λ0 ≥ 0; the body angular velocity is `Ω = θ̇ P(t)ᵀ n`."""
     axis = validate(
-        vector(axis, 3, "axis"),
-        lambda xp, a: ~(xp.sum(a * a, axis=-1) > 0) | ~xp.all(xp.isfinite(a), axis=-1),
-        "axis must be a finite non-zero vector (the direction of the fixed axis)",
+        check_finite(vector(axis, 3, "axis"), "axis"),
+        zero_vector,
+        "axis must be non-zero (the direction of the fixed axis)",
     )
     ts = jnp.atleast_1d(as_float(ts, "ts"))
     dtype = jnp.result_type(axis, ts)

@@ -14,7 +14,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._checks import as_float, check_finite, check_times, validate, vector
+from .._checks import as_float, check_finite, check_times, validate, vector, zero_vector
 from .._custom_types import RealLike
 from ..rotations import quat
 
@@ -94,7 +94,7 @@ def experiments(ts: RealLike, omega_obs: RealLike | None, quat_obs: RealLike | N
     if q is not None:
         q = validate(
             q,
-            lambda xp, v: ~(xp.sum(v * v, axis=-1) > 0),
+            zero_vector,
             "quat_obs must hold non-zero quaternions (they are normalised)",
             hint="; drop the samples without attitude",
         )

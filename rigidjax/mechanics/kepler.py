@@ -36,6 +36,7 @@ from .._checks import (
     is_concrete,
     validate,
     vector,
+    zero_vector,
 )
 from .._custom_types import RealLike, Scalar, Vec3
 from .._integrate import SolveKwargs, SolveOptions, solve_saved
@@ -373,7 +374,7 @@ def simulate_central(
     r0, v0 = initial_vector(r0, 3, "r0", dtype), initial_vector(v0, 3, "v0", dtype)
     r0 = validate(
         r0,
-        lambda xp, r: ~(xp.sum(r * r) > 0),
+        zero_vector,
         "r0 must be non-zero",
         lambda r: f", got {r}",
         hint=": the central force is singular at the centre r = 0; start the point away from it",

@@ -49,11 +49,13 @@ from jaxtyping import Array, Float
 
 from .._checks import (
     as_float,
+    check_finite,
     check_positive,
     check_times,
     is_concrete,
     validate,
     vector,
+    zero_vector,
 )
 from .._custom_types import RealLike, Vec3
 from .._integrate import SolveKwargs, SolveOptions, solve_saved
@@ -99,9 +101,9 @@ def gravity_gradient_torque(mu: RealLike, R: RealLike, q: RealLike, inertia: Rea
     axes, `R` the satellite position in space axes, `q` the attitude (body → space) and `inertia`
     the tensor `(3, 3)` (or principal moments `(3,)` along the body axes) about the COM."""
     R = validate(
-        vector(R, 3, "R"),
-        lambda xp, R: ~(xp.sum(R * R, axis=-1) > 0) | ~xp.all(xp.isfinite(R), axis=-1),
-        "R must be a finite non-zero position (the gradient falls off as 1/|R|³)",
+        check_finite(vector(R, 3, "R"), "R"),
+        zero_vector,
+        "R must be a non-zero position (the gradient falls off as 1/|R|³)",
     )
     return _gravity_gradient(mu, R, q, inertia)
 

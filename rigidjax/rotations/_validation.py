@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 from jaxtyping import Array
 
-from .._checks import Check, at, first, fmt, validate_all
+from .._checks import Check, at, first, fmt, validate_all, zero_vector
 from .._custom_types import Mat33, Quat
 
 NONFINITE_HINT = "; replace its NaN/inf entries (they come from an earlier overflow or 0/0)"
@@ -38,7 +38,7 @@ def quat_checks(name: str) -> list[Check]:
     """A quaternion `(..., 4)` that stands for a rotation: finite and non-zero."""
 
     def zero(xp: Any, q: Any) -> Any:
-        return ~(xp.sum(q * q, axis=-1) > 0)
+        return zero_vector(xp, q)
 
     def detail(q: np.ndarray) -> str:
         k = first(zero(np, q))

@@ -44,7 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._checks import Check, as_float, floats, is_concrete, validate_all
+from .._checks import Check, as_float, floats, is_concrete, validate_all, zero_vector
 from .._compile import quick_compile_jit
 from .._custom_types import Mat33, Quat, RealLike, Scalar
 from . import _validation as _v
@@ -320,7 +320,7 @@ def _args(
 
 def _zero_primary_check(a: Array, b: Array, primary: Array, active: Array) -> Array:
     def bad(xp: Any, ab: Any) -> Any:
-        return ~(xp.sum(ab * ab, axis=-1) > 0)
+        return zero_vector(xp, ab)
 
     # (only where there is a primary pair: traced weights may have none)
     ab = jnp.where(active, jnp.stack([a[primary], b[primary]]), jnp.ones((2, 3), a.dtype))

@@ -49,7 +49,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from .._checks import floats, matrix, vector
+from .._checks import floats, matrix, vector, zero_vector
 from .._custom_types import Mat33, Mat33Like, RealLike, Scalar, ScalarLike, Vec3, Vec3Like
 from .._numerics import safe_sqrt
 from . import _validation
@@ -198,7 +198,7 @@ def _cos_sin(X: Scalar, G: Scalar) -> tuple[Scalar, Scalar]:
 
 
 def _is_zero(xp: Any, M: Any) -> Any:
-    return ~(xp.sum(M * M, axis=-1) > 0)
+    return zero_vector(xp, M)
 
 
 def _at_zero(M: np.ndarray) -> str:

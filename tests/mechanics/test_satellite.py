@@ -133,5 +133,5 @@ def test_bad_input():
     for R, V in [(R0, 2 * np.asarray(R0)), (np.zeros(3), V0)]:
         with pytest.raises(ValueError, match="LVLH frame needs R and V .* not parallel"):
             sat.lvlh_angles(R, V, [1.0, 0.0, 0.0, 0.0])
-    with pytest.raises(ValueError, match="R must be a finite non-zero position"):
+    with pytest.raises(ValueError, match="R must be a non-zero position"):
         sat.gravity_gradient_torque(1.0, np.zeros(3), [1.0, 0.0, 0.0, 0.0], MOMENTS)
