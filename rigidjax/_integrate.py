@@ -12,7 +12,6 @@ import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import optimistix as optx
 from jaxtyping import Array, PyTree
 
 from ._checks import attach_check, is_concrete
@@ -20,9 +19,9 @@ from ._custom_types import Frame, RealScalarLike
 from ._modes import both_modes
 from ._tolerances import (
     check_discretisation,
+    default_controller,
     default_tolerances,
     discretisation,
-    in_dtype,
     python_int,
     warn_unattainable,
 )
@@ -277,11 +276,8 @@ def solve_saved(
     solver = solver_for(adjoint)
     controller = options.stepsize_controller
     if controller is None:
-        d_rtol, d_atol = default_tolerances(ts.dtype, tight=tight)
-        controller = diffrax.PIDController(
-            rtol=d_rtol if options.rtol is None else in_dtype(options.rtol, ts.dtype),
-            atol=d_atol if options.atol is None else in_dtype(options.atol, ts.dtype),
-            norm=optx.rms_norm if norm is None else norm,  # Diffrax's default norm
+        controller = default_controller(
+            ts.dtype, options.rtol, options.atol, norm=norm, tight=tight
         )
     adaptive = isinstance(controller, diffrax.AbstractAdaptiveStepSizeController)
     if not adaptive and not isinstance(controller, diffrax.ConstantStepSize):

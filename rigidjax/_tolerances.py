@@ -5,11 +5,14 @@ ones, and their checks (`rtol`, `atol`: positive finite numbers; `dt0`: a positi
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
 from typing import Any
 
+import diffrax
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optimistix as optx
 from jaxtyping import Array
 
 from ._checks import concrete_value, validate
@@ -28,6 +31,25 @@ def default_tolerances(dtype, *, tight: bool = False) -> tuple[float, float]:
     if jnp.finfo(dtype).eps < 1e-10:
         return (1e-12, 1e-12) if tight else (1e-10, 1e-10)
     return (1e-6, 1e-6)
+
+
+def default_controller(
+    dtype,
+    rtol: RealScalarLike | None,
+    atol: RealScalarLike | None,
+    *,
+    norm: Callable | None = None,
+    tight: bool = False,
+) -> diffrax.PIDController:
+    """The step-size controller of a solve given none: Diffrax's `PIDController` at `rtol`,
+    `atol` (`default_tolerances` where None; a traced one in `dtype`) with error norm `norm`
+    (Diffrax's RMS norm by default)."""
+    d_rtol, d_atol = default_tolerances(dtype, tight=tight)
+    return diffrax.PIDController(
+        rtol=d_rtol if rtol is None else in_dtype(rtol, dtype),
+        atol=d_atol if atol is None else in_dtype(atol, dtype),
+        norm=optx.rms_norm if norm is None else norm,
+    )
 
 
 def warn_unattainable(dtype, rtol: RealScalarLike | None, atol: RealScalarLike | None) -> None:

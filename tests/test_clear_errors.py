@@ -135,6 +135,27 @@ def test_messages_without_runtime_type_checks():
     assert lines[3].startswith("top must be a rigidjax.HeavyTop, got RigidBody"), out
 
 
+def test_solvers_without_an_explicit_tableau():
+    """`darboux(method="geometric", solver=diffrax.Euler())` named `method` and called forward
+    Euler not explicit; the message now names the solver and why (in a process without the
+    tests' type checks, which catch the Euler first)."""
+    code = (
+        "import diffrax, numpy as np, rigidjax as rj\n"
+        "for f in (lambda: rj.darboux(lambda t: t * np.ones(3), [0.0, 1.0],\n"
+        "                             method='geometric', solver=diffrax.Euler()),\n"
+        "          lambda: rj.ExplicitRK(diffrax.Kvaerno3())):\n"
+        "    try:\n"
+        "        f()\n"
+        "    except ValueError as e:\n"
+        "        print(e)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    lines = out.stdout.splitlines()
+    assert lines[0].startswith("the Runge–Kutta method (the solver, or the method of"), out
+    assert lines[0].endswith("; Euler has no Butcher tableau"), out
+    assert lines[1].endswith("; Kvaerno3 is implicit"), out
+
+
 @pytest.mark.parametrize("A", [np.zeros((3, 3)), np.outer([1.0, 2.0, 0.0], [0.0, 1.0, 1.0])])
 def test_so3_project_of_a_singular_matrix(A):
     with pytest.raises(ValueError, match=r"A has rank < 2: many rotations are equally near"):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from typing import Unpack
 
@@ -15,6 +16,7 @@ from jaxtyping import Array, ArrayLike, Float
 from .._checks import as_float, check_finite, check_times, matrix, norm_tolerance, validate
 from .._custom_types import Frame, RealLike
 from .._integrate import SolveKwargs, SolveOptions, solve_saved
+from .._tolerances import default_controller
 from ..models.solve import solve_tree
 from ..rotations import so3
 from ..solvers.rkmk import LieTerm
@@ -80,13 +82,28 @@ def omega_path(omega: OmegaLike) -> Callable[[Array], Array]:
 
     Samples (e.g. gyro readings) are interpolated by a C¹ cubic Hermite spline with backward
     differences (`diffrax.backward_hermite_coefficients`). Its second derivative jumps at the
-    knots, which an adaptive controller does not see: to reach the tolerance, end steps at the
-    sample times, `stepsize_controller=diffrax.ClipStepSizeController(diffrax.PIDController(
-    rtol, atol), step_ts=t_k)` (601 samples at rtol = atol = 1e-10: an error of 3e-7 without,
-    6e-14 with), or take fixed steps that divide the sample spacing.
+    knots, which an adaptive controller does not see: `darboux` ends its adaptive steps at the
+    sample times (of any Diffrax path with knots `ts`); a callable from this function carries no
+    knots, so a solve of it should end steps there itself (`diffrax.ClipStepSizeController(...,
+    step_ts=t_k)`) or take fixed steps that divide the sample spacing.
     """
     source = _source(omega)
     return source.evaluate if isinstance(source, diffrax.AbstractPath) else source
+
+
+def _knots_as_step_ends(options: SolveOptions, path: diffrax.AbstractPath, dtype) -> SolveOptions:
+    """`options` with the steps ending at the knots of an interpolated ω, where its higher
+    derivatives jump unseen by an adaptive controller (601 samples at rtol = atol = 1e-10: an
+    error of 1e-6 stepping across them). The default controller or a plain `PIDController` is
+    wrapped in `diffrax.ClipStepSizeController(step_ts=knots)`; another is used as given."""
+    knots = getattr(path, "ts", None)
+    controller = options.stepsize_controller
+    if knots is None or not (controller is None or type(controller) is diffrax.PIDController):
+        return options
+    if controller is None:
+        controller = default_controller(dtype, options.rtol, options.atol)
+    clipped = diffrax.ClipStepSizeController(controller, step_ts=jnp.asarray(knots, dtype))
+    return dataclasses.replace(options, stepsize_controller=clipped)
 
 
 def _check_span(ts: Array, path: diffrax.AbstractPath) -> Array:
@@ -152,10 +169,11 @@ def darboux(
     given, must agree with them). `frame` defaults to `"space"`, `seq` to `"ZXZ"`. Solver
     defaults: Tsit5 with unrolled stages (`ExplicitRK`; RKMK-Dopri5 for `"geometric"`) with a
     PID controller at `rtol = atol = 1e-10` (1e-6 in float32). Steps end at every output time
-    and the values at `ts` are step-end states (`solve_saved`); `throw=False` is refused (only
-    the rotations are returned, no failure status). `return_state=True` also returns the native
-    states at `ts` (normalised quaternions, shadowed rotation vectors, ...). With a callable
-    `omega_fn`, `"rotvec"`, `"quat"` and `"matrix"` are a model (`rigidjax.models`): at fixed
+    (and at the knots of sampled ω, see `omega_path`) and the values at `ts` are step-end
+    states (`solve_saved`); `throw=False` is refused (only the rotations are returned, no
+    failure status). `return_state=True` also returns the native states at `ts`
+    (normalised quaternions, shadowed rotation vectors, ...). With a callable `omega_fn`,
+    `"rotvec"`, `"quat"` and `"matrix"` are a model (`rigidjax.models`): at fixed
     steps of an explicit Runge–Kutta method they run on the CPU kernel written from the field,
     ω(t) and the shadow switch included (`"euler"` and `"cayley_klein"` use indexed updates,
     host checks and complex numbers, which the kernel cannot take).
@@ -176,6 +194,7 @@ def darboux(
     if isinstance(source, diffrax.AbstractPath):
         ts = _check_span(ts, source)
         w = source.evaluate
+        options = _knots_as_step_ends(options, source, ts.dtype)
     else:
         w = source
     shape = jnp.shape(jax.eval_shape(w, jax.ShapeDtypeStruct((), ts.dtype)))

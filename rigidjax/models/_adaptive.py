@@ -16,7 +16,7 @@ from jaxtyping import Array
 
 from .._batch import first_failure
 from .._integrate import SolveOptions
-from .._tolerances import default_tolerances, warn_unattainable
+from .._tolerances import default_controller, warn_unattainable
 from ..events import Event
 from ..kernels import adaptive, tableau
 from ._diffrax_path import method_of
@@ -52,12 +52,7 @@ def controls(
         return adaptive.fixed_controls(*args)
     controller = options.stepsize_controller
     if controller is None:
-        rtol, atol = default_tolerances(dtype)
-        controller = diffrax.PIDController(
-            rtol=rtol if options.rtol is None else options.rtol,
-            atol=atol if options.atol is None else options.atol,
-            norm=norm,
-        )
+        controller = default_controller(dtype, options.rtol, options.atol, norm=norm)
     elif isinstance(controller, diffrax.PIDController) and not (
         controller.norm is optx.rms_norm or type(controller.norm) is type(norm)
     ):

@@ -20,12 +20,15 @@ from ._stateless import AbstractStatelessSolver
 
 
 def tableau_of(method: diffrax.AbstractSolver) -> diffrax.ButcherTableau:
-    """The Butcher tableau of an explicit Diffrax Runge–Kutta solver (clear error otherwise)."""
+    """The Butcher tableau of an explicit Diffrax Runge–Kutta solver (clear error otherwise:
+    the method reaches here as a `solver=` or as `ExplicitRK`'s or `RKMK`'s `method`)."""
     tab = getattr(type(method), "tableau", None)
     if not isinstance(tab, diffrax.ButcherTableau) or tab.implicit:
+        why = "is implicit" if isinstance(tab, diffrax.ButcherTableau) else "has no Butcher tableau"
         raise ValueError(
-            "method must be an explicit diffrax Runge–Kutta solver (e.g. diffrax.Tsit5(), "
-            f"diffrax.Dopri5(), rigidjax.RK4()), got {type(method).__name__}"
+            "the Runge–Kutta method (the solver, or the method of ExplicitRK and RKMK) must be "
+            "one with an explicit Butcher tableau, such as diffrax.Tsit5(), diffrax.Dopri5() or "
+            f"rigidjax.RK4(); {type(method).__name__} {why}"
         )
     return tab
 
