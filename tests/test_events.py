@@ -8,6 +8,7 @@ import pytest
 
 import rigidjax as rj
 from rigidjax.events import flip_event
+from tests.rotations.test_bad_input import raises_in_jit
 
 BODY = rj.RigidBody(jnp.array([1.0, 2.0, 3.0]))
 TIGHT = rj.SolveOptions(rtol=1e-12, atol=1e-12)
@@ -148,6 +149,26 @@ def test_bad_events_are_clear_errors():
         rj.simulate(BODY, W[0], ts=TS, event=flip_event(W[0]), solver=rj.ExactFreeBody())
     with pytest.raises(ValueError, match=r"lead with the batch shape \(2,\)"):
         rj.simulate(BODY, W[:2], ts=TS, event=flip_event(W))
+
+
+def _nan_above(t, w, q):
+    """NaN where |Ω₂| > 1.1: of the batch `W`, only the second body's start."""
+    del t, q
+    return jnp.sqrt(1.1 - jnp.abs(w[1]))
+
+
+def test_a_condition_not_finite_at_the_start_is_named():
+    """A NaN condition never changes sign: `event_t` came back `inf` without a word."""
+    nan = rj.Event(_nan_above)
+    with pytest.raises(ValueError, match=r"condition\(t, omega, q\) is not finite at the initial"):
+        rj.simulate(BODY, W[1], ts=TS, event=nan)
+    with pytest.raises(ValueError, match=r"initial state \(body 1 of 3: nan\); it would never"):
+        rj.simulate(BODY, W, ts=TS, event=nan)
+    gyrostat = rj.Gyrostat(BODY.inertia, jnp.zeros(3))
+    with pytest.raises(ValueError, match=r"initial state \(body 1 of 3: nan\)"):
+        rj.simulate(gyrostat, W, ts=TS, event=nan)
+    with raises_in_jit("the Event's condition"):
+        jax.block_until_ready(jax.jit(lambda w: rj.simulate(BODY, w, ts=TS, event=nan).omega)(W))
 
 
 @pytest.mark.slow

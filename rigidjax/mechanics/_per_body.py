@@ -10,10 +10,11 @@ import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, PyTree
 
 from .._batch import failed_body
-from .._checks import is_concrete
+from .._checks import is_concrete, validate
 from .._integrate import IntegrationError, nonfinite_field, raise_failure
 from ..events import Event
 from ..kinematics.formulations import AbstractKinematics
@@ -32,6 +33,33 @@ def checked(event: Any, flow_solver: Any, batch: tuple[int, ...]) -> Event:
             "ExplicitRK(method))"
         )
     return event.flat(batch)
+
+
+def finite_at_start(
+    event: Event, t0: Array, omega0: Array, q0: Array, batch: tuple[int, ...]
+) -> Array:
+    """`omega0 (B, 3)`, with a clear error where the flattened `event`'s condition is not
+    finite at a body's initial state (`q0 (B, 4)`, at `t0`): a NaN condition never changes
+    sign, and its `event_t` would be `inf` unmarked (a run-time check under `jit`). A condition
+    of the wrong shape or type is left to the solve's own message."""
+    values = eqx.filter_vmap(
+        lambda ev, w, q: ev.condition(t0, w, q), in_axes=(event.in_axes(), 0, 0)
+    )(event, omega0, q0)
+    if jnp.shape(values) != omega0.shape[:1] or not jnp.issubdtype(values.dtype, jnp.floating):
+        return omega0
+
+    def detail(v: np.ndarray) -> str:
+        b = int(np.argmax(~np.isfinite(v)))
+        return f" ({failed_body(batch, jnp.asarray(b)) or 'the body'}: {v[b]})"
+
+    return validate(
+        values,
+        lambda xp, v: ~xp.isfinite(v),
+        "the Event's condition(t, omega, q) is not finite at the initial state",
+        detail,
+        hint="; it would never cross zero (event_t = inf): give a condition finite there",
+        on=omega0,
+    )
 
 
 def of_body(event: Event, b: int = 0) -> Event:

@@ -85,6 +85,8 @@ def rigid_call(
     problem = Problem(ts, torque, torque_frame, kinematics, (structured, quaternion, body.diagonal))
     omega0 = jnp.broadcast_to(omega0, (*batch, 3)).reshape(B, 3)
     q0 = jnp.broadcast_to(q0, (*batch, 4)).reshape(B, 4)
+    if event is not None:
+        omega0 = _pb.finite_at_start(event, ts[0], omega0, q0, batch)
     return RigidCall(problem, args, omega0, q0, event, batch, body.batch_shape == ())
 
 

@@ -288,6 +288,8 @@ def simulate_gyrostat(
         jnp.broadcast_to(a, (*batch, a.shape[-1])).reshape(B, a.shape[-1])
         for a in (omega0, q0, ws0)
     ]
+    if event is not None:
+        flat[0] = _pb.finite_at_start(event, ts[0], flat[0], flat[1], batch)
     if keys is not None:
         flat.append(keys.reshape(B))
     if batch:  # each body its own solve; a failure raised once, naming the body
