@@ -112,6 +112,15 @@ def test_so3_exp_of_a_nan_vector():
         so3.exp(np.array([NAN, 0.0, 0.0]))
 
 
+@pytest.mark.parametrize("fn", [so3.Z, so3.Z_inv, so3.shadow, lambda v: so3.rotate(v, W0)])
+def test_so3_integrator_algebra_names_a_nan_vector(fn):
+    """As `exp` (they returned NaN): eager only, the traced hot path stays without checks."""
+    with pytest.raises(ValueError, match=r"theta must be finite, got theta\[1\] = \[ ?0\., inf"):
+        fn(np.array([[0.1, 0.2, 0.3], [0.0, np.inf, 0.0]]))
+    with pytest.raises(ValueError, match=r"a must be finite"):
+        so3.rotate(W0, np.array([NAN, 0.0, 0.0]))
+
+
 def test_messages_without_runtime_type_checks():
     """`so3.log(None)`, `energy(array, ω)`, `simulate(array, ...)` and `simulate_heavy_top` of
     a RigidBody: the tests run with jaxtyping's type checks, which catch these first; a user's

@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._scalar import Scalar, _is_const
+from ._objects import Scalar, _is_const
 
 
 class Components:

@@ -8,7 +8,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ._scalar import Scalar, Unsupported, _is_const
+from ._objects import Scalar, _is_const
+from ._scalar import Unsupported
 
 
 class CExpr(str):

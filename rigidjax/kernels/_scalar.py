@@ -18,7 +18,8 @@ are dropped: their host callbacks cost ~10× an attitude torque's arithmetic, an
 unit quaternion by construction (a non-finite state still fails the solve; validate parameters
 where they are built). A primitive with no scalar form (`while`, `scan`, a host callback, a
 data-dependent index, ...), a user's `equinox.error_if` and an effect (`jax.debug.print`) raise
-`Unsupported` naming it: the caller falls back to the field as it is, where they run."""
+`Unsupported` naming it: the caller falls back to the field as it is, where they run.
+`lax.cond` and `lax.switch` become a selection between their branches."""
 
 from __future__ import annotations
 
@@ -30,10 +31,7 @@ import numpy as np
 from jax.extend import core as jex_core
 
 from .._checks import LIBRARY_CHECK, is_concrete
-
-Scalar = Any
-"""A backend's scalar: a C++ expression (`CEmitter`) or an array (`Components`), or a Python
-number for a constant known when unrolling."""
+from ._objects import Scalar, _filled, _is_const, objects
 
 
 class Unsupported(ValueError):
@@ -116,10 +114,6 @@ ELEMENTWISE = frozenset(
 )
 _IDENTITY = frozenset({"copy", "copy_p", "stop_gradient", "optimization_barrier", "pvary"})
 _CALLS = ("jaxpr", "call_jaxpr", "fun_jaxpr")
-
-
-def _is_const(x: Scalar) -> bool:
-    return isinstance(x, int | float | bool | np.number | np.bool_)
 
 
 def _simplify(name: str, args: Sequence[Scalar]) -> tuple[bool, Scalar]:
@@ -232,8 +226,10 @@ class _Unroller:
             ]
         if p.get("name") == "branched_error_if_impl":  # a user's check: the field runs it
             raise Unsupported("equinox.error_if")
+        if name == "cond":
+            return self.cond(eqn, ins)
         for key in _CALLS:
-            if key in p and name not in ("cond", "while", "scan"):
+            if key in p and name not in ("while", "scan"):
                 closed = p[key]
                 closed_form = hasattr(closed, "consts")
                 inner, consts = (closed.jaxpr, closed.consts) if closed_form else (closed, [])
@@ -253,6 +249,22 @@ class _Unroller:
         if structural is None:
             raise Unsupported(name)
         return [structural(self, p, ins, eqn)]
+
+    def cond(self, eqn, ins: list[np.ndarray]) -> list[np.ndarray]:
+        """`lax.cond`/`lax.switch`: the branch of a constant index, else every branch (they are
+        pure: `_live` refuses effects) and each output selected by the index (`select_n`, a C
+        conditional: an untaken branch's NaN or inf does not reach the result)."""
+        which, branches = ins[0], eqn.params["branches"]
+        if _is_const(which.reshape(()).item()):
+            branches = [branches[int(which.reshape(()).item())]]
+        outs = [
+            self.run(b.jaxpr, [objects(_const_array(c)) for c in b.consts], ins[1:])
+            for b in branches
+        ]
+        if len(outs) == 1:
+            return outs[0]
+        cases = zip(eqn.outvars, *outs, strict=True)
+        return [self.elementwise("select_n", {}, [which, *xs], v.aval.dtype) for v, *xs in cases]
 
 
 def _checked(eqn) -> int:
@@ -328,14 +340,6 @@ def _slice(u, p, ins, eqn):
     return ins[0][idx]
 
 
-def _concatenate(u, p, ins, eqn):
-    return np.concatenate(ins, axis=p["dimension"])
-
-
-def _stack(u, p, ins, eqn):
-    return np.stack(ins, axis=p["axis"])
-
-
 def _pad(u, p, ins, eqn):
     """`lax.pad`: low, high (negative: cropping) and interior padding per axis."""
     x, value = ins
@@ -352,15 +356,6 @@ def _pad(u, p, ins, eqn):
         )
         if all(0 <= a < n for a, n in zip(at, shape, strict=True)):
             out[at] = x[idx]
-    return out
-
-
-def _filled(shape: tuple[int, ...], value: Scalar) -> np.ndarray:
-    """An object array of `shape` holding `value` everywhere (element by element: NumPy would
-    convert an array value)."""
-    out = np.empty(shape, dtype=object)
-    for idx in np.ndindex(shape):
-        out[idx] = value
     return out
 
 
@@ -393,6 +388,13 @@ def _iota(u, p, ins, eqn):
     shape, dim = p["shape"], p["dimension"]
     idx = np.indices(shape)[dim]
     return np.vectorize(lambda i: _cast(i, p["dtype"]), otypes=[object])(idx)
+
+
+def _empty(u, p, ins, eqn):
+    """Uninitialised (zeros here): a `cond`'s residuals of the branch not taken, read only by
+    its twin in the cotangent program, whose outputs the index discards (`_Unroller.cond`)."""
+    aval = eqn.outvars[0].aval
+    return _filled(aval.shape, _cast(0, aval.dtype))
 
 
 def _reduce(op: str):
@@ -450,12 +452,14 @@ _STRUCTURAL: dict[str, Callable] = {
     "transpose": lambda u, p, ins, e: np.transpose(ins[0], p["permutation"]),
     "rev": lambda u, p, ins, e: np.flip(ins[0], tuple(p["dimensions"])),
     "slice": _slice,
-    "concatenate": _concatenate,
-    "stack": _stack,
+    "concatenate": lambda u, p, ins, e: np.concatenate(ins, axis=p["dimension"]),
+    "stack": lambda u, p, ins, e: np.stack(ins, axis=p["axis"]),
     "pad": _pad,
     "dynamic_slice": _dynamic_slice,
     "dynamic_update_slice": _dynamic_update_slice,
     "iota": _iota,
+    "empty": _empty,
+    "empty2": _empty,
     "reduce_sum": _reduce("add"),
     "reduce_max": _reduce("max"),
     "reduce_min": _reduce("min"),
@@ -476,22 +480,3 @@ def unroll(
     arrays of scalars, one per input, in the input's shape), the jaxpr's constants given as
     `consts` in the same form."""
     return _Unroller(backend).run(closed.jaxpr, consts, args)
-
-
-def objects(x) -> np.ndarray:
-    """`x` (an object array or one scalar) as an object array holding `x`'s scalars themselves:
-    never `np.asarray(x, dtype=object)`, which NumPy 2.5 answers by asking a JAX tracer for
-    its value (`__array__`)."""
-    if isinstance(x, np.ndarray):
-        return x if x.dtype == object else x.astype(object)
-    out = np.empty((), dtype=object)
-    out[()] = x
-    return out
-
-
-def scalars(names: Sequence[Scalar], shape: tuple[int, ...]) -> np.ndarray:
-    """An object array of `shape` holding `names` in order."""
-    out = np.empty(len(names), dtype=object)
-    for i, x in enumerate(names):
-        out[i] = x
-    return out.reshape(shape)

@@ -18,7 +18,8 @@ import numpy as np
 
 from . import tableau
 from ._emit import CEmitter
-from ._scalar import _const_array, _is_const, scalars, unroll
+from ._objects import _is_const, scalars
+from ._scalar import _const_array, unroll
 
 if TYPE_CHECKING:
     from .model import Hoisted

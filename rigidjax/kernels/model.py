@@ -31,7 +31,8 @@ from .._checks import is_concrete
 from . import tableau
 from ._build import load
 from ._components import Components
-from ._scalar import Unsupported, _is_const, scalars, unroll
+from ._objects import _is_const, scalars
+from ._scalar import Unsupported, unroll
 from ._source import consts, header, headers, linked, model_source
 
 Field = Callable[[Array, Array, Array], Array]

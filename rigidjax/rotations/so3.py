@@ -75,10 +75,14 @@ def exp(theta: Vec3Like) -> Mat33:
     theorem). Finite values and gradients at θ = 0. A non-finite concrete `theta` is an error
     naming it; traced, no check (the integrators' hot path): NaN in, NaN out. One compiled
     program per shape and dtype (see `rotations._compiled`)."""
-    theta = vector(theta, 3, "theta")
-    if is_concrete(theta):
-        theta = _validation.check_finite(theta, "theta", 1)
-    return _exp(theta)
+    return _exp(_eager_finite(vector(theta, 3, "theta"), "theta"))
+
+
+def _eager_finite(x: Vec3, name: str) -> Vec3:
+    """`x`, checked to be finite where it is concrete (an error naming `name`); traced, as it
+    is: the integrator algebra (`exp`, `Z`, `Z_inv`, `shadow`, `rotate`) carries no run-time
+    check on the hot path (NaN in, NaN out)."""
+    return _validation.check_finite(x, name, 1) if is_concrete(x) else x
 
 
 def _quadratic(theta: Vec3, first, second) -> Mat33:
@@ -111,9 +115,10 @@ def _log(P: Mat33, mode: str) -> Vec3:
 
 
 def rotate(theta: Vec3Like, a: Vec3Like) -> Vec3:
-    """`a' = a + (sin θ/θ) θ × a + ((1 − cos θ)/θ²) θ × (θ × a)` (Zhilin)."""
-    theta = vector(theta, 3, "theta")
-    a = vector(a, 3, "a")
+    """`a' = a + (sin θ/θ) θ × a + ((1 − cos θ)/θ²) θ × (θ × a)` (Zhilin). A non-finite
+    concrete `theta` or `a` is an error naming it, as in `exp`."""
+    theta = _eager_finite(vector(theta, 3, "theta"), "theta")
+    a = _eager_finite(vector(a, 3, "a"), "a")
     x2 = _sq(theta)[..., None]
     theta = jnp.broadcast_to(theta, jnp.broadcast_shapes(theta.shape, a.shape))
     t = jnp.cross(theta, a)
@@ -130,15 +135,16 @@ def rotate_tensor(P: Mat33Like, T: Mat33Like) -> Mat33:
 def Z_inv(theta: Vec3Like) -> Mat33:
     """`Z⁻¹(θ) = E + ((1 − cos θ)/θ²) R + ((θ − sin θ)/θ³) R²`: `ω = Z⁻¹ θ̇` (Zhilin 3.14.13).
 
-    The left Jacobian of SO(3)."""
-    theta = vector(theta, 3, "theta")
+    The left Jacobian of SO(3). A non-finite concrete `theta` is an error, as in `exp`."""
+    theta = _eager_finite(vector(theta, 3, "theta"), "theta")
     return _quadratic(theta, _series.one_minus_cos_over, _series.theta_minus_sin_over)
 
 
 def Z(theta: Vec3Like) -> Mat33:
     """Integrator tensor `Z(θ) = E − ½ R + ((1 − g)/θ²) R²`, `g = θ sin θ/(2(1 − cos θ))`:
-    `θ̇ = Z ω` (Zhilin 3.14.15). `det Z = θ²/(2(1 − cos θ))`, singular at |θ| = 2π."""
-    theta = vector(theta, 3, "theta")
+    `θ̇ = Z ω` (Zhilin 3.14.15). `det Z = θ²/(2(1 − cos θ))`, singular at |θ| = 2π. A
+    non-finite concrete `theta` is an error, as in `exp`."""
+    theta = _eager_finite(vector(theta, 3, "theta"), "theta")
     R = hat(theta)
     x2 = _sq(theta)
     d = _series.zhilin_d(x2)[..., None, None]
@@ -159,9 +165,9 @@ def shadow(theta: Vec3Like) -> Vec3:
     """The same rotation with |θ| ≤ π: `θ − 2πk θ/|θ|`, k = round(|θ|/2π) (Zhilin 3.14).
 
     `P(θ) = P(θ − 2π θ/|θ|)`, so the shadow vector keeps an integration of θ̇ = Zω away from the
-    singularity of Z at |θ| = 2π.
+    singularity of Z at |θ| = 2π. A non-finite concrete `theta` is an error, as in `exp`.
     """
-    theta = vector(theta, 3, "theta")
+    theta = _eager_finite(vector(theta, 3, "theta"), "theta")
     x2 = _sq(theta)
     two_pi = 2 * jnp.pi
     # k = 0 (|θ| < π) leaves θ untouched: no square root of a possibly zero x2 there.

@@ -160,6 +160,25 @@ def test_torque_through_gpu_kernel_with_diffrax_gradients(on_gpu_kernel):
 
 
 @pytest.mark.slow  # ~11 s: Pallas' interpreter
+def _switched(t, w, q):
+    """`lax.switch` on t; the untaken first branch is NaN for t > 0.1."""
+    k = jnp.clip(jnp.floor(10 * t).astype(jnp.int32), 0, 2)
+    branches = [lambda: -0.1 * w * jnp.sqrt(0.1 - t), lambda: 0.2 * w[::-1], lambda: w * q[0]]
+    return jax.lax.switch(k, branches)
+
+
+@pytest.mark.slow  # ~15 s: Pallas' interpreter
+def test_switch_through_gpu_kernel(on_gpu_kernel):
+    """A torque with `lax.switch` takes the GPU kernel (a selection between the branches, as on
+    the CPU): the Diffrax path's values; the untaken branch's NaN does not leak."""
+    w, q = _inputs(3)
+    run = functools.partial(rj.simulate, BODY, w, q, TS, torque=_switched, **FIXED)
+    assert "pallas_call" in str(jax.make_jaxpr(lambda: run(solver=rj.RK4()).omega)())
+    fast, slow = run(solver=rj.RK4()), run(solver=ExplicitRK(rj.RK4()))
+    np.testing.assert_allclose(fast.omega, slow.omega, rtol=0, atol=2e-15)
+    np.testing.assert_allclose(fast.quat, slow.quat, rtol=0, atol=2e-15)
+
+
 def test_heavy_top_through_gpu_kernel(on_gpu_kernel):
     """The heavy top's model (a PyTree state) takes the GPU kernel too: the Diffrax path's
     numbers; under `jax.vmap` over tops (one-body solves) the tops join one kernel call."""

@@ -1,8 +1,8 @@
 """Every model, every backend, every mode (issue 34): `jax.jacfwd` (forward mode) equals
 `jax.jacrev` (reverse mode) to 1e-9 and central differences, with default options; a model the
-kernel cannot take (an indexed update, a `while_loop`, a `cond` on a traced predicate, a host
-callback, complex numbers) runs on the Diffrax path with one warning naming the primitive, equal
-to its supported twin, and is differentiable in both modes too."""
+kernel cannot take (an indexed update, a `while_loop`, a host callback, complex numbers) runs on
+the Diffrax path with one warning naming the primitive, equal to its supported twin, and is
+differentiable in both modes too; `lax.cond` and `lax.switch` run on the kernel."""
 
 import warnings
 
@@ -101,10 +101,6 @@ def _loop(w):
     return jax.lax.while_loop(lambda c: c[0] < 1, body, (0, -0.1 * w))[1]
 
 
-def _branch(w, t):
-    return jax.lax.cond(t > 0.5, lambda: -0.1 * w, lambda: -0.1 * w + 0.0 * t)
-
-
 def _host(w):
     shape = jax.ShapeDtypeStruct((3,), w.dtype)
     return jax.pure_callback(lambda w: -0.1 * np.asarray(w), shape, w, vmap_method="sequential")
@@ -117,7 +113,6 @@ def _complex(w):
 UNSUPPORTED = {
     "scatter-add": lambda t, w, q: _indexed(w),
     "while": lambda t, w, q: _loop(w),
-    "cond": lambda t, w, q: _branch(w, t),
     "pure_callback": lambda t, w, q: _host(w),
     "complex": lambda t, w, q: _complex(w),
 }
@@ -136,6 +131,53 @@ def test_fallback_equals_its_twin(primitive):
     twin = rj.simulate(body, W0, Q0, TS, torque=lambda t, w, q: -0.1 * w, **FIXED)
     np.testing.assert_allclose(got.omega, twin.omega, rtol=0, atol=1e-14)
     np.testing.assert_allclose(got.quat, twin.quat, rtol=0, atol=1e-14)
+
+
+def _regime(t):
+    return jnp.clip(jnp.floor(2 * t).astype(jnp.int32), 0, 2)
+
+
+def _switch(t, w, q):
+    """Three regimes of t by `lax.switch`; the first is NaN where it is not taken (t > ½), and
+    so is its derivative."""
+    branches = [lambda: -0.1 * w * jnp.sqrt(0.5 - t), lambda: 0.2 * w[::-1], lambda: w * q[0]]
+    return jax.lax.switch(_regime(t), branches)
+
+
+def _switch_twin(t, w, q):
+    k = _regime(t)
+    first = -0.1 * w * jnp.sqrt(jnp.maximum(0.5 - t, 0.0))
+    return jnp.where(k == 0, first, jnp.where(k == 1, 0.2 * w[::-1], w * q[0]))
+
+
+@pytest.mark.parametrize("steps", ["fixed", "adaptive"])
+def test_cond_and_switch_run_on_the_kernel(steps):
+    """A torque with `lax.switch` (and `lax.cond`, its two-branch case) takes the fast path: no
+    warning, the values of its `jnp.where` twin; an untaken branch's NaN does not leak."""
+    body = rj.RigidBody(jnp.array([1.0, 2.0, 3.0]))
+    kw = FIXED if steps == "fixed" else dict(rtol=1e-10, atol=1e-10)
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        got = rj.simulate(body, W0, Q0, TS, torque=_switch, **kw)
+    assert not [r for r in record if "fast path" in str(r.message)], record
+    twin = rj.simulate(body, W0, Q0, TS, torque=_switch_twin, **kw)
+    np.testing.assert_allclose(got.omega, twin.omega, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(got.quat, twin.quat, rtol=0, atol=1e-14)
+
+
+@pytest.mark.slow
+def test_switch_in_every_mode():
+    """Derivatives through the kernel's `lax.switch` (its reverse program reads uninitialised
+    residuals of the untaken branches): jacfwd = jacrev = central differences."""
+    body = rj.RigidBody(jnp.array([1.0, 2.0, 3.0]))
+
+    def f(w0):
+        return rj.simulate(body, w0, Q0, TS, torque=_switch, **FIXED).omega[-1]
+
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        _agree(f, W0)
+    assert not [r for r in record if "fast path" in str(r.message)], record
 
 
 def _omega(t, a):

@@ -15,7 +15,8 @@ from scipy.integrate import solve_ivp
 import rigidjax as rj
 from rigidjax.kernels import _build
 from rigidjax.kernels._components import Components
-from rigidjax.kernels._scalar import scalars, unroll
+from rigidjax.kernels._objects import scalars
+from rigidjax.kernels._scalar import unroll
 from rigidjax.mechanics import heavy_top as ht
 from rigidjax.mechanics import satellite, sixdof
 from rigidjax.solvers import ExplicitRK
