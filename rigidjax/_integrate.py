@@ -16,7 +16,7 @@ from jaxtyping import Array, PyTree
 
 from ._checks import attach_check, is_concrete
 from ._custom_types import Frame, RealScalarLike
-from ._modes import both_modes
+from ._modes import both_modes, closure_free
 from ._tolerances import (
     check_discretisation,
     default_controller,
@@ -336,7 +336,7 @@ def _in_every_mode(
     (`_modes.both_modes`): Diffrax's checkpointed reverse mode, forward mode by `ForwardMode`,
     higher orders by `DirectAdjoint`. The field's (and the event condition's) closed-over
     tracers (a torque's gain under `jax.grad`) become explicit inputs
-    (`equinox.filter_closure_convert`), as a custom rule needs; for a flow solver (`flows`)
+    (`_modes.closure_free`), as a custom rule needs; for a flow solver (`flows`)
     the field stays a `RigidBodyField`, its torque converted."""
     controller, max_steps, meter = steps
     kind = type(term)  # a term of one vector field: an `ODETerm`, or a `LieTerm` (RKMK)
@@ -344,12 +344,12 @@ def _in_every_mode(
         field = cast(RigidBodyField, term.vector_field)
         if field.torque is not None:  # (one body's torque(t, Ω, q))
             one = (jnp.zeros(3, ts.dtype), jnp.zeros(4, ts.dtype))
-            torque = eqx.filter_closure_convert(field.torque, ts[0], *one)
+            torque = closure_free(field.torque, ts[0], *one)
             field = eqx.tree_at(lambda f: f.torque, field, torque)
     else:
-        field = eqx.filter_closure_convert(term.vf, ts[0], y0, args)
+        field = closure_free(term.vf, ts[0], y0, args)
     if event is not None:
-        condition = eqx.filter_closure_convert(event.condition, ts[0], y0)
+        condition = closure_free(event.condition, ts[0], y0)
         event = dataclasses.replace(event, condition=condition)
     dynamic, static = eqx.partition((field, event), eqx.is_array)
 

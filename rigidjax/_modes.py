@@ -22,6 +22,7 @@ import functools
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import jax.tree_util as jtu
@@ -31,7 +32,23 @@ from jax.custom_derivatives import SymbolicZero
 from jax.extend.core import Primitive
 from jax.interpreters import ad, batching, mlir
 
+from ._checks import is_concrete
+
 Aval = tuple[tuple[int, ...], Any]
+
+
+def closure_free(fn: Callable, *example: Any) -> Callable:
+    """`fn` with the tracers it closes over (a torque's gain under `jax.grad`) made explicit
+    inputs, as the rules of `both_modes` need (`equinox.filter_closure_convert`, traced on
+    `example`); `fn` itself where it closes over none. Its converted jaxpr is a new object on
+    every call: as a static argument it made every eager solve on the Diffrax path compile
+    again (3-8 s a call), where `fn` itself is the same function each time. As under
+    `jax.jit` (and on the kernels), a function is traced once: a global it reads is read
+    then."""
+    converted = eqx.filter_closure_convert(fn, *example)
+    if not all(is_concrete(c) for c in jax.tree.leaves(converted)):
+        return converted
+    return fn
 
 
 class _Fns(NamedTuple):

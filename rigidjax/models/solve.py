@@ -24,7 +24,7 @@ from .._integrate import (
     nonfinite_field,
     raise_failure,
 )
-from .._modes import both_modes
+from .._modes import both_modes, closure_free
 from ..kernels import adaptive, model_pallas, model_pallas_adaptive
 from ..kernels import model as model_kernel
 from ..kernels._scalar import Unsupported
@@ -226,7 +226,7 @@ def _solve(
     # bodies' `jax.vmap`, a condition closing over a traced value)
     if event is not None:
         y_one = jnp.zeros(y0.shape[1:], dtype)
-        condition = eqx.filter_closure_convert(event.condition, ts[0], y_one)
+        condition = closure_free(event.condition, ts[0], y_one)
         event = eqx.tree_at(lambda e: e.condition, event, condition)
     arrays, rest = eqx.partition(event, eqx.is_array)
 
