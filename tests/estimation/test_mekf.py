@@ -253,6 +253,7 @@ def test_errors_name_the_argument(change, needle):
         mekf(**kw)
 
 
+@pytest.mark.slow  # ~9 s: the filter compiled in float32
 def test_float32_in_float32_out_with_the_defaults():
     """float32 data with the defaults (`bias0`, `P0`) stay float32 under x64 (a default zero
     bias used to promote the gyro and the filter to float64), with noise levels given as NumPy

@@ -95,6 +95,7 @@ def test_bad_options_are_clear_errors():
         rj.simulate(BODY, W0, None, TS, stepsize_controller=diffrax.ConstantStepSize())
 
 
+@pytest.mark.slow  # ~11 s: run-time checks and derivatives under jit
 def test_traced_step_and_tolerances():
     """Under jit a bad dt0 or rtol is a run-time error; derivatives with respect to them are
     zero (fixed steps round to a whole number per interval; they were a tracer leak), and a

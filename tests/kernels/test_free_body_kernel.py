@@ -317,7 +317,15 @@ def test_a_file_system_without_locks_still_builds(monkeypatch, tmp_path):
 
 
 @pytest.mark.parametrize(
-    "case", ["batch", "one_body", "vmapped_times", "checkpointed", "dopri8", "bosh3"]
+    "case",
+    [
+        "batch",
+        "one_body",
+        pytest.param("vmapped_times", marks=pytest.mark.slow),  # ~9 s
+        "checkpointed",
+        "dopri8",
+        "bosh3",
+    ],
 )
 def test_adjoint_matches_central_differences(case):
     """The kernel's reverse mode against central differences of its forward run, along a

@@ -179,6 +179,7 @@ def test_switch_through_gpu_kernel(on_gpu_kernel):
     np.testing.assert_allclose(fast.quat, slow.quat, rtol=0, atol=2e-15)
 
 
+@pytest.mark.slow  # ~9 s: Pallas' interpreter
 def test_heavy_top_through_gpu_kernel(on_gpu_kernel):
     """The heavy top's model (a PyTree state) takes the GPU kernel too: the Diffrax path's
     numbers; under `jax.vmap` over tops (one-body solves) the tops join one kernel call."""

@@ -151,6 +151,7 @@ def test_simulate_reports_max_steps(on_gpu_adaptive):
         rj.simulate(rj.RigidBody(I), 3 * w, q, TS, max_steps=5, **TOL)
 
 
+@pytest.mark.slow  # ~13 s: Pallas lowering and interpreter
 def test_served_only_where_checked(monkeypatch):
     """Not on the CPU; on a GPU only after a small batch, compiled, gave the interpreter's
     states and counts: a kernel that fails to lower, or gives other numbers, warns once and is

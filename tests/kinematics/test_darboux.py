@@ -240,6 +240,9 @@ def test_bad_input():
     with pytest.raises(Exception, match="maximum number of solver steps"):
         darboux(SPACE, TS, max_steps=3)
 
+
+@pytest.mark.slow  # ~20 s; test_euler_atlas passes exact gimbal locks in the quick suite
+def test_euler_through_gimbal_lock_and_single_chart_advice():
     # ω = e_x from P0 = Rx(−0.5) Ry(δ): the path passes δ from the identity, where ZXZ is locked
     # and ψ̇ ~ 1/δ. The chart-switching atlas integrates near misses and the exact pass alike;
     # a single chart (switch=0) still raises, with advice.

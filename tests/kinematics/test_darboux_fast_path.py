@@ -68,6 +68,7 @@ def test_fast_path_equals_diffrax_path_and_scipy(method, frame):
     np.testing.assert_allclose(fast, _poisson(a, frame), rtol=0, atol=1e-8)
 
 
+@pytest.mark.slow  # ~11 s; the kernel adjoint is tested quick in test_free_body_kernel
 def test_gradient_through_omega_and_vmap():
     """The gradient of the final rotation w.r.t. a parameter of ω(t) through the kernel's
     adjoint: the Diffrax path's to 1e-10 and central differences to 1e-7; under `jax.vmap` over

@@ -222,7 +222,9 @@ def test_fallback_in_every_mode():
     "body, kinematics",
     [
         (rj.RigidBody(jnp.array([[2.0, 0.1, 0.0], [0.1, 3.0, 0.0], [0.0, 0.0, 4.0]])), "quat"),
-        (rj.RigidBody(jnp.array([1.0, 2.0, 3.0])), "rotvec"),
+        pytest.param(  # ~10 s
+            rj.RigidBody(jnp.array([1.0, 2.0, 3.0])), "rotvec", marks=pytest.mark.slow
+        ),
     ],
     ids=["full_tensor", "rotvec"],
 )

@@ -62,6 +62,7 @@ def test_heavy_top_fast_path(inertia):
     np.testing.assert_allclose(fast.gamma, ref.y[3:].T, atol=1e-7)
 
 
+@pytest.mark.slow  # ~12 s: the kernel adjoint and the Diffrax path
 def test_heavy_top_vmap_and_gradient():
     """`jax.vmap` over tops (the mapped tops join one kernel call) equals a loop; the gradient
     of the final energy w.r.t. the centre of mass equals the Diffrax path's and central

@@ -52,6 +52,7 @@ def test_eager_values_and_derivatives_equal_the_compiled_ones(name):
         np.testing.assert_allclose(J, central_differences(f, np.asarray(x)), atol=1e-7)
 
 
+@pytest.mark.slow  # ~9 s: second derivatives
 def test_second_derivatives_of_the_eager_path():
     """The custom JVP's Jacobian is itself differentiable (a Hessian of so3.log)."""
     f = lambda P: so3.log(P)[0]  # noqa: E731

@@ -52,6 +52,7 @@ def reference():
     return rigid_body_dop853(I_TOP, W0, Q0, ts, torque_body=_gravity)
 
 
+@pytest.mark.slow  # ~9 s: three step sizes
 def test_second_order_convergence(reference):
     """Halving the step divides the error by 4 (order 2), against DOP853 at 1e-13."""
     w_ref, q_ref = reference
