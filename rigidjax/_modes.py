@@ -40,13 +40,17 @@ Aval = tuple[tuple[int, ...], Any]
 def closure_free(fn: Callable, *example: Any) -> Callable:
     """`fn` with the tracers it closes over (a torque's gain under `jax.grad`) made explicit
     inputs, as the rules of `both_modes` need (`equinox.filter_closure_convert`, traced on
-    `example`); `fn` itself where it closes over none. Its converted jaxpr is a new object on
-    every call: as a static argument it made every eager solve on the Diffrax path compile
-    again (3-8 s a call), where `fn` itself is the same function each time. As under
+    `example`); `fn` itself where it closes over none and hashes. The converted jaxpr is a new
+    object on every call: as a static argument it made every eager solve on the Diffrax path
+    compile again (3-8 s a call), where `fn` itself is the same function each time. As under
     `jax.jit` (and on the kernels), a function is traced once: a global it reads is read
     then."""
     converted = eqx.filter_closure_convert(fn, *example)
     if not all(is_concrete(c) for c in jax.tree.leaves(converted)):
+        return converted
+    try:  # a static argument of `equinox.filter_jit` must hash
+        hash(eqx.partition(fn, eqx.is_array)[1])
+    except TypeError:  # (a dataclass with `eq`, say: compiled for each call, as before)
         return converted
     return fn
 
