@@ -121,23 +121,32 @@ def test_so3_integrator_algebra_names_a_nan_vector(fn):
         so3.rotate(W0, np.array([NAN, 0.0, 0.0]))
 
 
+def _errors_without_type_checks(calls: str, error: str) -> tuple[list[str], str]:
+    """The messages of the `error`s the `calls` (lambdas of `diffrax`, `np` and `rj`, comma
+    separated) raise in a process without the tests' jaxtyping type checks (a user's)."""
+    code = (
+        "import diffrax, numpy as np, rigidjax as rj\n"
+        f"for f in ({calls}):\n"
+        "    try:\n"
+        "        f()\n"
+        f"    except {error} as e:\n"
+        "        print(e)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return out.stdout.splitlines(), out.stdout + out.stderr
+
+
 def test_messages_without_runtime_type_checks():
     """`so3.log(None)`, `energy(array, ω)`, `simulate(array, ...)` and `simulate_heavy_top` of
     a RigidBody: the tests run with jaxtyping's type checks, which catch these first; a user's
     process has none, so the messages are checked in one."""
-    code = (
-        "import numpy as np, rigidjax as rj\n"
-        "for f in (lambda: rj.so3.log(None), lambda: rj.energy(np.ones(3), np.ones(3)),\n"
-        "          lambda: rj.simulate(np.ones(3), np.ones(3), None, [0.0, 1.0]),\n"
-        "          lambda: rj.simulate_heavy_top(rj.RigidBody(np.ones(3)), np.ones(3),\n"
-        "                                        [0.0, 0.0, 1.0], [0.0, 1.0])):\n"
-        "    try:\n"
-        "        f()\n"
-        "    except TypeError as e:\n"
-        "        print(e)\n"
+    calls = (
+        "lambda: rj.so3.log(None), lambda: rj.energy(np.ones(3), np.ones(3)),\n"
+        "lambda: rj.simulate(np.ones(3), np.ones(3), None, [0.0, 1.0]),\n"
+        "lambda: rj.simulate_heavy_top(rj.RigidBody(np.ones(3)), np.ones(3),\n"
+        "                              [0.0, 0.0, 1.0], [0.0, 1.0])"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    lines = out.stdout.splitlines()
+    lines, out = _errors_without_type_checks(calls, "TypeError")
     assert lines[0] == "P must be an array (or a number), got None", out
     assert lines[1].startswith("body must be a rigidjax.RigidBody, got ndarray: wrap"), out
     assert lines[2].startswith("body must be a rigidjax.RigidBody or Gyrostat, got ndarray"), out
@@ -148,18 +157,12 @@ def test_solvers_without_an_explicit_tableau():
     """`darboux(method="geometric", solver=diffrax.Euler())` named `method` and called forward
     Euler not explicit; the message now names the solver and why (in a process without the
     tests' type checks, which catch the Euler first)."""
-    code = (
-        "import diffrax, numpy as np, rigidjax as rj\n"
-        "for f in (lambda: rj.darboux(lambda t: t * np.ones(3), [0.0, 1.0],\n"
-        "                             method='geometric', solver=diffrax.Euler()),\n"
-        "          lambda: rj.ExplicitRK(diffrax.Kvaerno3())):\n"
-        "    try:\n"
-        "        f()\n"
-        "    except ValueError as e:\n"
-        "        print(e)\n"
+    calls = (
+        "lambda: rj.darboux(lambda t: t * np.ones(3), [0.0, 1.0], method='geometric',\n"
+        "                   solver=diffrax.Euler()),\n"
+        "lambda: rj.ExplicitRK(diffrax.Kvaerno3())"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    lines = out.stdout.splitlines()
+    lines, out = _errors_without_type_checks(calls, "ValueError")
     assert lines[0].startswith("the Runge–Kutta method (the solver, or the method of"), out
     assert lines[0].endswith("; Euler has no Butcher tableau"), out
     assert lines[1].endswith("; Kvaerno3 is implicit"), out

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import rigidjax as rj
+from rigidjax.solvers import ExplicitRK
 
 TS = jnp.linspace(0.0, 1.0, 3)
 FIXED = dict(stepsize_controller=diffrax.ConstantStepSize(), dt0=0.1)
@@ -153,7 +154,8 @@ def _switch_twin(t, w, q):
 @pytest.mark.parametrize("steps", ["fixed", "adaptive"])
 def test_cond_and_switch_run_on_the_kernel(steps):
     """A torque with `lax.switch` (and `lax.cond`, its two-branch case) takes the fast path: no
-    warning, the values of its `jnp.where` twin; an untaken branch's NaN does not leak."""
+    warning, the values of its `jnp.where` twin and of the Diffrax path on the same steps
+    (`ExplicitRK`, which takes no kernel); an untaken branch's NaN does not leak."""
     body = rj.RigidBody(jnp.array([1.0, 2.0, 3.0]))
     kw = FIXED if steps == "fixed" else dict(rtol=1e-10, atol=1e-10)
     with warnings.catch_warnings(record=True) as record:
@@ -163,6 +165,9 @@ def test_cond_and_switch_run_on_the_kernel(steps):
     twin = rj.simulate(body, W0, Q0, TS, torque=_switch_twin, **kw)
     np.testing.assert_allclose(got.omega, twin.omega, rtol=0, atol=1e-14)
     np.testing.assert_allclose(got.quat, twin.quat, rtol=0, atol=1e-14)
+    slow = rj.simulate(body, W0, Q0, TS, torque=_switch, solver=ExplicitRK(diffrax.Tsit5()), **kw)
+    np.testing.assert_allclose(got.omega, slow.omega, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(got.quat, slow.quat, rtol=0, atol=1e-13)
 
 
 @pytest.mark.slow
