@@ -14,6 +14,7 @@ import pytest
 
 import rigidjax as rj
 from rigidjax.solvers import ExplicitRK
+from tests.helpers import rigid_body_dop853
 
 TS = jnp.linspace(0.0, 1.0, 3)
 FIXED = dict(stepsize_controller=diffrax.ConstantStepSize(), dt0=0.1)
@@ -155,7 +156,7 @@ def _switch_twin(t, w, q):
 def test_cond_and_switch_run_on_the_kernel(steps):
     """A torque with `lax.switch` (and `lax.cond`, its two-branch case) takes the fast path: no
     warning, the values of its `jnp.where` twin and of the Diffrax path on the same steps
-    (`ExplicitRK`, which takes no kernel); an untaken branch's NaN does not leak."""
+    (`ExplicitRK`, which takes no kernel), and SciPy's; an untaken branch's NaN does not leak."""
     body = rj.RigidBody(jnp.array([1.0, 2.0, 3.0]))
     kw = FIXED if steps == "fixed" else dict(rtol=1e-10, atol=1e-10)
     with warnings.catch_warnings(record=True) as record:
@@ -168,6 +169,14 @@ def test_cond_and_switch_run_on_the_kernel(steps):
     slow = rj.simulate(body, W0, Q0, TS, torque=_switch, solver=ExplicitRK(diffrax.Tsit5()), **kw)
     np.testing.assert_allclose(got.omega, slow.omega, rtol=0, atol=1e-13)
     np.testing.assert_allclose(got.quat, slow.quat, rtol=0, atol=1e-13)
+    if steps == "adaptive":  # SciPy's DOP853, restarted where the regime changes (t = ½)
+        first = rigid_body_dop853(
+            [1, 2, 3], W0, Q0, [0.0, 0.5], lambda t, w, q: -0.1 * w * (0.5 - t) ** 0.5
+        )
+        w, q = first[0][-1], first[1][-1]
+        second = rigid_body_dop853([1, 2, 3], w, q, [0.5, 1.0], lambda t, w, q: 0.2 * w[::-1])
+        np.testing.assert_allclose(got.omega, np.stack([W0, w, second[0][-1]]), rtol=0, atol=1e-8)
+        np.testing.assert_allclose(got.quat, np.stack([Q0, q, second[1][-1]]), rtol=0, atol=1e-8)
 
 
 @pytest.mark.slow
