@@ -309,14 +309,27 @@ def _carlson_fj(sx: Array, sy: Array, sz: Array, sp: Array) -> tuple[Array, Arra
     return rf, rj
 
 
-def _f_pi(n: Array, s: Array, c: Array, m: Array, m1: Array) -> tuple[Array, Array]:
-    """`(F(φ|m), Π(n; φ|m))` for |φ| ≤ π/2 given by `s = sin φ` and `c = cos φ ≥ 0`, n ≤ 0,
-    0 ≤ m < 1: `F = s R_F(c², 1 − m s², 1)`, `Π = F + (n/3) s³ R_J(c², 1 − m s², 1, 1 − n s²)`
-    (DLMF 19.25.5, 19.25.14), with `1 − m s² = m1 + m c²`. Taking s and c (not φ) keeps Π
-    accurate where `1 − m s²` is tiny (φ near ±π/2, m near 1) if c is accurate there."""
-    rf, rj = _carlson_fj(c, jnp.sqrt(m1 + m * c * c), jnp.ones_like(c), jnp.sqrt(1 - n * s * s))
+def _f_pi(n: Array, s: Array, c: Array, m: Array, m1: Array) -> tuple[Array, Array, Array]:
+    """`(F(φ|m), Π(n; φ|m), F − Π)` for |φ| ≤ π/2 given by `s = sin φ` and `c = cos φ ≥ 0`,
+    n ≤ 0, 0 ≤ m < 1: `F = s R_F(c², Δ², 1)`, `Δ² = 1 − m s² = m1 + m c²` (DLMF 19.25.5), and for
+    n ≥ −1 `F − Π = −(n/3) s³ R_J(c², Δ², 1, 1 − n s²)` (DLMF 19.25.14), so that both Π and
+    F − Π keep their digits. For n < −1 the sum `F + (n/3) s³ R_J` cancels (Π ~ F/√(1 − n s²):
+    all digits lost at n ~ −1/eps), so there Π comes from the characteristic ω² = m/n ∈ (−1, 0]
+    (DLMF 19.7.8, `Π(n) + Π(ω²) = F + √c' R_C(…)`, whose R_C term is elementary here: its
+    arguments differ by `s² (1 − n)(1 − ω²)`):
+        `Π = −(ω²/3) s³ R_J(c², Δ², 1, 1 − ω² s²) + atan2(g s, c Δ)/g`,  `g² = (1 − n)(1 − ω²)`,
+    two positive terms. Taking s and c (not φ) keeps Π accurate where Δ is tiny (φ near ±π/2,
+    m near 1) if c is accurate there."""
+    big = n < -1
+    ns = jnp.where(big, n, -2 * jnp.ones_like(n))
+    w2 = jnp.where(big, m / ns, n)  # the characteristic that R_J sees
+    delta = jnp.sqrt(m1 + m * c * c)
+    rf, rj = _carlson_fj(c, delta, jnp.ones_like(c), jnp.sqrt(1 - w2 * s * s))
     f = s * rf
-    return f, f + (n / 3) * s**3 * rj
+    g = jnp.sqrt((1 - ns) * (1 - m / ns))
+    far = -(w2 / 3) * s**3 * rj + jnp.arctan2(g * s, c * delta) / g
+    near = -(n / 3) * s**3 * rj  # F − Π
+    return f, jnp.where(big, far, f - near), jnp.where(big, f - far, near)
 
 
 @jax.jit

@@ -77,7 +77,11 @@ def _psi_exact(p: _Plan, t: Array) -> tuple[Array, Array]:
         `ψ̇ = M/I1 − (M (I3 − I1)/(I1 I3)) / (1 + ν² sn² τ)`,  τ = u0 + λt,
     and `∫ du/(1 + ν² sn² u) = Π(−ν²; am u|m)` (A&S 17.2.14, third kind, negative characteristic:
     no singularity), so
-        `ψ(t) = (M/I1) t − (M (I3 − I1)/(I1 I3 λ)) [Π(−ν²; am(u0 + λt)|m) − Π(−ν²; am u0|m)]`.
+        `ψ(t) = (M/I1) t − (M (I3 − I1)/(I1 I3 λ)) [Π(−ν²; am(u0 + λt)|m) − Π(−ν²; am u0|m)]`,
+    used for ν² > 1; for ν² ≤ 1 the same with `ΔΠ = λt − Δ(F − Π)`,
+        `ψ(t) = (M/I3) t + (M (I3 − I1)/(I1 I3 λ)) Δ(F − Π)`,
+    whose two terms never cancel (with I1 ≪ I3, M t/I1 would lose log10(I3/I1) digits), and
+    `elliptic._f_pi` keeps the digits of Π for large ν² and of F − Π for small.
     The amplitudes are taken as `jπ + φ` with |φ| ≤ π/2 given by `(sin φ, cos φ)`, both accurate
     also close to the separatrix (m → 1), where `dΠ/dφ ~ 1/dn` is large near φ = ±π/2: at t = 0
     `(sin, cos) ∝ ((A1/A2) Ω2, Ω1)`, `u0 = 2j0 K + F(φ0|m)` by Carlson's R_F (`elliptic._f_pi`,
@@ -97,7 +101,7 @@ def _psi_exact(p: _Plan, t: Array) -> tuple[Array, Array]:
     back = c0 < 0
     j0 = jnp.where(back, jnp.where(s0 >= 0, 1.0, -1.0), 0.0).astype(t.dtype)
     flip = jnp.where(back, -1.0, 1.0).astype(t.dtype)
-    f0, pi0 = _f_pi(
+    f0, pi0, r0 = _f_pi(
         -nu2,
         jnp.stack([flip * s0 / r0, jnp.ones_like(r0)]),
         jnp.stack([flip * c0 / r0, jnp.zeros_like(r0)]),
@@ -108,9 +112,11 @@ def _psi_exact(p: _Plan, t: Array) -> tuple[Array, Array]:
     # one call for am(u0 + λt) and for (sn, cn, dn)(λt) of the addition theorems (`_omega`)
     vt = p.lam_p * t
     j, s, c, d = _ellipj_reduced(jnp.stack([u0 + vt, vt]), p.m, p.m1, p.K)
-    pi1 = _f_pi(-nu2, s[0], c[0], p.m, p.m1)[1]
+    _, pi1, r1 = _f_pi(-nu2, s[0], c[0], p.m, p.m1)
+    coef = p.M * (I3 - I1) / (I1 * I3 * p.lam_p)
     d_pi = 2 * (j[0] - j0) * pi0[1] + pi1 - pi0[0]
-    psi = p.M / I1 * t - p.M * (I3 - I1) / (I1 * I3 * p.lam_p) * d_pi
+    d_r = 2 * (j[0] - j0) * r0[1] + r1 - r0[0]  # ΔF − ΔΠ, with ΔF = λt
+    psi = jnp.where(nu2 > 1, p.M / I1 * t - coef * d_pi, p.M / I3 * t + coef * d_r)
     sign = 1 - 2 * jnp.remainder(j[1], 2)
     return psi, _omega_periodic(p, t, (sign * s[1], sign * c[1], d[1]))
 
