@@ -352,9 +352,13 @@ def _unknown(path: Path, where: str, table: dict, allowed: set[str] | dict) -> N
 def load(path: Path) -> Config:
     """Read and check the config at `path` (a UsageError names the file, key and fix)."""
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")  # a BOM (as some editors write) is dropped
     except OSError as e:
         raise UsageError(f"{path}: cannot read the config ({e.strerror or e})") from e
+    except UnicodeDecodeError as e:
+        raise UsageError(
+            f"{path}: not UTF-8 text (byte {e.start}: {e.reason}); save the config as UTF-8"
+        ) from e
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:

@@ -114,7 +114,15 @@ def _same_config(out: Path, c: Config) -> None:
 
     copy = out / CONFIG_COPY
     if (out / STORE).exists() and copy.exists():
-        if tomllib.loads(copy.read_text(encoding="utf-8")) != tomllib.loads(c.text):
+        try:
+            kept = tomllib.loads(copy.read_text(encoding="utf-8-sig"))
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
+            why = e.strerror or e if isinstance(e, OSError) else e
+            raise UsageError(
+                f"--out {out}: cannot read its copy of the config {copy} ({why}); choose "
+                f"another --out, or delete {out} to start again"
+            ) from e
+        if kept != tomllib.loads(c.text):
             raise UsageError(
                 f"--out {out}: holds a sweep made with another config ({copy}); choose another "
                 f"--out, or delete {out / STORE} to start again"
