@@ -38,7 +38,7 @@ from .._checks import (
 from .._custom_types import RealScalarLike, Scalar, TimesLike, Vec3, Vec3Like
 from .._numerics import safe_sqrt
 from ._rest_point import euler_rate, omega_at_rest, rest_matrix
-from .elliptic import _ellipf, _ellipj, _ellipk, _sech
+from .elliptic import _ellipj, _ellipk, _f_pi, _sech
 
 # ----------------------------------------------------------------------------------------------
 # Free rigid body (Euler–Poinsot)
@@ -428,13 +428,17 @@ def _first_sn_zero(s: Array, c: Array, p: _Plan) -> Array:
     """First t > 0 with `sn(v0 + λt) = 0` (periodic branch, λ = `p.lam_p`), given
     `(s, c) ∝ (sn v0, cn v0)` with a positive factor: the amplitude still to go to the next
     multiple of π is `φ = atan2(|s'|, −sign(s') c)`, `s' = s · sign λ`, and `t = F(φ|k²)/|λ|`;
-    `s' = 0` (a zero at t = 0 itself) gives the next one, `2K/|λ|` later."""
+    `s' = 0` (a zero at t = 0 itself) gives the next one, `2K/|λ|` later. F is taken from
+    (sin φ, cos φ) themselves (`F(φ) = 2K − F(π − φ)` past π/2): close to the separatrix
+    `dF/dφ = 1/Δ` is huge near φ = π/2, where φ itself would carry only eps/Δ of accuracy."""
     s = s * _sign(p.lam_p)
     at_zero = s == 0
-    c = jnp.where(at_zero & (c == 0), jnp.ones_like(c), c)  # keeps atan2's gradient finite
-    phi = jnp.arctan2(jnp.abs(s), -_sign(s) * c)
-    phi = jnp.where(at_zero, jnp.full_like(phi, math.pi), phi)  # F(π|k²) = 2K
-    return _ellipf(phi, p.m, p.m1) / jnp.abs(p.lam_p)
+    c = jnp.where(at_zero & (c == 0), jnp.ones_like(c), c)  # keeps the gradients finite
+    r = jnp.sqrt(s * s + c * c)
+    sin_phi, cos_phi = jnp.abs(s) / r, -_sign(s) * c / r
+    f = _f_pi(jnp.zeros_like(r), sin_phi, jnp.abs(cos_phi), p.m, p.m1)[0]  # F(min(φ, π − φ))
+    f = jnp.where(at_zero, 2 * p.K, jnp.where(cos_phi >= 0, f, 2 * p.K - f))
+    return f / jnp.abs(p.lam_p)
 
 
 def time_of_first_flip(inertia: Vec3Like, omega0: Vec3Like, *, check: bool = True) -> Scalar:

@@ -75,3 +75,19 @@ def test_float32_attitude_of_a_body_with_very_unequal_moments():
     )
     assert q32.dtype == jnp.float32
     assert qdist(q32, q64) < 2e-5
+
+
+def test_first_flip_close_to_the_separatrix():
+    """I = (1, 2, 3), Ω0 = (δ, 1, δ): the flip time is F(φ|m)/|λ| with φ → π/2 and m → 1, where
+    dF/dφ = 1/Δ is huge; F from φ itself was 7.9e-3 off at δ = 1e-14 (2.7e-7 at 1e-10). The
+    reference: the sign change of Ω2 in the closed-form Ω(t) (the Jacobi functions, another
+    path), on a grid of step 1e-7 around it, linearly interpolated."""
+    I = np.array([1.0, 2.0, 3.0])
+    for d in (1e-8, 1e-10, 1e-12, 1e-14):
+        w = np.array([d, 1.0, d])
+        t = float(analytic.time_of_first_flip(I, w))
+        grid = t + np.linspace(-1e-4, 1e-4, 2001)
+        w2 = np.asarray(analytic.free_rigid_body(I, w, grid))[:, 1]
+        k = int(np.flatnonzero((w2[:-1] > 0) & (w2[1:] <= 0))[0])
+        ref = grid[k] + (grid[k + 1] - grid[k]) * w2[k] / (w2[k] - w2[k + 1])
+        assert abs(t - ref) < 1e-10, (d, t - ref)
