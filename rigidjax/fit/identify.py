@@ -365,8 +365,10 @@ def _fit(
     eps = jnp.finfo(p0s.dtype).eps
     free = p0s.shape[1] - (model.trace is not None)  # every parameter but the scale gauge
 
-    def rank(J):  # of the (weighted) Jacobian
-        sv = jnp.linalg.svd(J, compute_uv=False)
+    def rank(J):  # of the (weighted) Jacobian (n, p)
+        # full_matrices=False: JAX's LAPACK call allocates U even without compute_uv, (n, n) by
+        # default (28.8 GB for 10⁴ samples of gyro and attitude data); (n, p) so, same values
+        sv = jnp.linalg.svd(J, full_matrices=False, compute_uv=False)
         return jnp.sum(sv > jnp.sqrt(eps) * sv[0])
 
     def good(sol):  # converged, identifiable, and not a degenerate body (a rod: I_min = 0)
