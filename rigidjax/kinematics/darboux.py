@@ -111,7 +111,8 @@ class _KnotClip(diffrax.ClipStepSizeController):
     """`diffrax.ClipStepSizeController` whose `step_ts` (sorted once, when it is built) are
     not sorted again by every `diffeqsolve`: Diffrax's `wrap` sorts them for each call, and
     `darboux` makes one call per output interval, so that sampled ω with as many outputs as
-    samples took time quadratic in their number (1.2e4 samples: 9 s a call, against 0.3 s)."""
+    samples took time quadratic in their number (1.2e4 samples, an output at each: 9 s a call;
+    0.75 s with the knots sorted once, 0.31 s without the clipping)."""
 
     def wrap(self, direction):
         ts = cast(Array, self.step_ts)
