@@ -1,6 +1,8 @@
 """Reading the CSV data files of `rigidjax identify` and `rigidjax darboux`: a header line names
-the columns (t, wx, wy, wz and optionally qw, qx, qy, qz; ω and Ω may stand for w), or, without
-a header, the columns come in that order. Values are comma-separated, UTF-8 (a BOM is dropped);
+the columns (t, wx, wy, wz and optionally qw, qx, qy, qz; ω and Ω may stand for w, and 1, 2, 3
+for x, y, z), or, without a header, the columns come in that order. The trajectory.csv that
+`rigidjax simulate` writes reads as it is: its derived columns (energy, momentum_norm) are
+skipped. Values are comma-separated, UTF-8 (a BOM is dropped);
 blank lines and `#` comments are skipped. Every error names the file, the line (the file's own
 numbering) and the fix. `prepare` is the start the two commands share."""
 
@@ -16,11 +18,15 @@ from ._common import UsageError, check_out, check_positive, set_precision
 
 GYRO = ("t", "wx", "wy", "wz")
 ATTITUDE = ("qw", "qx", "qy", "qz")
+DERIVED = ("energy", "momentumnorm")  # the columns of simulate's trajectory.csv that are skipped
 
 
 def _column(name: str) -> str:
-    """A header name in canonical form: `Omega_X`, `ωx`, `w_x` → `wx`; `time` → `t`."""
+    """A header name in canonical form: `Omega_X`, `ωx`, `w_x`, `omega1` → `wx`; `q_w` → `qw`;
+    `time` → `t`."""
     key = name.strip().lower().replace("ω", "w").replace("omega", "w").replace("_", "")
+    if key in ("w1", "w2", "w3"):
+        key = "w" + "xyz"[int(key[1]) - 1]
     return "t" if key == "time" else key
 
 
@@ -46,7 +52,8 @@ def _rows(path: Path) -> list[tuple[int, list[str]]]:
 
 def _header(path: Path, line: int, first: list[str]) -> list[str]:
     """The canonical names of the header `first` (on `line`), checked: all of `GYRO`, each
-    once (`wx`, `omega_x` and `ωx` are one column), no others, all of `ATTITUDE` or none."""
+    once (`wx`, `omega_x` and `ωx` are one column), no others but `DERIVED`, all of
+    `ATTITUDE` or none."""
     where = f"{path}: line {line}"
     names = [_column(v) for v in first]
     seen: dict[str, int] = {}
@@ -70,7 +77,7 @@ def _header(path: Path, line: int, first: list[str]) -> list[str]:
             f"{', '.join(GYRO)} (and optionally {', '.join(ATTITUDE)}), got {', '.join(first)}"
             + hint
         )
-    unknown = [v for v, n in zip(first, names, strict=True) if n not in GYRO + ATTITUDE]
+    unknown = [v for v, n in zip(first, names, strict=True) if n not in GYRO + ATTITUDE + DERIVED]
     if unknown:
         raise UsageError(
             f"{where}: unknown column {unknown[0].strip()!r}; the columns are "

@@ -5,6 +5,7 @@ import re
 import numpy as np
 
 from rigidjax.cli import main
+from rigidjax.cli._data import read
 
 
 def test_cli_writes_trajectory(tmp_path, capsys):
@@ -26,6 +27,11 @@ def test_cli_writes_trajectory(tmp_path, capsys):
     np.testing.assert_allclose(csv[:, 1:4], data["omega"])
     assert (out / "trajectory.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert not list(out.glob(".trajectory*"))  # no temporary leftovers
+    # `rigidjax identify` and `darboux` read the CSV as it is (they refused its header)
+    back = read(out / "trajectory.csv", attitude=True)
+    np.testing.assert_allclose(back["t"], data["ts"], rtol=1e-15)
+    np.testing.assert_allclose(back["omega"], data["omega"], rtol=1e-15)
+    np.testing.assert_allclose(back["quat"], data["quat"], rtol=1e-15, atol=1e-16)
 
 
 def test_cli_bad_inertia_writes_nothing(tmp_path, capsys):
