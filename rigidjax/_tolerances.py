@@ -52,17 +52,26 @@ def default_controller(
     )
 
 
+def attainable(dtype) -> float:
+    """The smallest tolerance `dtype` can meet: a few ulps, 4 eps (8.9e-16 in float64)."""
+    return 4 * float(jnp.finfo(dtype).eps)
+
+
 def warn_unattainable(dtype, rtol: RealScalarLike | None, atol: RealScalarLike | None) -> None:
-    """Warn when a tolerance known now asks for more than `dtype` can give (a few ulps)."""
-    attainable = 4 * float(jnp.finfo(dtype).eps)
+    """Warn when a tolerance known now asks for more than `dtype` can give (`attainable`)."""
+    floor = attainable(dtype)
+    wider = (
+        ""
+        if jnp.finfo(dtype).eps < 1e-10
+        else ", or float64 (jax.config.update('jax_enable_x64', True) and float64 inputs)"
+    )
     for name, given in (("rtol", rtol), ("atol", atol)):
         value = None if given is None else concrete_value(given)
-        if value is not None and value < attainable:
+        if value is not None and value < floor:
             warnings.warn(
                 f"{name} = {value:g} is below what {jnp.dtype(dtype).name} can reach (about "
-                f"{attainable:.1g}); the solver will take tiny steps and may not converge. Use "
-                f"{name} >= {attainable:.1g}, or float64 (jax.config.update('jax_enable_x64', "
-                "True) and float64 inputs)",
+                f"{floor:.1g}); the solver will take tiny steps and may not converge. Use "
+                f"{name} >= {floor:.1g}{wider}",
                 stacklevel=4,
             )
 

@@ -129,6 +129,21 @@ def check_positive(args, *names: str) -> None:
             raise UsageError(f"--{name.replace('_', '-')} must be positive and finite, got {v}")
 
 
+def check_tolerance(where: str, value: float | None, *, float32: bool) -> None:
+    """UsageError if a tolerance `value` (option or config key `where`) asks for more than the
+    precision can give (`rigidjax._tolerances.attainable`): the library only warns, and the
+    solve would end in max_steps or a step size that overflows to NaN."""
+    from .._tolerances import attainable
+
+    floor = attainable("float32" if float32 else "float64")
+    if value is not None and value < floor:
+        fix = ", or compute in float64" if float32 else ""
+        raise UsageError(
+            f"{where}: {value:g} is below what {'float32' if float32 else 'float64'} can reach; "
+            f"give at least {floor:.1g}{fix}"
+        )
+
+
 def set_precision(float32: bool) -> None:
     """float64 unless `float32`, and full-precision matrix products (no TF32 on GPUs, whose
     10-bit mantissa would cost float32 runs three digits): the application's choice (the

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from ._common import UsageError
+from ._common import UsageError, check_tolerance
 
 OBSERVABLES = (
     "max_nutation",
@@ -423,6 +423,8 @@ def load(path: Path) -> Config:
         raise _fail(
             path, "[run] precision", "the estimator in the loop ([sensors]) runs in float64"
         )
+    for k, v in tol.items():
+        check_tolerance(f"{path}: [solver] {k}", v, float32=precision == "float32")
     chunk = run.get("chunk_size")
     return Config(
         path=path,

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import checked, print_written, pyplot, save_figure, write_results
+from ._common import check_tolerance, checked, print_written, pyplot, save_figure, write_results
 from ._data import prepare
 
 METHODS = ("rotvec", "quat", "matrix", "euler", "cayley_klein", "geometric")
@@ -54,6 +54,8 @@ def _plot(path: str, t, q, ypr) -> None:
 
 def run(args: argparse.Namespace) -> int:
     data, out = prepare(args, "rtol", "atol", attitude=False)
+    for name in ("rtol", "atol"):
+        check_tolerance(f"--{name}", getattr(args, name), float32=False)
     import jax.numpy as jnp
 
     from .._checks import check_unit_norm, vector

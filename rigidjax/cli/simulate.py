@@ -26,6 +26,7 @@ import numpy as np
 from ._common import (
     UsageError,
     check_positive,
+    check_tolerance,
     checked,
     checks_as_nan,
     print_written,
@@ -79,6 +80,8 @@ def check_options(args: argparse.Namespace) -> None:
     if not (math.isfinite(args.t_end) and args.t_end > 0):
         raise UsageError(f"--t-end must be a positive, finite time span [s], got {args.t_end}")
     check_positive(args, "rtol", "atol")
+    for name in ("rtol", "atol"):
+        check_tolerance(f"--{name}", getattr(args, name), float32=args.float32)
 
 
 @dataclass(frozen=True)

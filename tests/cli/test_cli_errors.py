@@ -120,6 +120,11 @@ BAD_OPTIONS = [
     (["--rtol", "0"], "--rtol"),
     (["--atol=-1e-9"], "--atol"),
     (["--atol", "nan"], "--atol"),
+    # below what the precision can reach: the solve ran into max_steps (or, in darboux, a step
+    # size that overflowed to NaN, reported as a non-finite omega(t) with a traceback)
+    (["--rtol", "1e-300"], "--rtol: 1e-300 is below what float64 can reach"),
+    (["--atol", "1e-16"], "--atol: 1e-16 is below what float64 can reach; give at least 9e-16"),
+    (["--float32", "--rtol", "1e-8"], "float32 can reach; give at least 5e-07, or compute in"),
 ]
 
 

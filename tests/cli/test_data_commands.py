@@ -128,3 +128,18 @@ def test_headerless_columns(tmp_path, truth):
     np.testing.assert_array_equal(data["t"], t)
     np.testing.assert_allclose(data["omega"], w)
     assert "quat" not in data
+
+
+def test_darboux_refuses_unattainable_tolerances(tmp_path, truth):
+    """It ended in a traceback ("omega(t) returned a non-finite value": the first step size
+    overflowed to NaN); now one line before any work."""
+    t, w, _ = truth
+    path = write_csv(tmp_path / "gyro.csv", "t,wx,wy,wz", t, w)
+    argv = ("darboux", str(path), "--rtol", "1e-300", "--atol", "1e-300", "--out")
+    rc, _, err = command(*argv, str(tmp_path / "o"))
+    assert rc == 2 and "Traceback" not in err, err
+    assert (
+        err.strip()
+        == "rigidjax: error: --rtol: 1e-300 is below what float64 can reach; give at least 9e-16"
+    )
+    assert not (tmp_path / "o").exists()

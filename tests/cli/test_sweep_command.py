@@ -162,6 +162,7 @@ BAD_CONFIGS = [
     (("values = [1.6, 2.0]", "values = [1.6, 4.0]"), ("I2 = 4", "triangle")),
     (("omega0 = [", "q0 = [1.0, 1.0, 0.0, 0.0]\nomega0 = ["), ("q0", "unit quaternion")),
     (("rtol = 1e-10", "rtol = -1e-10"), ("[solver] rtol", "positive")),
+    (("rtol = 1e-10", "rtol = 1e-300"), ("[solver] rtol: 1e-300 is below what float64",)),
     (('[1.0, "I2", 2.5]', '[1.0, "I2"]'), ("[body] inertia", "shape")),
 ]
 

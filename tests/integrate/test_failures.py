@@ -46,8 +46,15 @@ def test_successful_solve_reports_every_time_valid():
 
 def test_float32_tolerance_below_reach_warns():
     w32, ts32 = W0.astype(jnp.float32), TS.astype(jnp.float32)
-    with pytest.warns(UserWarning, match=r"rtol = 1e-09 is below what float32 can reach"):
+    with pytest.warns(UserWarning, match=r"rtol = 1e-09 is below what float32 can reach") as w:
         rj.simulate(BODY, w32, None, ts32, rtol=1e-9, max_steps=64, throw=False)
+    assert "or float64" in str(w[0].message)
+
+
+def test_float64_tolerance_below_reach_warns_without_suggesting_float64():
+    with pytest.warns(UserWarning, match=r"rtol = 1e-17 is below what float64 can reach") as w:
+        rj.simulate(BODY, W0, None, TS, rtol=1e-17, max_steps=64, throw=False)
+    assert "float64 (" not in str(w[0].message), w[0].message
 
 
 def _final_quat(w, **kw):
