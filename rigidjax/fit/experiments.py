@@ -111,6 +111,18 @@ def angular_rate(data: Experiments) -> Float[Array, " E"]:
     return jnp.max(step / jnp.diff(data.ts, axis=-1), axis=-1)
 
 
+def turned_angle(data: Experiments) -> Float[Array, "E T"]:
+    """The angle through which each experiment's body has turned by each sample: `∫|Ω| dt`
+    (trapezoidal) from the gyro data, else the sum of the attitude changes (arranged data)."""
+    if data.omega is not None:
+        speed = jnp.linalg.norm(data.omega, axis=-1)
+        steps = 0.5 * (speed[:, 1:] + speed[:, :-1]) * jnp.diff(data.ts, axis=-1)
+    else:
+        assert data.quat is not None
+        steps = jnp.linalg.norm(quat.local(data.quat[:, :-1], data.quat[:, 1:]), axis=-1)
+    return jnp.concatenate([jnp.zeros_like(steps[:, :1]), jnp.cumsum(steps, axis=1)], axis=1)
+
+
 def initial_states(
     data: Experiments, omega0_guess: Array | None, q0_guess: Array | None
 ) -> tuple[Float[Array, "E 3"], Float[Array, "E 4"]]:

@@ -25,7 +25,14 @@ from .._custom_types import Frame, RealLike
 from ..mechanics.inertia import as_tensor, check_inertia, principal_axes
 from ..rotations import quat
 from .covariance import METHODS, covariance
-from .experiments import Experiments, angular_rate, experiments, guess, initial_states
+from .experiments import (
+    Experiments,
+    angular_rate,
+    experiments,
+    guess,
+    initial_states,
+    turned_angle,
+)
 from .flow import flow, substeps_for, torque_rows
 from .initial import linear_inertia
 from .levenberg import LMResult, levenberg_marquardt
@@ -33,6 +40,9 @@ from .losses import Loss, make_loss
 from .parameters import Layout, inertia_from_params, params_from_inertia
 
 __all__ = ["InertiaEstimate", "identify_inertia", "inertia_from_params", "params_from_inertia"]
+
+TURN = 30.0  # rad: how far the first prefix of a long record turns the body (see `_fit`)
+MAX_PREFIXES = 20
 
 
 class InertiaEstimate(eqx.Module):
@@ -124,7 +134,10 @@ def identify_inertia(
     fit keeps the second-moment matrix `Σ = tr(I)/2 E − I ⪰ 0` as a constraint
     (`rigidjax.fit.parameters`), so a planar body (`I3 = I1 + I2`) is reached and identified
     like any other; where the constraint is active, the std is that of the unconstrained
-    linearisation.
+    linearisation. A long record (the body turning through more than `TURN` = 30 rad) is fitted
+    in growing prefixes, each turning it twice as far as the last (a continuation in the
+    horizon: a small error of I shifts the phase of the motion in proportion to the time, and
+    the cost of the whole record at once has minima all around the truth).
 
     Covariance (`rigidjax.fit.covariance`): `"gauss_newton"` (`s²(JᵀJ)⁻¹`, residual-variance
     scaled; default for `"l2"`) or `"sandwich"` (`A⁻¹BA⁻¹`; default for the robust losses).
@@ -325,9 +338,21 @@ def _fit(
     sensors = gyro and (layout.bias or layout.scale)
     s_sensors = 1 if sensors else 0
     s_attitude = s_sensors + 1 if gyro and att else 0
-    stages = 1 + s_sensors + (gyro and att)
+    # before them, on a long record, the first stage's residuals of growing prefixes: the cost
+    # has more minima the longer the record (a small error of I shifts the phase of the motion
+    # in proportion to the time), so the fit first follows the body through TURN rad, then
+    # twice as far at each stage (a continuation in the horizon), up to the whole record; the
+    # model is integrated over the prefix only, so that all of them cost about one whole stage
+    turned = turned_angle(data)
+    prefixes = jnp.clip(jnp.ceil(jnp.log2(jnp.max(turned[:, -1]) / TURN)), 0, MAX_PREFIXES)
+    prefixes = prefixes.astype(jnp.int32)
+    stages = prefixes + 1 + s_sensors + (gyro and att)
 
     def residuals(p, stage):
+        inside = (turned <= TURN * jnp.exp2(stage)) | (stage >= prefixes)  # (E, T)
+        steps = jnp.where(jnp.any(inside[:, 1:], axis=0), substeps, 0)  # none past the prefix
+        inside = inside[..., None]
+        stage = jnp.maximum(stage - prefixes, 0)
         I = layout.inertia(p, model.trace)
         b, s = (jnp.where(stage >= s_sensors, x, 0.0) for x in layout.gyro(p))
 
@@ -336,17 +361,18 @@ def _fit(
             layout.omega0(p),
             layout.q0(p, q_ref),
             data.ts,
-            substeps,
+            steps,
             model.torque,
             model.torque_frame,
             attitude=att or model.torque is not None,
         )
         z = []
         if data.omega is not None:
-            z.append((((1 + s) * W + b - data.omega) / model.sigma_omega).reshape(-1))
+            dw = ((1 + s) * W + b - data.omega) / model.sigma_omega
+            z.append(jnp.where(inside, dw, 0.0).reshape(-1))
         if data.quat is not None:
             dq = quat.local(data.quat, Q) / model.sigma_angle
-            z.append(jnp.where(stage >= s_attitude, dq, 0.0).reshape(-1))
+            z.append(jnp.where(inside & (stage >= s_attitude), dq, 0.0).reshape(-1))
         z = jnp.concatenate(z)
         return model.loss.transform(z), z
 

@@ -2,8 +2,8 @@
 
 Marquardt's damped Gauss–Newton step `(JᵀJ + λ diag(JᵀJ) + λ μ E) δ = −Jᵀr` (Marquardt 1963;
 Nocedal & Wright, Numerical Optimization, §10.3): a step that lowers the cost is accepted and λ
-shrinks by 3, otherwise λ grows by 4. The loop stops when an accepted step lowers the cost by
-less than `rtol · cost + atol` and changes no parameter by more than `√rtol (|p| + √rtol)`, or
+shrinks by 3, otherwise λ grows by 4. The loop stops when a step (accepted or not) changes the
+cost by less than `rtol · cost + atol` and no parameter by more than `√rtol (|p| + √rtol)`, or
 after `max_steps` steps; also when no step lowers the cost any more (λ > 10¹⁶: a minimum to
 rounding, as with exact data).
 
@@ -54,7 +54,7 @@ def levenberg_marquardt(
     residuals: Callable[[Array, Array], tuple[Array, Array]],
     p0: Float[Array, " p"],
     *,
-    stages: int = 1,
+    stages: int | Int[Array, ""] = 1,
     rtol: float = 1e-10,
     atol: float = 1e-14,
     max_steps: int = 256,
@@ -101,9 +101,11 @@ def levenberg_marquardt(
         new_cost = 0.5 * trial[0] @ trial[0]
         accept = new_cost < cost
         small = jnp.all(jnp.abs(dp) <= jnp.sqrt(rtol) * (jnp.abs(p) + jnp.sqrt(rtol)))
-        # a small accepted step, a zero gradient, or no step lowers the cost (λ huge: a
-        # minimum to rounding); not on the first evaluation of a stage (cost ∞)
-        stalled = accept & (cost - new_cost <= rtol * cost + atol) & small
+        # a small step that changes the cost by less than the tolerance either way (accepted,
+        # or rejected: at a minimum to rounding, where waiting for λ to grow past 10¹⁶ took
+        # ~40 steps), a zero gradient, or no step lowers the cost (λ huge); not on the first
+        # evaluation of a stage (cost ∞)
+        stalled = (jnp.abs(cost - new_cost) <= rtol * cost + atol) & small
         stalled = stalled | (jnp.max(jnp.abs(g)) <= atol) | (lam > 1e16)
         stalled = stalled & jnp.isfinite(cost)
         p = jnp.where(accept, p + dp, p)
