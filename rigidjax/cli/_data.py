@@ -1,15 +1,17 @@
 """Reading the CSV data files of `rigidjax identify` and `rigidjax darboux`: a header line names
-the columns (t, wx, wy, wz and optionally qw, qx, qy, qz; ω and Ω may stand for w, and 1, 2, 3
-for x, y, z), or, without a header, the columns come in that order. The trajectory.csv that
-`rigidjax simulate` writes reads as it is: its derived columns (energy, momentum_norm) are
-skipped. Values are comma-separated, UTF-8 (a BOM is dropped);
-blank lines and `#` comments are skipped. Every error names the file, the line (the file's own
-numbering) and the fix. `prepare` is the start the two commands share."""
+the columns (t, wx, wy, wz and optionally qw, qx, qy, qz; ω and Ω may stand for w, 1, 2, 3 for
+x, y, z, and a unit in brackets may follow: `omega_1 [rad/s]`), or, without a header, the
+columns come in that order. The trajectory.csv that `rigidjax simulate` writes reads as it is:
+its derived columns (energy, momentum_norm) are skipped. Values are comma-separated, UTF-8 (a
+BOM is dropped); blank lines, rows of only commas, trailing commas and `#` comments are
+skipped. Every error names the file, the line (the file's own numbering) and the fix.
+`prepare` is the start the two commands share."""
 
 from __future__ import annotations
 
 import argparse
 import csv
+import re
 from pathlib import Path
 
 import numpy as np
@@ -23,8 +25,9 @@ DERIVED = ("energy", "momentumnorm")  # the columns of simulate's trajectory.csv
 
 def _column(name: str) -> str:
     """A header name in canonical form: `Omega_X`, `ωx`, `w_x`, `omega1` → `wx`; `q_w` → `qw`;
-    `time` → `t`."""
-    key = name.strip().lower().replace("ω", "w").replace("omega", "w").replace("_", "")
+    `time` → `t`; a unit after it dropped (`t [s]`, `wx (rad/s)`)."""
+    key = re.sub(r"\s*[\[(][^\[\]()]*[\])]\s*$", "", name.strip())
+    key = key.lower().replace("ω", "w").replace("omega", "w").replace("_", "")
     if key in ("w1", "w2", "w3"):
         key = "w" + "xyz"[int(key[1]) - 1]
     return "t" if key == "time" else key
@@ -32,14 +35,18 @@ def _column(name: str) -> str:
 
 def _rows(path: Path) -> list[tuple[int, list[str]]]:
     """The rows of `path`, each with the file's line number (1-based: where the row ends), less
-    blank or whitespace-only lines and comments (`#`). A BOM (as Excel writes) is dropped."""
+    their trailing empty fields (as spreadsheets export: `t,wx,wy,wz,`), and less rows left
+    empty (blank, whitespace-only, only commas) and comments (`#`). A BOM (as Excel writes) is
+    dropped."""
     rows, line = [], 0
     try:
         with path.open(newline="", encoding="utf-8-sig") as f:
             reader = csv.reader(f)
             for r in reader:
                 line = reader.line_num
-                if (len(r) > 1 or "".join(r).strip()) and not r[0].lstrip().startswith("#"):
+                while r and not r[-1].strip():
+                    r.pop()
+                if r and not r[0].lstrip().startswith("#"):
                     rows.append((line, r))
     except OSError as e:
         raise UsageError(f"{path}: cannot read the data ({e.strerror or e})") from e

@@ -121,6 +121,28 @@ def test_whitespace_only_lines_are_blank(tmp_path):
     np.testing.assert_array_equal(data["t"], [0, 0.1])
 
 
+@pytest.mark.parametrize(
+    "text",
+    [
+        "t,wx,wy,wz,\n0,0.3,1,0.2,\n0.1,0.28,1.01,0.19,\n",  # trailing commas (spreadsheets)
+        "t,wx,wy,wz\n0,0.3,1,0.2\n,,,\n0.1,0.28,1.01,0.19\n , ,\n",  # rows of only commas
+        "t [s],omega_1 [rad/s],omega_2 (rad/s),omega_3 [rad/s]\n0,0.3,1,0.2\n0.1,0.28,1.01,0.19\n",
+        "0,0.3,1,0.2,\n0.1,0.28,1.01,0.19,,\n",  # no header
+    ],
+)
+def test_what_spreadsheets_export(tmp_path, text):
+    """Trailing commas, rows of only commas and units in the header were refused."""
+    data = read_text(tmp_path, text)
+    np.testing.assert_array_equal(data["t"], [0, 0.1])
+    np.testing.assert_allclose(data["omega"], [[0.3, 1, 0.2], [0.28, 1.01, 0.19]])
+
+
+def test_a_missing_value_before_a_trailing_comma_is_still_an_error(tmp_path, capsys):
+    data_error(
+        tmp_path, capsys, "darboux", "t,wx,wy,wz,\n0,1,0,0,\n1,1,0,,\n", "line 3: ", "3 values"
+    )
+
+
 @pytest.mark.parametrize("header", ["t,wx,wy,wz\n", ""])
 def test_utf8_bom_is_dropped(tmp_path, header):
     """Excel's UTF-8 BOM before a header or before the first number."""
