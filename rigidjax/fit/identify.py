@@ -381,6 +381,7 @@ def _fit(
             residuals,
             p0,
             stages=stages,
+            coarse=prefixes,
             rtol=opts.rtol,
             atol=opts.atol,
             max_steps=opts.max_steps,

@@ -18,7 +18,8 @@ feasible set, where a smooth reparametrisation would be singular.
 
 Stages: `residuals(p, stage)` may depend on an integer stage `0 … stages − 1`; when stage `s`
 has converged the loop goes on from its solution with stage `s + 1` (the identification fits
-the smooth gyro residuals before the attitude ones). One loop, one trace of the Jacobian: the
+the smooth gyro residuals before the attitude ones, and a long record's prefixes before it).
+The first `coarse` stages are way stations: they stop at the tolerance `max(rtol, 1e-6)`. One loop, one trace of the Jacobian: the
 compile time of the fit stays that of one iteration, and it is independent of the number of
 stages. The Jacobian and residuals at the solution come back with the result.
 """
@@ -33,6 +34,8 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 __all__ = ["LMResult", "levenberg_marquardt"]
+
+COARSE = 1e-6  # the tolerance of the stages before `coarse`: way stations, not answers
 
 
 class LMResult(NamedTuple):
@@ -55,6 +58,7 @@ def levenberg_marquardt(
     p0: Float[Array, " p"],
     *,
     stages: int | Int[Array, ""] = 1,
+    coarse: int | Int[Array, ""] = 0,
     rtol: float = 1e-10,
     atol: float = 1e-14,
     max_steps: int = 256,
@@ -100,12 +104,13 @@ def levenberg_marquardt(
         trial = evaluate(p + dp, stage)
         new_cost = 0.5 * trial[0] @ trial[0]
         accept = new_cost < cost
-        small = jnp.all(jnp.abs(dp) <= jnp.sqrt(rtol) * (jnp.abs(p) + jnp.sqrt(rtol)))
+        tol = jnp.where(stage < coarse, max(rtol, COARSE), rtol)
+        small = jnp.all(jnp.abs(dp) <= jnp.sqrt(tol) * (jnp.abs(p) + jnp.sqrt(tol)))
         # a small step that changes the cost by less than the tolerance either way (accepted,
         # or rejected: at a minimum to rounding, where waiting for λ to grow past 10¹⁶ took
         # ~40 steps), a zero gradient, or no step lowers the cost (λ huge); not on the first
         # evaluation of a stage (cost ∞)
-        stalled = (jnp.abs(cost - new_cost) <= rtol * cost + atol) & small
+        stalled = (jnp.abs(cost - new_cost) <= tol * cost + atol) & small
         stalled = stalled | (jnp.max(jnp.abs(g)) <= atol) | (lam > 1e16)
         stalled = stalled & jnp.isfinite(cost)
         p = jnp.where(accept, p + dp, p)
