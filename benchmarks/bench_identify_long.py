@@ -110,7 +110,20 @@ def run(args, log: Log) -> dict:
         machine=machine_info(),
         load_average_start=log.load_start,
         results=results,
+        summary=summarise(results),
     )
+
+
+def summarise(results: dict) -> dict:
+    """Per fit: the calls that converged (of 2), the repeat call's seconds and LM steps."""
+    out = {}
+    for key, r in results.items():
+        calls = r.get("calls", [])
+        if calls:
+            out[f"{key}_s_converged_calls"] = sum(c["converged"] for c in calls)
+            out[f"{key}_s_repeat_seconds"] = calls[-1]["seconds"]
+            out[f"{key}_s_repeat_lm_steps"] = calls[-1]["lm_steps"]
+    return out
 
 
 def print_table(out: dict) -> None:

@@ -628,6 +628,7 @@ SECTIONS: dict[str, tuple[str, Callable[[dict], str]]] = {
     "darboux.json": ("The Darboux problem: work–precision, drift, throughput", _darboux),
     "dynamics.json": ("Batched free-body dynamics", _dynamics),
     "identify.json": ("Inertia identification and gradient cost", _identify),
+    "identify_long.json": ("Inertia identification from long records", _generic),
     "checks.json": ("What the input checks cost", _checks),
     "sweep.json": ("Sweeps: throughput, devices, memory", _sweep),
     "kernel.json": ("The CPU kernels against hand-written C, 1e3 to 1e7 bodies", _generic),

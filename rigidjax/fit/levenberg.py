@@ -19,9 +19,10 @@ feasible set, where a smooth reparametrisation would be singular.
 Stages: `residuals(p, stage)` may depend on an integer stage `0 … stages − 1`; when stage `s`
 has converged the loop goes on from its solution with stage `s + 1` (the identification fits
 the smooth gyro residuals before the attitude ones, and a long record's prefixes before it).
-The first `coarse` stages are way stations: they stop at the tolerance `max(rtol, 1e-6)`. One loop, one trace of the Jacobian: the
-compile time of the fit stays that of one iteration, and it is independent of the number of
-stages. The Jacobian and residuals at the solution come back with the result.
+The first `coarse` stages are way stations: they stop at the tolerance `max(rtol, 1e-6)`. One
+loop, one trace of the Jacobian: the compile time of the fit stays that of one iteration, and
+it is independent of the number of stages. The Jacobian and residuals at the solution come back
+with the result.
 """
 
 from __future__ import annotations
