@@ -106,9 +106,13 @@ def angular_rate(data: Experiments) -> Float[Array, " E"]:
     the largest gyro sample, or the largest attitude change per sample interval."""
     if data.omega is not None:
         return jnp.max(jnp.linalg.norm(data.omega, axis=-1), axis=-1)
+    return jnp.max(_attitude_steps(data) / jnp.diff(data.ts, axis=-1), axis=-1)
+
+
+def _attitude_steps(data: Experiments) -> Float[Array, "E _"]:
+    """The angle of each attitude change between consecutive samples (arranged data)."""
     assert data.quat is not None
-    step = jnp.linalg.norm(quat.local(data.quat[:, :-1], data.quat[:, 1:]), axis=-1)
-    return jnp.max(step / jnp.diff(data.ts, axis=-1), axis=-1)
+    return jnp.linalg.norm(quat.local(data.quat[:, :-1], data.quat[:, 1:]), axis=-1)
 
 
 def turned_angle(data: Experiments) -> Float[Array, "E T"]:
@@ -118,8 +122,7 @@ def turned_angle(data: Experiments) -> Float[Array, "E T"]:
         speed = jnp.linalg.norm(data.omega, axis=-1)
         steps = 0.5 * (speed[:, 1:] + speed[:, :-1]) * jnp.diff(data.ts, axis=-1)
     else:
-        assert data.quat is not None
-        steps = jnp.linalg.norm(quat.local(data.quat[:, :-1], data.quat[:, 1:]), axis=-1)
+        steps = _attitude_steps(data)
     return jnp.concatenate([jnp.zeros_like(steps[:, :1]), jnp.cumsum(steps, axis=1)], axis=1)
 
 
