@@ -2,11 +2,12 @@
 kernel written from the JAX field itself (`model.cc`): the fast path of every model with a
 torque, the heavy top, the satellite and the 6-DOF body.
 
-The field of one body, `f(t, y (N,), p (P,)) -> (N,)`, is traced once. As under `jax.jit`,
-the concrete constants it closes over are compile-time constants (folded: `e_Z` selects a row of
-a matrix instead of multiplying by 0 and 1), and the traced ones (torque gains swept under
-`jax.vmap`, differentiated by `jax.grad`) are lifted into a runtime parameter vector `c`, so that
-the C++ depends on them through their shapes only (built once, cached on disk, `_build`).
+The field of one body, `f(t, y (N,), p (P,)) -> (N,)`, is traced once. Its traced constants
+(torque gains swept under `jax.vmap`, differentiated by `jax.grad`) are lifted into a runtime
+parameter vector `c`, and so are its concrete float constants and literals (`_lift`: a gain
+changed between eager calls), so that the C++ depends on them through their shapes only (built
+once, cached on disk, `_build`). 0, the powers of two and non-finite values stay compile-time
+constants (folded: `e_Z` selects a row of a matrix instead of multiplying by 0 and 1).
 `model.h` holds the field as C++ statements (`_scalar.unroll` + `_emit.CEmitter`), its
 transposed Jacobian-vector product written the same way from the jaxpr of `jax.vjp`, and the
 tableau from Diffrax's coefficients.
@@ -28,7 +29,7 @@ from jax.custom_derivatives import SymbolicZero
 from jaxtyping import Array, Float, Int
 
 from .._checks import is_concrete
-from . import tableau
+from . import _lift, tableau
 from ._build import load
 from ._components import Components
 from ._objects import _is_const, scalars
@@ -180,11 +181,11 @@ def hoist(
 ) -> Hoisted:
     """`field` (and the jump map `jump`, step-end map `end(y) -> (y, changed)` and event
     condition `event(t, y, p) -> ()`, if any; the kernels apply `end(y)[0]` to every body,
-    whether changed or not) traced on `t ()`,
-    `y (n,)`, `p (p,)` of `dtype`, their traced float constants lifted into `c`; kept (not
-    traced again) for hashable functions whose constants are concrete, as `jax.jit` keeps a
-    function's compilation. A traced integer constant (an index computed at run time) raises
-    `Unsupported`."""
+    whether changed or not) traced on `t ()`, `y (n,)`, `p (p,)` of `dtype`, their traced
+    float constants lifted into `c`, then the concrete ones that `_lift` lifts (without
+    cotangents); kept (not traced again) for hashable functions whose constants are
+    concrete, as `jax.jit` keeps a function's compilation. A traced integer constant (an
+    index computed at run time) raises `Unsupported`."""
     maps = (field, jump, end, event)
     name = jnp.dtype(dtype).name
     try:
@@ -226,7 +227,7 @@ def _hoist(maps: tuple, n: int, p: int, dtype: str) -> Hoisted:
             ),
         )
 
-    closed = jax.make_jaxpr(all_maps)(*args)
+    closed = _lift.literals_as_consts(jax.make_jaxpr(all_maps)(*args), dtype)
     if any(a.shape != (n,) for a in closed.out_avals):  # pyright: ignore
         raise ValueError(
             f"the model's field, jump and step-end maps must return arrays of shape ({n},)"
@@ -237,17 +238,46 @@ def _hoist(maps: tuple, n: int, p: int, dtype: str) -> Hoisted:
     if len(floats) < len(traced):
         raise Unsupported("an integer or boolean computed at run time, closed over")
     values = [jnp.asarray(consts[i]) for i in floats]
-    c = jnp.concatenate([jnp.ravel(v).astype(dtype) for v in values] + [jnp.zeros((0,), dtype)])
+    masks = {i: _lift.liftable(x, dtype) for i, x in enumerate(consts) if i not in traced}
+    masks = {i: m for i, m in masks.items() if m is not None}
+    fixed = [np.asarray(consts[i])[m] for i, m in masks.items()]
+    c = jnp.concatenate(
+        [jnp.ravel(v).astype(dtype) for v in values]
+        + [jnp.asarray(np.concatenate([np.zeros((0,), dtype), *fixed]))]
+    )
 
     def fns(t, y, p, c):
         full, offset = list(consts), 0
         for i, v in zip(floats, values, strict=True):
             full[i] = c[offset : offset + v.size].reshape(v.shape).astype(v.dtype)
             offset += v.size
+        # the concrete constants lifted: no cotangents (the kernels' reverse modes skip them)
+        lifted = jax.lax.stop_gradient(c[offset:])
+        for i, mask in masks.items():
+            size = int(mask.sum())
+            full[i] = _with_lifted(np.asarray(consts[i]), mask, lifted[:size])
+            lifted = lifted[size:]
         return jax.core.eval_jaxpr(closed.jaxpr, full, t, y, p)
 
     jumps, ends, events = (m is not None for m in maps[1:])
     return Hoisted(fns, c, n, p, dtype, jumps, ends, events)
+
+
+def _with_lifted(value: np.ndarray, mask: np.ndarray, lifted: Array) -> Array:
+    """`value` with its elements under `mask` read from `lifted` (in order), the others kept
+    as constants."""
+    if mask.all():
+        return lifted.reshape(value.shape)
+    flat, where = value.reshape(-1), mask.reshape(-1)
+    edges = [0, *(np.flatnonzero(where[1:] != where[:-1]) + 1), where.size]
+    parts, used = [], 0
+    for a, b in zip(edges[:-1], edges[1:], strict=True):
+        if where[a]:
+            parts.append(lifted[used : used + b - a])
+            used += b - a
+        else:
+            parts.append(jnp.asarray(flat[a:b]))
+    return jnp.concatenate(parts).reshape(value.shape)
 
 
 class Kernel(NamedTuple):

@@ -274,7 +274,7 @@ def test_kernel_lowers_to_triton(triton_modules, dtype):
     hoisted = model_kernel.hoist(model.field, model.size, model.params, dtype)
     w, q = _inputs(pk.BLOCK + 5, dtype=dtype)
     y0 = jnp.concatenate([w, q], axis=1)
-    p = moments_params(jnp.ones(3, dtype))[:, None]
+    p = jnp.concatenate([moments_params(jnp.ones(3, dtype)), hoisted.c])[:, None]
     n, h, t0 = jnp.asarray([3, 4], jnp.int32), jnp.asarray([0.1, 0.2], dtype), jnp.zeros(2, dtype)
     run = functools.partial(pk.run, pk.Spec(hoisted, model.unit, rj.RK4))
     vrun = jax.vmap(run, in_axes=(None, None, (None, 0, None)))
@@ -385,8 +385,8 @@ def test_reverse_kernel_lowers_to_triton(triton_modules):
 def test_step_end_map_lowers_to_triton(triton_modules):
     """The rotation vector's shadow switch (a step-end map whose `round` Pallas' Triton lowering
     lacks: the scalar program builds it from `floor`) lowers for CUDA inside the forward and
-    the reverse kernel; a model without parameters takes one row of zeros (a block cannot be
-    empty)."""
+    the reverse kernel; a model without parameters takes its lifted constants (the Taylor
+    coefficients of Z(θ)) as its only rows."""
     kin = lookup("rotvec", "space")
 
     def field(t, y, p):
@@ -394,7 +394,7 @@ def test_step_end_map_lowers_to_triton(triton_modules):
 
     hoisted = model_kernel.hoist(field, 3, 0, jnp.float64, end=kin.step_end)
     spec = pk.Spec(hoisted, (), rj.RK4)
-    ys, p = jnp.ones((pk.BLOCK, 3, 3)), jnp.zeros((0, 1))  # (3 states: the output times')
+    ys, p = jnp.ones((pk.BLOCK, 3, 3)), hoisted.c[:, None]  # (3 states: the output times')
     ck = jnp.ones((pk.BLOCK, 2, 2, 3))  # (the checkpoints of 2 intervals of at most 4 steps)
     steps = (jnp.asarray([3, 4], jnp.int32), jnp.asarray([0.1, 0.2]), jnp.zeros(2))
     forward = functools.partial(pk.run, spec)
@@ -462,7 +462,7 @@ def test_jump_map_lowers_to_triton(triton_modules):
     jumps, keep = np.array([True, False, True]), np.array([True, False, True, True])
     schedule = model_kernel.Schedule.of(3, jumps, keep, 1)
     y0 = jnp.asarray(np.random.default_rng(0).normal(size=(5, 3)))
-    p = jnp.asarray([[2.0]])
+    p = jnp.concatenate([jnp.asarray([2.0]), hoisted.c])[:, None]
     steps = (jnp.asarray([3, 0, 5], jnp.int32), jnp.asarray([0.1, 0.2, 0.05]), TS[:-1])
     run = functools.partial(pk.run, spec, schedule=schedule)
     lowered = jax.jit(run).trace(y0, p, steps).lower(lowering_platforms=("cuda",))

@@ -193,7 +193,7 @@ def test_kernel_lowers_to_triton(triton_modules, dtype):
     spec = pk.Spec(hoisted, model.unit, diffrax.Tsit5)
     _, w, q = _bodies(pk.BLOCK + 5)
     y0 = jnp.concatenate([w, q], axis=1).astype(dtype)
-    p = moments_params(jnp.ones(3, dtype))[:, None]
+    p = jnp.concatenate([moments_params(jnp.ones(3, dtype)), hoisted.c])[:, None]
     ctl = adaptive.controls(diffrax.PIDController(**TOL), diffrax.Tsit5(), None, 100, dtype)
     run = functools.partial(pa.run, spec, ctl=ctl)
     vrun = jax.vmap(run, in_axes=(0, None, None))
@@ -252,7 +252,7 @@ def test_jump_map_lowers_to_triton_and_restarts_each_interval(triton_modules):
     schedule = model_kernel.Schedule.of(3, jumps, keep, 1)
     ctl = adaptive.controls(diffrax.PIDController(**TOL), diffrax.Tsit5(), None, 100, jnp.float64)
     y0 = jnp.asarray(np.random.default_rng(0).normal(size=(5, 3)))
-    p = jnp.asarray([[2.0]])
+    p = jnp.concatenate([jnp.asarray([2.0]), hoisted.c])[:, None]
     run = functools.partial(pa.run, spec, ctl=ctl, schedule=schedule)
     lowered = jax.jit(run).trace(y0, p, ts).lower(lowering_platforms=("cuda",))
     assert lowered.as_text().count("__gpu$xla.gpu.triton") == 1
