@@ -39,7 +39,7 @@ def consts(closed) -> list[np.ndarray]:
     return [np.asarray(_const_array(x), dtype=object) for x in closed.consts]
 
 
-def _program(jaxpr, out: str, prefix: str, n: int, p: int, pc: int) -> tuple[list[str], list]:
+def program(jaxpr, out: str, prefix: str, n: int, p: int, pc: int) -> tuple[list[str], list]:
     """C++ statements of a map `(t, y, p, c) -> (N,)` writing `out[i]`, and its outputs."""
     em = CEmitter(prefix)
     (k,) = unroll(jaxpr, em, consts(jaxpr), _inputs(n, p, pc))
@@ -67,19 +67,19 @@ def model_source(
     each jump records (`record`), `F` and `FT` (and the jump map `J` and `JT`, the step-end
     map `E` and `ET`, empty without one) as C++."""
     n, p, pc = hoisted.n, hoisted.p, hoisted.c.shape[0]
-    body_f, rates = _program(hoisted.forward, "k", "f", n, p, pc)
+    body_f, rates = program(hoisted.forward, "k", "f", n, p, pc)
     # components whose rate is the constant 0 (a held command): the stages copy them
     still = ", ".join("true" if _is_const(x) and x == 0 else "false" for x in rates)
     body_b = _cotangent_program(hoisted.backward, "b", n, p, pc)
     jumps = hoisted.jumps
     jump = hoisted.jump_fn
-    body_j = _program(hoisted.jaxpr(jump), "u", "j", n, p, pc)[0] if jumps else []
+    body_j = program(hoisted.jaxpr(jump), "u", "j", n, p, pc)[0] if jumps else []
     body_jb = _cotangent_program(hoisted.jaxpr(jump, True), "jb", n, p, pc) if jumps else []
     ends, end = hoisted.ends, hoisted.end_fn
-    body_e = _program(hoisted.jaxpr(end), "u", "e", n, p, pc)[0] if ends else []
+    body_e = program(hoisted.jaxpr(end), "u", "e", n, p, pc)[0] if ends else []
     body_eb = _cotangent_program(hoisted.jaxpr(end, True), "eb", n, p, pc) if ends else []
     events = hoisted.events
-    body_g = _program(hoisted.jaxpr(hoisted.event_fn), "g", "g", n, p, pc)[0] if events else []
+    body_g = program(hoisted.jaxpr(hoisted.event_fn), "g", "g", n, p, pc)[0] if events else []
     units = ", ".join(f"{{{a}, {m}}}" for a, m in unit) or "{0, 0}"
     indent = "\n    "
     forward_args = "(T t, const T* y, const T* p, T* {}) {{\n    "
