@@ -16,6 +16,7 @@ The lifted values are the same numbers at run time, so results do not change."""
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 
 import jax
@@ -48,8 +49,9 @@ def liftable(value, dtype) -> np.ndarray | None:
     return mask if mask.any() else None
 
 
-_JAX = tuple(str(Path(str(m.__file__)).parent) for m in (jax, jaxlib))
-_LIBRARY = str(Path(__file__).parents[1])
+# package folders with their separator: `.../jax/` is not `.../jaxtyping/`
+_JAX = tuple(os.path.join(Path(str(m.__file__)).parent, "") for m in (jax, jaxlib))
+_LIBRARY = os.path.join(Path(__file__).parents[1], "")
 
 
 def _in_library(eqn) -> bool:
@@ -83,8 +85,8 @@ def _takes_literals(eqn) -> bool:
 def literals_as_consts(closed: jex_core.ClosedJaxpr, dtype) -> jex_core.ClosedJaxpr:
     """`closed` with its float literals of `dtype` that are operands at its top level of
     arithmetic or comparisons, or of jitted functions (`_takes_literals`; not `folded`) made
-    constants (new constant variables, their
-    values appended to its consts), one per occurrence."""
+    constants (new constant variables, their values appended to its consts), one per
+    occurrence."""
     jaxpr = closed.jaxpr
     new_vars: list = []
     values: list[np.ndarray] = []

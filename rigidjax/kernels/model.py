@@ -40,7 +40,7 @@ MAX_OPERATIONS = 600
 """The largest field (scalar statements of its program, `Hoisted.operations`) that the kernels
 and the Diffrax path's scalar program take; larger ones run on the Diffrax path with the
 model's own field, whose matrix products XLA batches. The library's own models have at most
-~170. An MLP torque 7 → w → w → 3 (256 bodies, 200 RK4 steps, fresh caches; kernel / own
+~190. An MLP torque 7 → w → w → 3 (256 bodies, 200 RK4 steps, fresh caches; kernel / own
 field): w = 8, 328 statements: forward 21 / 13 ms, gradient 77 / 111 ms, first gradient
 3.7 / 7.0 s; w = 16, 872: 47 / 18 ms, 199 / 143 ms, 9.1 / 6.6 s; w = 32, 2728: the kernel's
 first gradient 48 s to 2 min, the own field's 6.8 s."""
