@@ -169,6 +169,12 @@ def test_a_condition_not_finite_at_the_start_is_named():
         rj.simulate(gyrostat, W, ts=TS, event=nan)
     with raises_in_jit("the Event's condition"):
         jax.block_until_ready(jax.jit(lambda w: rj.simulate(BODY, w, ts=TS, event=nan).omega)(W))
+    # a condition that returns a Python constant (no array: `filter_vmap` left it unbatched,
+    # and the check passed it over)
+    constant = rj.Event(lambda t, w, q: float("nan"))
+    for w0 in (W[0], W):
+        with pytest.raises(ValueError, match=r"not finite at the initial state \((the )?body"):
+            rj.simulate(BODY, w0, ts=TS, event=constant)
 
 
 @pytest.mark.slow

@@ -42,8 +42,10 @@ def finite_at_start(
     finite at a body's initial state (`q0 (B, 4)`, at `t0`): a NaN condition never changes
     sign, and its `event_t` would be `inf` unmarked (a run-time check under `jit`). A condition
     of the wrong shape or type is left to the solve's own message."""
+    # (an array even where the condition returns a Python constant: else filter_vmap would
+    # hand that back unbatched and the check would pass it over)
     values = eqx.filter_vmap(
-        lambda ev, w, q: ev.condition(t0, w, q), in_axes=(event.in_axes(), 0, 0)
+        lambda ev, w, q: jnp.asarray(ev.condition(t0, w, q)), in_axes=(event.in_axes(), 0, 0)
     )(event, omega0, q0)
     if jnp.shape(values) != omega0.shape[:1] or not jnp.issubdtype(values.dtype, jnp.floating):
         return omega0
