@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, DTypeLike, Float, PRNGKeyArray, Real
 
-from .._checks import as_float, concrete_value, is_concrete, matrix, vector
+from .._checks import as_float, broadcast_batch, concrete_value, is_concrete, matrix, vector
 from .._custom_types import (
     Mat33,
     Mat33Like,
@@ -63,6 +63,7 @@ def mul(a: QuatLike, b: QuatLike) -> Quat:
     """
     a = vector(a, 4, "a")
     b = vector(b, 4, "b")
+    broadcast_batch(a=a.shape[:-1], b=b.shape[:-1])
     a0, av = _split(a)
     b0, bv = _split(b)
     w = a0 * b0 - jnp.sum(av * bv, axis=-1)
@@ -119,6 +120,7 @@ def rotate(q: QuatLike, v: Vec3Like) -> Vec3:
     """`P(q) v = v + 2 λ0 λ × v + 2 λ × (λ × v)` for unit `q` (article 003), divided by |q|²."""
     q = vector(q, 4, "q")
     v = vector(v, 3, "v")
+    broadcast_batch(q=q.shape[:-1], v=v.shape[:-1])
     w, u = _split(q)
     s = 2 / _checked_norm2(q, "q")
     t = jnp.cross(jnp.broadcast_to(u, jnp.broadcast_shapes(u.shape, v.shape)), v)
@@ -367,9 +369,13 @@ def _angle(q: Quat) -> Scalar:
     return 2 * jnp.arctan2(n, jnp.abs(q[..., 0]))
 
 
-def random(key: PRNGKeyArray, shape: tuple[int, ...] = (), dtype: DTypeLike | None = None) -> Quat:
-    """Uniformly distributed unit quaternions (λ0 ≥ 0): normalised standard Gaussian 4-vectors."""
+def random(
+    key: PRNGKeyArray, shape: int | tuple[int, ...] = (), dtype: DTypeLike | None = None
+) -> Quat:
+    """Uniformly distributed unit quaternions (λ0 ≥ 0): normalised standard Gaussian 4-vectors;
+    `shape` the batch's (an int `n`: `(n,)`, as SciPy's `Rotation.random(n)`)."""
     dtype = jnp.result_type(float) if dtype is None else dtype
+    shape = (shape,) if isinstance(shape, int) else tuple(shape)
     g = jax.random.normal(key, (*shape, 4), dtype)
     return canonical(g / jnp.linalg.norm(g, axis=-1, keepdims=True))
 
@@ -405,6 +411,7 @@ def slerp(a: QuatLike, b: QuatLike, t: ScalarLike) -> Quat:
     a = _unit(vector(a, 4, "a"), "a")
     b = _unit(vector(b, 4, "b"), "b")
     t = _v.check_finite(as_float(t, "t"), "t", 0)
+    broadcast_batch(a=a.shape[:-1], b=b.shape[:-1], t=t.shape)
     b = jnp.where(jnp.sum(a * b, axis=-1, keepdims=True) < 0, -b, b)
     theta = _to_rotvec(mul(conj(a), b))
     late = (t > 0.5)[..., None]

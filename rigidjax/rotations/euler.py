@@ -27,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, DTypeLike, Float
 
-from .._checks import check_frame, is_concrete, matrix, validate, vector
+from .._checks import broadcast_batch, check_frame, is_concrete, matrix, validate, vector
 from .._custom_types import (
     EulerSeq,
     Frame,
@@ -270,6 +270,7 @@ def rates_to_omega(
     `angles`, `rates` must be finite."""
     angles = _angles_arg(angles)
     rates = _angles_arg(rates, name="rates")
+    broadcast_batch(angles=angles.shape[:-1], rates=rates.shape[:-1])
     J = jacobian(angles, seq, frame)
     return jnp.einsum("...ij,...j->...i", J, rates)
 
@@ -296,6 +297,7 @@ def omega_to_rates(
     """
     angles = _angles_arg(angles)
     omega = _angles_arg(omega, name="omega")
+    broadcast_batch(angles=angles.shape[:-1], omega=omega.shape[:-1])
     J = jacobian(angles, seq, frame)
     c1, c2, c3 = J[..., 0], J[..., 1], J[..., 2]
     adj = jnp.stack([jnp.cross(c2, c3), jnp.cross(c3, c1), jnp.cross(c1, c2)], axis=-2)

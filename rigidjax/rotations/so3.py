@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import DTypeLike, PRNGKeyArray
 
-from .._checks import check_frame, is_concrete, matrix, validate, vector
+from .._checks import broadcast_batch, check_frame, is_concrete, matrix, validate, vector
 from .._custom_types import Frame, Mat33, Mat33Like, Scalar, Vec3, Vec3Like
 from . import _quat_core, _series, _validation, quat
 from ._compiled import compiled
@@ -119,6 +119,7 @@ def rotate(theta: Vec3Like, a: Vec3Like) -> Vec3:
     concrete `theta` or `a` is an error naming it, as in `exp`."""
     theta = _eager_finite(vector(theta, 3, "theta"), "theta")
     a = _eager_finite(vector(a, 3, "a"), "a")
+    broadcast_batch(theta=theta.shape[:-1], a=a.shape[:-1])
     x2 = _sq(theta)[..., None]
     theta = jnp.broadcast_to(theta, jnp.broadcast_shapes(theta.shape, a.shape))
     t = jnp.cross(theta, a)
@@ -156,6 +157,7 @@ def compose(phi: Vec3Like, psi: Vec3Like) -> Vec3:
     `psi` must be finite."""
     phi = _validation.check_finite(vector(phi, 3, "phi"), "phi", 1)
     psi = _validation.check_finite(vector(psi, 3, "psi"), "psi", 1)
+    broadcast_batch(phi=phi.shape[:-1], psi=psi.shape[:-1])
     return _quat_core._to_rotvec(
         quat.mul(_quat_core._from_rotvec(phi), _quat_core._from_rotvec(psi))
     )
@@ -183,6 +185,7 @@ def angular_velocity(P: Mat33Like, P_dot: Mat33Like, frame: Frame = "space") -> 
     `P`, `P_dot` must be finite."""
     P = _validation.check_finite(matrix(P, "P"), "P", 2)
     P_dot = _validation.check_finite(matrix(P_dot, "P_dot"), "P_dot", 2)
+    broadcast_batch(P=P.shape[:-2], P_dot=P_dot.shape[:-2])
     check_frame(frame)
     Pt = jnp.swapaxes(P, -1, -2)
     return vee(P_dot @ Pt) if frame == "space" else vee(Pt @ P_dot)
@@ -220,6 +223,7 @@ def distance(P1: Mat33Like, P2: Mat33Like) -> Scalar:
     """Geodesic distance `|log(P1ᵀ P2)|` ∈ [0, π] (the angle of the relative rotation); `P1`, `P2`
     are checked and orthogonalised as by `quat.from_matrix` (one compiled program)."""
     P1, P2 = matrix(P1, "P1"), matrix(P2, "P2")
+    broadcast_batch(P1=P1.shape[:-2], P2=P2.shape[:-2])
     return _distance(
         P1, P2, mode1=_quat_core._matrix_mode(P1, "P1"), mode2=_quat_core._matrix_mode(P2, "P2")
     )
@@ -265,7 +269,9 @@ def check_rotation(P: Mat33Like, atol: float = 1e-6, name: str = "P") -> Mat33:
     )
 
 
-def random(key: PRNGKeyArray, shape: tuple[int, ...] = (), dtype: DTypeLike | None = None) -> Mat33:
+def random(
+    key: PRNGKeyArray, shape: int | tuple[int, ...] = (), dtype: DTypeLike | None = None
+) -> Mat33:
     """Rotations uniformly distributed on SO(3) (Haar measure), from normalised Gaussian
-    quaternions."""
+    quaternions; `shape` as `quat.random`'s."""
     return quat.to_matrix(quat.random(key, shape, dtype))

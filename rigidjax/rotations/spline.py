@@ -25,13 +25,14 @@ rounding. Each sweep is a block Thomas solve (the system is block diagonally dom
 from __future__ import annotations
 
 import math
+import numbers
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._checks import as_float
+from .._checks import as_float, integer
 from .._custom_types import Mat33, QuatLike, RealLike, Vec3
 from .._numerics import inv3, poly
 from . import _series
@@ -191,6 +192,13 @@ class RotationSpline(eqx.Module):
     tol: float = eqx.field(static=True, default=1e-9)
 
     def __init__(self, ts: RealLike, q: QuatLike, max_iter: int = 10, tol: float = 1e-9):
+        max_iter = integer(max_iter, "max_iter")
+        real = isinstance(tol, numbers.Real) and not isinstance(tol, bool)
+        if not (real and math.isfinite(tol) and tol >= 0):
+            raise ValueError(
+                f"tol must be a finite number >= 0 (the sweeps' relative change; 0: all "
+                f"max_iter sweeps), got {tol!r}"
+            )
         times, keys = key_frames(ts, q)
         dt = jnp.diff(times)
         rotvecs = _to_rotvec(mul(conj(keys[:-1]), keys[1:]))

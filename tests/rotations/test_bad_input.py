@@ -505,3 +505,57 @@ def test_integrator_algebra_gains_no_checks():
         (euler.from_quat, (q,)),
     ]:
         assert _conds(f, *args) == 1, f
+
+
+# ------------------------------------------------------------ batches that do not broadcast
+
+A2, B3 = np.full((2, 3), 0.1), np.full((3, 3), 0.2)
+QA2, QB3 = np.asarray(quat.from_rotvec(A2)), np.asarray(quat.from_rotvec(B3))
+PA2, PB3 = np.asarray(so3.exp(A2)), np.asarray(so3.exp(B3))
+MISMATCHED = {
+    "so3.compose": (so3.compose, (A2, B3), r"phi \(2,\), psi \(3,\)"),
+    "so3.rotate": (so3.rotate, (A2, B3), r"theta \(2,\), a \(3,\)"),
+    "so3.distance": (so3.distance, (PA2, PB3), r"P1 \(2,\), P2 \(3,\)"),
+    "so3.angular_velocity": (so3.angular_velocity, (PA2, PB3), r"P \(2,\), P_dot \(3,\)"),
+    "quat.mul": (quat.mul, (QA2, QB3), r"a \(2,\), b \(3,\)"),
+    "quat.rotate": (quat.rotate, (QA2, B3), r"q \(2,\), v \(3,\)"),
+    "quat.slerp": (quat.slerp, (QA2, QA2, np.zeros(3)), r"a \(2,\), b \(2,\), t \(3,\)"),
+    "euler.rates_to_omega": (euler.rates_to_omega, (A2, B3), r"angles \(2,\), rates \(3,\)"),
+    "euler.omega_to_rates": (euler.omega_to_rates, (A2, B3), r"angles \(2,\), omega \(3,\)"),
+}
+
+
+@pytest.mark.parametrize("case", MISMATCHED, ids=list(MISMATCHED))
+def test_batches_that_do_not_broadcast_are_named(case):
+    """Two arguments whose leading dimensions do not broadcast: a ValueError naming both and
+    their batch shapes (it was JAX's own message about `mul`, `matmul` or an einsum label)."""
+    f, args, names = MISMATCHED[case]
+    with pytest.raises(ValueError, match=r"do not broadcast: " + names):
+        f(*args)
+    # broadcasting batches still broadcast: (2, 1) against (3,) gives (2, 3)
+    wide = [np.asarray(args[0])[:, None], *args[1:]]
+    if case == "quat.slerp":
+        wide[1] = QB3[0]  # (a (2, 1), b (), t (3,))
+    out = f(*wide)
+    assert out.shape[:2] == (2, 3)
+
+
+def test_random_takes_an_int_shape_as_scipy():
+    key = jax.random.key(0)
+    np.testing.assert_array_equal(quat.random(key, 3), quat.random(key, (3,)))
+    assert so3.random(key, 5).shape == (5, 3, 3)
+
+
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        (dict(tol=-1.0), r"tol must be a finite number >= 0.*got -1.0"),
+        (dict(tol=float("nan")), r"tol must be a finite number >= 0.*got nan"),
+        (dict(max_iter=0), r"max_iter must be a positive integer, got 0"),
+    ],
+)
+def test_rotation_spline_options_are_checked(kw, match):
+    from rigidjax import RotationSpline
+
+    with pytest.raises(ValueError, match=match):
+        RotationSpline(np.arange(3.0), np.asarray(quat.from_rotvec(B3)), **kw)
