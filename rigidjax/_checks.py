@@ -266,6 +266,18 @@ def check_positive(x: Array, name: str) -> Array:
     )
 
 
+def check_nonnegative(x: Array, name: str, what: str, hint: str = "") -> Array:
+    """`x`, checked to be non-negative and finite everywhere (see `validate`); `what`, its kind
+    (a unit, "a length"), goes into the message."""
+    return validate(
+        x,
+        lambda xp, v: ~((v >= 0) & xp.isfinite(v)),
+        f"{name} must be non-negative and finite ({what})",
+        lambda v: f", got {v}" if v.ndim == 0 else f", got min {np.min(v)}",
+        hint=hint,
+    )
+
+
 def norm_tolerance(dtype: DTypeLike) -> float:
     """Tolerance of the checks of unit quaternions and vectors and of rotation matrices: 1e-6 in
     float64, 1e-4 in lower precision."""

@@ -43,7 +43,15 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, PRNGKeyArray
 
-from ._checks import as_float, broadcast_batch, broadcast_level, check_finite, validate, vector
+from ._checks import (
+    as_float,
+    broadcast_batch,
+    broadcast_level,
+    check_finite,
+    check_nonnegative,
+    validate,
+    vector,
+)
 from ._custom_types import RealLike
 from .rotations import quat
 
@@ -89,13 +97,8 @@ def normals(key: KeyLike, batch: tuple[int, ...], shape: tuple[int, ...], dtype)
 
 
 def _level(x: RealLike, name: str, unit: str) -> Array:
-    x = as_float(x, name)
-    return validate(
-        x,
-        lambda xp, v: ~((v >= 0) & xp.isfinite(v)),
-        f"{name} must be non-negative and finite ({unit})",
-        lambda v: f", got {v}" if v.ndim == 0 else f", got min {np.min(v)}",
-        hint=f"; give the noise level {name} ≥ 0",
+    return check_nonnegative(
+        as_float(x, name), name, unit, hint=f"; give the noise level {name} ≥ 0"
     )
 
 

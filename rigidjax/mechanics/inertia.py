@@ -24,6 +24,8 @@ from jaxtyping import Array, Bool
 from .._checks import (
     as_float,
     attach_check,
+    check_nonnegative,
+    check_positive,
     check_shape,
     floats,
     inertia_rtol,
@@ -93,6 +95,7 @@ def _sym(a: Vec3) -> Mat33:
 def _points(masses: RealLike, positions: RealLike) -> tuple[Array, Array]:
     """`masses (..., N)` and `positions (..., N, 3)` checked and broadcast together."""
     m, x = floats((masses, "masses"), (positions, "positions"))
+    m = check_nonnegative(m, "masses", "a mass")
     check_shape(x, (3,), "positions")
     if x.ndim < 2:
         raise ValueError(f"positions must have shape (..., N, 3), got {tuple(x.shape)}")
@@ -128,23 +131,33 @@ def center_of_mass(
 # --------------------------------------------------------------------------- primitives
 
 
+def _body(mass: ScalarLike, *lengths: tuple[RealLike, str]) -> list[Array]:
+    """`mass` and the `(length, name)` pairs as float arrays of one dtype (`floats`), the mass
+    checked to be positive and the lengths non-negative (a clear error naming the argument)."""
+    m, *ls = floats((mass, "mass"), *lengths)
+    checked = [
+        check_nonnegative(x, name, "a length") for x, (_, name) in zip(ls, lengths, strict=True)
+    ]
+    return [check_positive(m, "mass"), *checked]
+
+
 def solid_sphere(mass: ScalarLike, radius: ScalarLike) -> Mat33:
     """Homogeneous ball about its centre: `I = 2/5 m r² E`."""
-    m, r = floats((mass, "mass"), (radius, "radius"))
+    m, r = _body(mass, (radius, "radius"))
     i = 0.4 * m * r**2
     return _diag(i, i, i)
 
 
 def spherical_shell(mass: ScalarLike, radius: ScalarLike) -> Mat33:
     """Thin spherical shell about its centre: `I = 2/3 m r² E`."""
-    m, r = floats((mass, "mass"), (radius, "radius"))
+    m, r = _body(mass, (radius, "radius"))
     i = (2.0 / 3.0) * m * r**2
     return _diag(i, i, i)
 
 
 def _pairwise_squares(mass: ScalarLike, lengths: Vec3Like, name: str, divisor: float) -> Mat33:
     """`diag(b² + c², a² + c², a² + b²) m/divisor` for `lengths = (a, b, c)` (..., 3)."""
-    m, s = floats((mass, "mass"), (lengths, name))
+    m, s = _body(mass, (lengths, name))
     check_shape(s, (3,), name)
     a2, b2, c2 = s[..., 0] ** 2, s[..., 1] ** 2, s[..., 2] ** 2
     k = m / divisor
@@ -160,7 +173,7 @@ def box(mass: ScalarLike, size: Vec3Like) -> Mat33:
 def solid_cylinder(mass: ScalarLike, radius: ScalarLike, height: ScalarLike) -> Mat33:
     """Homogeneous solid cylinder, axis z, about its centre:
     `I_zz = ½ m r²`, `I_xx = I_yy = m (3 r² + h²)/12`."""
-    m, r, h = floats((mass, "mass"), (radius, "radius"), (height, "height"))
+    m, r, h = _body(mass, (radius, "radius"), (height, "height"))
     i = m * (3.0 * r**2 + h**2) / 12.0
     return _diag(i, i, 0.5 * m * r**2)
 
@@ -168,7 +181,7 @@ def solid_cylinder(mass: ScalarLike, radius: ScalarLike, height: ScalarLike) -> 
 def rod(mass: ScalarLike, length: ScalarLike) -> Mat33:
     """Thin rod along z about its centre: `I_xx = I_yy = m L²/12`, `I_zz = 0` — the "rotator"
     of Zegrya–Parshin (004). Singular: not accepted by `check_inertia` (no inverse)."""
-    m, L = floats((mass, "mass"), (length, "length"))
+    m, L = _body(mass, (length, "length"))
     i = m * L**2 / 12.0
     return _diag(i, i, jnp.zeros_like(i))
 
@@ -183,7 +196,7 @@ def solid_cone(mass: ScalarLike, radius: ScalarLike, height: ScalarLike) -> Mat3
     """Homogeneous solid right circular cone, axis z, about its centre of mass (which lies on
     the axis at h/4 from the base: base at z = −h/4, apex at z = +3h/4):
     `I_zz = 3/10 m r²`, `I_xx = I_yy = 3/20 m r² + 3/80 m h²`."""
-    m, r, h = floats((mass, "mass"), (radius, "radius"), (height, "height"))
+    m, r, h = _body(mass, (radius, "radius"), (height, "height"))
     i = 0.15 * m * r**2 + 0.0375 * m * h**2
     return _diag(i, i, 0.3 * m * r**2)
 

@@ -301,6 +301,39 @@ def test_collinear_body_is_a_rotator(rng):
         ri.check_inertia(I)
 
 
+# ------------------------------------------------------------------ builders' own checks
+
+_UNPHYSICAL = [
+    (lambda: ri.solid_sphere(-1.0, 1.0), r"mass must be positive and finite, got -1.0"),
+    (lambda: ri.spherical_shell(0.0, 1.0), r"mass must be positive and finite, got 0.0"),
+    (lambda: ri.solid_sphere(1.0, -1.0), r"radius must be non-negative .*a length.*, got -1.0"),
+    (lambda: ri.box(1.0, [1.0, -2.0, 3.0]), r"size must be non-negative .*got min -2.0"),
+    (lambda: ri.ellipsoid(1.0, [1.0, np.nan, 3.0]), r"semi_axes must be non-negative"),
+    (lambda: ri.solid_cylinder(1.0, 1.0, -0.5), r"height must be non-negative"),
+    (lambda: ri.rod(-2.0, 1.0), r"mass must be positive"),
+    (lambda: ri.solid_cone(1.0, -1.0, 1.0), r"radius must be non-negative"),
+    (lambda: ri.point_masses([1.0, -1.0], np.ones((2, 3))), r"masses must be non-negative"),
+]
+
+
+@pytest.mark.parametrize("case", range(len(_UNPHYSICAL)))
+def test_builders_refuse_unphysical_masses_and_lengths(case):
+    """A negative mass gave a negative tensor and a negative length a valid-looking one
+    (r² > 0), without a word; now a ValueError naming the argument (`equinox.error_if` under
+    `jax.jit`)."""
+    build, match = _UNPHYSICAL[case]
+    with pytest.raises(ValueError, match=match):
+        build()
+
+
+def test_builders_check_traced_values_and_keep_degenerate_bodies():
+    with pytest.raises(Exception, match="mass must be positive"):
+        jax.block_until_ready(jax.jit(ri.solid_cylinder)(-1.0, 1.0, 1.0))
+    # zero lengths are bodies still (a disc, a massless point among others)
+    np.testing.assert_allclose(ri.solid_cylinder(2.0, 1.0, 0.0), np.diag([0.5, 0.5, 1.0]))
+    ri.point_masses([0.0, 1.0], np.eye(3)[:2])
+
+
 # ------------------------------------------------------------------ check_inertia
 
 _ASYM = np.array([[2.0, 0.1, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 2.0]])
