@@ -24,6 +24,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array
 
+from ._checks import check_nonnegative
 from ._custom_types import RealLike
 from .rotations import _quat_core
 
@@ -230,6 +231,7 @@ def settling_event(
             f"scalar tolerance (radians), got shapes {q_target.shape} and {tolerance.shape}"
         )
     q_target = _quat_core._unit(q_target, "q_target")  # (a zero or non-finite one: an error)
+    tolerance = check_nonnegative(tolerance, "tolerance", "radians")
     after = jnp.asarray(after)
     dtype = after.dtype if jnp.issubdtype(after.dtype, jnp.floating) else float
     batch = after.shape  # (a per-body event: every leaf leads with the batch)

@@ -24,8 +24,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ._checks import vector
-from ._custom_types import QuatLike, Scalar
+from ._checks import as_float, check_nonnegative, vector
+from ._custom_types import QuatLike, Scalar, ScalarLike
 from .events import flip_event
 from .mechanics import RigidBody, Trajectory, angular_momentum, energy
 from .mechanics.gyrostat import GyrostatTrajectory
@@ -153,7 +153,7 @@ def pointing_error(traj: Trajectory, q_target: QuatLike) -> Float[Array, "*batch
 
 
 def settling_bracket(
-    traj: Trajectory, q_target: QuatLike, tolerance: float
+    traj: Trajectory, q_target: QuatLike, tolerance: ScalarLike
 ) -> tuple[Scalar, Scalar]:
     """The samples around the settling: `(ts[i], ts[i + 1])`, `i` the last sample at which the
     pointing error (`pointing_error`) exceeds `tolerance` (radians), so that the last entry
@@ -161,6 +161,7 @@ def settling_bracket(
     exceeds it, `(ts[-1], inf)` if it does at the last sample (not settled within
     `traj.ts`); NaN states give NaN. `simulate(..., event=events.settling_event(q_target,
     tolerance, ts[i]))` locates the entry (`traj.event_t`), as `rigidjax sweep` does."""
+    tolerance = check_nonnegative(as_float(tolerance, "tolerance"), "tolerance", "radians")
     err = pointing_error(traj, q_target)
     T = err.shape[-1]
     last = jnp.max(jnp.where(err > tolerance, jnp.arange(T), -1), axis=-1)
@@ -175,7 +176,7 @@ def settling_bracket(
     return before, after
 
 
-def settling_time(traj: Trajectory, q_target: QuatLike, tolerance: float) -> Scalar:
+def settling_time(traj: Trajectory, q_target: QuatLike, tolerance: ScalarLike) -> Scalar:
     """First sample time after which the pointing error (`pointing_error`) stays within
     `tolerance` (radians) up to the last sample: `ts[i + 1]`, `i` the last sample outside;
     `ts[0]` if it never leaves, `inf` if the last sample is outside (it has not settled within

@@ -110,3 +110,16 @@ def test_wheel_observables_need_wheels_and_a_controller():
         obs.peak_wheel_speed(tr)
     with pytest.raises(ValueError, match="with a controller"):
         obs.saturation_count(tr, UMAX)
+
+
+def test_a_negative_settling_tolerance_is_named(loop):
+    """A negative tolerance is never met: `settling_time` gave `inf` without a word."""
+    for f in (obs.settling_time, lambda tr, q, tol: obs.settling_bracket(tr, q, tol)[0]):
+        with pytest.raises(ValueError, match=r"tolerance must be non-negative .*radians.*-0.01"):
+            f(loop, Q_T, -0.01)
+    with pytest.raises(ValueError, match=r"tolerance must be non-negative"):
+        rj.events.settling_event(Q_T, -0.01)
+    with pytest.raises(Exception, match="tolerance must be non-negative"):
+        jax.block_until_ready(jax.jit(lambda tol: obs.settling_time(loop, Q_T, tol))(-0.01))
+    # zero is a tolerance (exact pointing), and the traced call keeps its value
+    assert np.all(np.asarray(jax.jit(lambda tol: obs.settling_time(loop, Q_T, tol))(0.01)) > 0)
