@@ -67,7 +67,7 @@ def model_source(
     each jump records (`record`), `F` and `FT` (and the jump map `J` and `JT`, the step-end
     map `E` and `ET`, empty without one) as C++."""
     n, p, pc = hoisted.n, hoisted.p, hoisted.c.shape[0]
-    body_f, rates = program(hoisted.forward, "k", "f", n, p, pc)
+    body_f, rates = hoisted.forward_program
     # components whose rate is the constant 0 (a held command): the stages copy them
     still = ", ".join("true" if _is_const(x) and x == 0 else "false" for x in rates)
     body_b = _cotangent_program(hoisted.backward, "b", n, p, pc)

@@ -99,9 +99,15 @@ class Hoisted:
         return self.jaxpr(self.fn)
 
     @functools.cached_property
+    def forward_program(self) -> tuple[list[str], list]:
+        """The field's scalar program as C++ statements (the kernels' `F`) and its outputs,
+        unrolled once for both `operations` and the kernel's source."""
+        return program(self.forward, "k", "f", self.n, self.p, self.c.shape[0])
+
+    @functools.cached_property
     def operations(self) -> int:
         """The statements of the field's scalar program (the kernels' `F`): its size."""
-        return len(program(self.forward, "k", "f", self.n, self.p, self.c.shape[0])[0])
+        return len(self.forward_program[0])
 
     @functools.cached_property
     def backward(self):
