@@ -230,8 +230,8 @@ class Estimated(StatefulController):
         return u, new, log
 
 
-def _axes(x: RealLike, name: str, positive: bool) -> Array:
-    v = _level(x, name, positive)
+def _axes(x: RealLike, name: str, unit: str, positive: bool = False) -> Array:
+    v = _level(x, name, unit, positive)
     if v.shape not in ((), (3,)):
         raise ValueError(f"{name} must be a scalar or (3,) per body axis, got {v.shape}")
     return jnp.broadcast_to(v, (3,))
@@ -258,10 +258,11 @@ def estimated(
     (`key`: one PRNG key, split over the bodies, or one per body)."""
     if not callable(law):
         raise TypeError(f"law must be a callable law(t, omega, q, params) -> command, got {law!r}")
-    a, r, s = _axes(arw, "arw", False), _axes(rrw, "rrw", False), _axes(sigma, "sigma", True)
-    fa = a if filter_arw is None else _axes(filter_arw, "filter_arw", False)
-    fr = r if filter_rrw is None else _axes(filter_rrw, "filter_rrw", False)
-    fs = s if filter_sigma is None else _axes(filter_sigma, "filter_sigma", True)
+    a, r = _axes(arw, "arw", "rad/√s"), _axes(rrw, "rrw", "rad/s^1.5")
+    s = _axes(sigma, "sigma", "rad", positive=True)
+    fa = a if filter_arw is None else _axes(filter_arw, "filter_arw", "rad/√s")
+    fr = r if filter_rrw is None else _axes(filter_rrw, "filter_rrw", "rad/s^1.5")
+    fs = s if filter_sigma is None else _axes(filter_sigma, "filter_sigma", "rad", positive=True)
     dtype = jnp.result_type(a, r, s, fa, fr, fs)
     P = default_P0(dtype) if P0 is None else check_P0(P0)
     if P.shape != (6, 6):

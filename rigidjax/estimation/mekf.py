@@ -39,6 +39,7 @@ from .._checks import (
     broadcast_batch,
     broadcast_level,
     check_finite,
+    check_nonnegative,
     is_concrete,
     validate,
     validate_all,
@@ -166,7 +167,7 @@ def update(
     )
 
 
-def _level(x: RealLike, name: str, positive: bool) -> Array:
+def _level(x: RealLike, name: str, unit: str, positive: bool = False) -> Array:
     x = as_float(x, name)
     if positive:
         return validate(
@@ -174,15 +175,9 @@ def _level(x: RealLike, name: str, positive: bool) -> Array:
             lambda xp, v: ~((v > 0) & xp.isfinite(v)),
             f"{name} must be positive and finite",
             lambda v: f", got {v}" if v.ndim == 0 else f", got min {np.min(v)}",
-            hint=f"; give the star tracker's noise {name} > 0 (rad)",
+            hint=f"; give the star tracker's noise {name} > 0 ({unit})",
         )
-    return validate(
-        x,
-        lambda xp, v: ~((v >= 0) & xp.isfinite(v)),
-        f"{name} must be non-negative and finite",
-        lambda v: f", got {v}" if v.ndim == 0 else f", got min {np.min(v)}",
-        hint=f"; give the gyro's noise level {name} ≥ 0",
-    )
+    return check_nonnegative(x, name, unit, hint=f"; give the gyro's noise level {name} ≥ 0")
 
 
 def default_P0(dtype) -> Float[Array, "6 6"]:
@@ -304,8 +299,8 @@ def mekf(
     )
     q0_ = _unit(check_finite(vector(q0, 4, "q0"), "q0"), "q0")
     b0 = jnp.zeros(3) if bias0 is None else check_finite(vector(bias0, 3, "bias0"), "bias0")
-    arw_, rrw_ = _level(arw, "arw", False), _level(rrw, "rrw", False)
-    sigma_ = _level(sigma, "sigma", True)
+    arw_, rrw_ = _level(arw, "arw", "rad/√s"), _level(rrw, "rrw", "rad/s^1.5")
+    sigma_ = _level(sigma, "sigma", "rad", positive=True)
     # the data's dtype (times, gyro, measurements, start): the noise levels, bias0 and P0 are
     # cast to it, so float32 data give float32 under x64 (a NumPy float64 level did promote)
     dtype = jnp.result_type(ts, gyro_, qm, q0_)
