@@ -12,7 +12,7 @@ constants (folded: `e_Z` selects a row of a matrix instead of multiplying by 0 a
 transposed Jacobian-vector product written the same way from the jaxpr of `jax.vjp`, and the
 tableau from Diffrax's coefficients.
 The same scalar program, evaluated with JAX on one array per component (`_components.Components`),
-is the Diffrax path's field (`field_components`), so the two cannot drift apart."""
+is the Diffrax path's field (`Hoisted.components`), so the two cannot drift apart."""
 
 from __future__ import annotations
 
