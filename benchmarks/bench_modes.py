@@ -1,17 +1,19 @@
 """What derivatives cost on each path, in both modes (issue 34): the value, the reverse-mode
 gradient (`jax.grad`) and the forward-mode Jacobian (`jax.jacfwd`) of one loss, on the CPU kernel
-(fixed RK4 steps) and on the Diffrax path (the default adaptive tolerances), with default
-options.
+(fixed RK4 steps), on the Diffrax path (the default adaptive tolerances), and with an event,
+whose derivatives run on the Diffrax path (one body's solve, mapped over the bodies), with
+default options.
 
 Problem: B bodies, principal moments (1.5, 2, 2.5) ± 10 %, Ω0 ~ N(0, 1)³, random unit
 quaternions, a damping torque `−g Ω` with a closed-over gain g, t ∈ [0, 2], 5 output times;
 RK4 at dt = 1e-2 on the kernel (B = 1000), rtol = atol = 1e-8 on the Diffrax path
-(B = 100). Loss: the sum of squares of the final rates. Gradient w.r.t. (moments (B, 3), g);
+(B = 100); with the event, a gravity-gradient torque instead, rtol = atol = 1e-8 (B = 16).
+Loss: the sum of squares of the final rates. Gradient w.r.t. (moments (B, 3), g);
 Jacobian of the final rates w.r.t. g (forward mode: one tangent).
 
 `--baseline DIR` runs the same measurements on another checkout of rigidjax (e.g. a `git
-worktree` of the last release) in a fresh process, in the same run: its reverse-mode times are
-the baseline of `grad_vs_baseline` (forward mode failed there with default options).
+worktree` of the last release) in a fresh process, in the same run: its times are
+the baseline of `value_vs_baseline`, `grad_vs_baseline` and `jacfwd_vs_baseline`.
 
 Usage
     python benchmarks/bench_modes.py [--repeats 5] [--baseline DIR]
@@ -49,13 +51,31 @@ from _harness import (  # noqa: E402
 import rigidjax as rj  # noqa: E402
 
 TS = jnp.linspace(0.0, 2.0, 5)
+E_Z = jnp.array([0.0, 0.0, 1.0])
 PATHS = {
     "kernel": (
         1000,
         dict(solver=rj.RK4(), stepsize_controller=diffrax.ConstantStepSize(), dt0=1e-2),
     ),
     "diffrax": (100, dict(rtol=1e-8, atol=1e-8)),
+    # a gravity-gradient torque and a terminating event (Ω1 = 0): the adaptive kernel runs the
+    # value, the Diffrax path (one body's solve, mapped) both derivatives
+    "event": (16, dict(rtol=1e-8, atol=1e-8, event=rj.Event(lambda t, w, q: w[0]))),
 }
+
+
+def _torque(path: str, g):
+    """The damping torque −g Ω, or (the events' path) g times the gravity-gradient torque
+    c × (I c), c = P(q)ᵀ e_Z, with the inertia of a body of moments (1.5, 2, 2.5)."""
+    if path != "event":
+        return lambda t, w, q: -g * w
+    moments = jnp.array([1.5, 2.0, 2.5])
+    return lambda t, w, q: (
+        g
+        * jnp.cross(
+            rj.quat.rotate(rj.quat.conj(q), E_Z), moments * rj.quat.rotate(rj.quat.conj(q), E_Z)
+        )
+    )
 
 
 def _problem(B: int, seed: int = 0):
@@ -74,8 +94,8 @@ def _measure(repeats: int, forward_mode: bool) -> dict:
     for path, (B, kw) in PATHS.items():
         moments, w0, q0 = _problem(B)
 
-        def rates(moments, g, w0=w0, q0=q0, kw=kw):
-            torque = lambda t, w, q: -g * w  # noqa: E731
+        def rates(moments, g, w0=w0, q0=q0, kw=kw, path=path):
+            torque = _torque(path, g)
             return rj.simulate(rj.RigidBody(moments), w0, q0, TS, torque=torque, **kw).omega[:, -1]
 
         def loss(moments, g, rates=rates):
@@ -105,8 +125,8 @@ def main() -> None:
     ap.add_argument("--baseline", type=Path, default=None, help="another checkout of rigidjax")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
-    if args.worker:  # the baseline checkout: reverse mode only
-        print(json.dumps(_measure(args.repeats, forward_mode=False)))
+    if args.worker:  # the baseline checkout
+        print(json.dumps(_measure(args.repeats, forward_mode=True)))
         return
     t0 = time.perf_counter()
     out: dict = {"machine": machine_info(), "load_average_start": load_average()}
@@ -118,14 +138,16 @@ def main() -> None:
             raise SystemExit(f"the baseline run failed:\n{proc.stderr[-2000:]}")
         out["baseline"] = {"checkout": str(args.baseline), "paths": base}
         for path, row in out["paths"].items():
-            for k in ("value", "grad"):
+            for k in ("value", "grad", "jacfwd"):
                 row[f"{k}_vs_baseline"] = row[k]["seconds"] / base[path][k]["seconds"]
     for path, row in out["paths"].items():
         line = ", ".join(
             f"{k} {row[k]['seconds'] * 1e3:.1f} ms" for k in ("value", "grad", "jacfwd")
         )
         extra = "".join(
-            f", {k} {row[k]:.2f}x" for k in ("value_vs_baseline", "grad_vs_baseline") if k in row
+            f", {k}_vs_baseline {row[f'{k}_vs_baseline']:.3g}x"
+            for k in ("value", "grad", "jacfwd")
+            if f"{k}_vs_baseline" in row
         )
         print(f"{path} ({row['bodies']} bodies): {line}{extra}")
     finish(out, args.out, t0)

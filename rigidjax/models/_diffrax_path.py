@@ -54,7 +54,8 @@ def method_of(options: SolveOptions) -> diffrax.AbstractSolver:
 
 class _Components(eqx.Module):
     """The model's field on the Diffrax path: the state is N component arrays `(B,)` (one body:
-    scalars), the parameters P components (scalars where shared); `field` is the scalar program
+    scalars), the parameters P components (scalars where shared), the constants Pc scalars;
+    `field` is the scalar program
     (`kernels.model.Hoisted.components`) or, for a field without one, the model's own field
     mapped over the bodies. The scalar program is one jitted call: traced once per solve, not
     once per stage and again per derivative of each (`jax.jacfwd` of the satellite, 16 bodies,
@@ -62,11 +63,13 @@ class _Components(eqx.Module):
 
     field: Callable
     scalar: bool = eqx.field(static=True)
+    apart: bool = eqx.field(static=True, default=False)  # `_materialized` (`APART_ABOVE`)
 
     def __call__(self, t, y, args):
         p, c = args
         if self.scalar:
-            return jax.jit(self.field)(t, y, p, c)
+            k = jax.jit(self.field)(t, y, p, c)
+            return _materialized(k) if self.apart else k
         ys = jnp.stack(y, axis=-1)
         # no parameters: an empty `(P = 0,)` row, as `joined` makes for the kernels
         ps = jnp.stack(jnp.broadcast_arrays(*p), axis=-1) if p else jnp.zeros((0,), ys.dtype)
@@ -74,6 +77,42 @@ class _Components(eqx.Module):
             return tuple(self.field(t, ys, ps))
         ps = jnp.broadcast_to(ps, (*ys.shape[:-1], ps.shape[-1]))
         return tuple(jnp.moveaxis(jax.vmap(self.field, in_axes=(None, 0, 0))(t, ys, ps), -1, 0))
+
+
+APART_ABOVE = 64
+"""One body's solve passes its stages through `_materialized` where the scalar program has more
+statements than this. `jax.jacfwd` of 100 bodies at rtol = atol = 1e-8 (`bench_modes.py`): the
+damping torque (47 statements) 1.4 ms as it is, 6.4 ms through it; the gravity-gradient torque
+with an event (110 statements, 16 bodies) 677 ms as it is, 2.2 ms through it."""
+
+
+@jax.custom_jvp
+def _materialized(k: tuple[Array, ...]) -> tuple[Array, ...]:
+    """The field's components `k` themselves; their tangents (and, transposed, cotangents)
+    go through one product with the identity, which XLA computes apart. Otherwise it fused
+    each stage's tangents into every consumer, the Runge–Kutta stages into each other, and
+    evaluated the whole chain again for each state component (`jax.jvp` of a gravity-gradient
+    torque, 4 bodies, Tsit5 on the Diffrax path: 239 ms, now 1.5 ms). A tangent that is not
+    finite makes every component's NaN."""
+    return _apart(k)
+
+
+def _apart(k: tuple[Array, ...]) -> tuple[Array, ...]:
+    """`k` itself, through a sort by the components' index (already in order): XLA fuses no
+    sort, so each component is computed once."""
+    st = jnp.stack(k)
+    key = jax.lax.broadcasted_iota(jnp.int32, st.shape, 0)
+    return tuple(jax.lax.sort((key, st), dimension=0, num_keys=1)[1])
+
+
+@_materialized.defjvp
+def _materialized_jvp(primals, tangents):
+    (k,), (dk,) = primals, tangents
+    k = _apart(k)
+    dk = jnp.stack(dk)
+    eye = jnp.eye(dk.shape[0], dtype=dk.dtype)
+    dk = jnp.tensordot(eye, dk, 1, precision=jax.lax.Precision.HIGHEST)
+    return k, tuple(dk)
 
 
 class _StepEnd(eqx.Module):
@@ -248,12 +287,17 @@ def solve_components(
     shared = p.shape[0] == 1
     comps = (lambda a: tuple(a[0])) if (single or shared) else (lambda a: tuple(a.T))
     y_init = tuple(y0[0]) if single else tuple(y0.T)
+    apart = single and hoisted is not None and hoisted.operations > APART_ABOVE
     ys, stats, result = solve_saved(
-        diffrax.ODETerm(_Components(field, hoisted is not None)),
+        diffrax.ODETerm(_Components(field, hoisted is not None, apart)),
         ts,
         y_init,
         options,
-        args=(comps(p), c),
+        # the constants as components too, split once here: indexed in the field, each
+        # stage's cotangent of `c` was a chain of pads that XLA fused with the whole transposed
+        # field, evaluated again for each pad (`jax.grad` of a gravity-gradient torque with a
+        # traced gain, 4 bodies, Tsit5: 188 ms, now 5 ms)
+        args=(comps(p), tuple(c)),
         step_end=_StepEnd(model.unit, model.end) if model.unit or model.end else None,
         norm=BatchMaxRMS(-1),
         event=None if event is None else event.on_state(stacked if single else columns),
